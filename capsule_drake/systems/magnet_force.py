@@ -1,0 +1,284 @@
+"""MagneticForce: pairwise point-dipole forces between magnets fixed to plant bodies."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import numpy as np
+from pydrake.autodiffutils import AutoDiffXd
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform_
+from pydrake.multibody.math import SpatialForce_
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce_
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import LeafSystem_, ValueProducer
+from pydrake.systems.scalar_conversion import TemplateSystem
+
+from capsule_drake.magnetics import (
+    DEFAULT_MIN_DISTANCE,
+    dipole_pair_interaction,
+    dipole_pair_interaction_float,
+)
+
+
+@dataclasses.dataclass
+class MagnetSpec:
+    """A permanent magnet rigidly attached to a body of a MultibodyPlant.
+
+    YAML-loadable (``yaml_load_typed``); every field has a default.
+    """
+
+    # Unique name; prefixes the per-magnet output ports (``<name>.B_B``).
+    name: str = "magnet"
+    # Name of the plant body that carries the magnet.
+    body: str = ""
+    # Model instance of ``body``; needed only when the body name is ambiguous.
+    model_instance: str = ""
+    # Magnet centre M in the body frame B (m).
+    p_BM: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # Magnetisation direction in the body frame B (normalised at construction).
+    axis_B: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 1.0])
+    # Dipole moment magnitude (A m^2), e.g. ``MagnetGeometry(...).moment()``.
+    moment: float = 0.0
+
+
+class _ResolvedMagnet(NamedTuple):
+    """A MagnetSpec bound to a plant: only indices and numbers, no plant reference."""
+
+    name: str
+    body_index: int
+    p_BM: tuple  # (3,) floats
+    m_B: tuple  # (3,) floats, moment vector in the body frame (A m^2)
+    applies_force: bool  # False if the body is welded to the world
+
+
+class _MagnetValues(NamedTuple):
+    """Per-context cache: everything the outputs need, one entry per magnet."""
+
+    R_WB: list  # body orientations (3x3)
+    B_W: list  # field of all other magnets at each magnet (T), world frame
+    tau_W: list  # torque about the magnet centre (N m), world frame
+    f_W: list  # force (N), world frame
+
+
+def _resolve_magnets(plant, magnets):
+    if not plant.is_finalized():
+        raise ValueError("MagneticForce needs a finalized MultibodyPlant")
+    names = [spec.name for spec in magnets]
+    if len(set(names)) != len(names):
+        raise ValueError(f"MagnetSpec names must be unique, got {names}")
+    welded = {int(body.index()) for body in plant.GetBodiesWeldedTo(plant.world_body())}
+    welded.add(int(plant.world_body().index()))
+    resolved = []
+    for spec in magnets:
+        if spec.model_instance:
+            instance = plant.GetModelInstanceByName(spec.model_instance)
+            body = plant.GetBodyByName(spec.body, instance)
+        else:
+            body = plant.GetBodyByName(spec.body)
+        axis = np.asarray(spec.axis_B, dtype=float).reshape(3)
+        norm = float(np.sqrt(axis @ axis))
+        if norm == 0.0:
+            raise ValueError(f"Magnet {spec.name!r}: axis_B must be nonzero")
+        p_BM = np.asarray(spec.p_BM, dtype=float).reshape(3)
+        m_B = axis * (float(spec.moment) / norm)
+        index = int(body.index())
+        resolved.append(
+            _ResolvedMagnet(
+                spec.name, index, tuple(p_BM), tuple(m_B), index not in welded
+            )
+        )
+    return tuple(resolved)
+
+
+@TemplateSystem.define("MagneticForce_", T_list=[float, AutoDiffXd])
+def MagneticForce_(T):
+    class Impl(LeafSystem_[T]):
+        """Magnetic forces and fields between magnets fixed to plant bodies.
+
+        Each magnet is a point dipole (``capsule_drake.magnetics``, after Mahoney
+        & Abbott, IJRR 2016) at a fixed point ``M`` of a body ``B``. For every
+        pair, the force and torque are summed onto both magnets, so any number of
+        magnets is supported (cost grows with the number of pairs).
+
+        .. pydrake_system::
+
+            name: MagneticForce
+            input_ports:
+            - body_poses
+            output_ports:
+            - applied_spatial_force
+            - <name>.B_B
+            - <name>.F_W
+
+        - ``body_poses``: ``list[RigidTransform]`` X_WB of every plant body;
+          connect from ``plant.get_body_poses_output_port()``.
+        - ``applied_spatial_force``: ``list[ExternallyAppliedSpatialForce]``,
+          one per magnet on a body that is not welded to the world: torque (N m)
+          and force (N) in world, applied at the magnet centre
+          (``p_BoBq_B = p_BM``), so the lever arm about the body origin and the
+          centre of mass is kept. Connect to the plant's
+          ``get_applied_spatial_force_input_port()``.
+        - ``<name>.B_B`` (3, T): field of all the other magnets at this magnet,
+          expressed in its body frame, what an on-board magnetometer at M reads.
+        - ``<name>.F_W`` (6, [torque N m; force N]): spatial force on this
+          magnet's body at the magnet centre, in world. Given for welded magnets
+          too; for an external magnet held by a robot this is the reaction wrench
+          the robot carries.
+
+        All outputs are computed once per context into a cache entry that
+        depends only on ``body_poses``. A discrete plant's ``body_poses`` does
+        not depend on its applied-force input, so this makes no algebraic loop.
+        Scalar types: float and AutoDiffXd (``ToAutoDiffXd()`` for
+        linearisation); the float path uses the scalar fast kernel.
+
+        Args:
+            plant: a finalized MultibodyPlant (any scalar type); only body
+                indices and welds are read, at construction.
+            magnets: list of MagnetSpec (unique names).
+            min_distance: guard radius (m) of the dipole model, see
+                ``capsule_drake.magnetics.dipole_field``.
+        """
+
+        def _construct(
+            self, plant, magnets, min_distance=DEFAULT_MIN_DISTANCE, converter=None
+        ):
+            Impl._setup(
+                self, _resolve_magnets(plant, magnets), min_distance, converter
+            )
+
+        def _construct_copy(self, other, converter=None):
+            Impl._setup(self, other._magnets, other._min_distance, converter)
+
+        def _setup(self, magnets, min_distance, converter):
+            LeafSystem_[T].__init__(self, converter)
+            self._magnets = magnets
+            self._min_distance = float(min_distance)
+            if T is float:
+                self._pair = dipole_pair_interaction_float
+                self._p_BM = [np.array(m.p_BM) for m in magnets]
+                self._m_B = [np.array(m.m_B) for m in magnets]
+            else:
+                self._pair = dipole_pair_interaction
+                self._p_BM = [np.array([T(x) for x in m.p_BM]) for m in magnets]
+                self._m_B = [np.array(m.m_B) for m in magnets]
+
+            self._body_poses_port = self.DeclareAbstractInputPort(
+                "body_poses", AbstractValue.Make([RigidTransform_[T]()])
+            )
+            self._cache = self.DeclareCacheEntry(
+                description="magnet fields and wrenches",
+                value_producer=ValueProducer(
+                    allocate=AbstractValue.Make(_MagnetValues([], [], [], [])).Clone,
+                    calc=self._calc_magnet_values,
+                ),
+                prerequisites_of_calc={self._body_poses_port.ticket()},
+            )
+            deps = {self._cache.ticket()}
+            self._applied_spatial_force_port = self.DeclareAbstractOutputPort(
+                "applied_spatial_force",
+                lambda: AbstractValue.Make([ExternallyAppliedSpatialForce_[T]()]),
+                self._calc_applied_spatial_force,
+                prerequisites_of_calc=deps,
+            )
+            self._B_B_ports = []
+            self._F_W_ports = []
+            for i, magnet in enumerate(magnets):
+                self._B_B_ports.append(
+                    self.DeclareVectorOutputPort(
+                        f"{magnet.name}.B_B",
+                        3,
+                        functools.partial(self._calc_B_B, i),
+                        prerequisites_of_calc=deps,
+                    )
+                )
+                self._F_W_ports.append(
+                    self.DeclareVectorOutputPort(
+                        f"{magnet.name}.F_W",
+                        6,
+                        functools.partial(self._calc_F_W, i),
+                        prerequisites_of_calc=deps,
+                    )
+                )
+
+        # --- port accessors -------------------------------------------------
+        def get_body_poses_input_port(self):
+            return self._body_poses_port
+
+        def get_applied_spatial_force_output_port(self):
+            return self._applied_spatial_force_port
+
+        def get_B_B_output_port(self, name):
+            return self._B_B_ports[self._index_of(name)]
+
+        def get_F_W_output_port(self, name):
+            return self._F_W_ports[self._index_of(name)]
+
+        def magnet_names(self):
+            return [m.name for m in self._magnets]
+
+        def min_distance(self):
+            return self._min_distance
+
+        def _index_of(self, name):
+            for i, magnet in enumerate(self._magnets):
+                if magnet.name == name:
+                    return i
+            raise KeyError(f"No magnet named {name!r}; have {self.magnet_names()}")
+
+        # --- calculations ---------------------------------------------------
+        def _calc_magnet_values(self, context, abstract_value):
+            poses = self._body_poses_port.Eval(context)
+            n = len(self._magnets)
+            R_WB, p_WM, m_W = [], [], []
+            for i, magnet in enumerate(self._magnets):
+                X_WB = poses[magnet.body_index]
+                R = X_WB.rotation().matrix()
+                R_WB.append(R)
+                p_WM.append(X_WB.translation() + R @ self._p_BM[i])
+                m_W.append(R @ self._m_B[i])
+            zero = np.zeros(3) if T is float else np.array([T(0.0)] * 3)
+            B_W = [zero] * n
+            tau_W = [zero] * n
+            f_W = [zero] * n
+            pair = self._pair
+            d_min = self._min_distance
+            for i in range(n):
+                for j in range(i + 1, n):
+                    # i is the source, j the target: p points from i to j.
+                    result = pair(m_W[i], m_W[j], p_WM[j] - p_WM[i], d_min)
+                    B_W[j] = B_W[j] + result.field_at_target
+                    B_W[i] = B_W[i] + result.field_at_source
+                    f_W[j] = f_W[j] + result.force_target
+                    tau_W[j] = tau_W[j] + result.torque_target
+                    f_W[i] = f_W[i] + result.force_source
+                    tau_W[i] = tau_W[i] + result.torque_source
+            abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W))
+
+        def _calc_applied_spatial_force(self, context, output):
+            values = self._cache.Eval(context)
+            forces = []
+            for i, magnet in enumerate(self._magnets):
+                if not magnet.applies_force:
+                    continue
+                force = ExternallyAppliedSpatialForce_[T]()
+                force.body_index = BodyIndex(magnet.body_index)
+                force.p_BoBq_B = self._p_BM[i]
+                force.F_Bq_W = SpatialForce_[T](values.tau_W[i], values.f_W[i])
+                forces.append(force)
+            output.set_value(forces)
+
+        def _calc_B_B(self, i, context, output):
+            values = self._cache.Eval(context)
+            output.SetFromVector(values.R_WB[i].T @ values.B_W[i])
+
+        def _calc_F_W(self, i, context, output):
+            values = self._cache.Eval(context)
+            output.SetFromVector(np.concatenate((values.tau_W[i], values.f_W[i])))
+
+    return Impl
+
+
+MagneticForce = MagneticForce_[None]
