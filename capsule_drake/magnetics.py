@@ -30,8 +30,6 @@ floats, no numpy temporaries) for the simulator's 1 kHz loop; the tests check th
 agrees with the generic path.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 from typing import NamedTuple

@@ -1,7 +1,5 @@
 """MagneticForce: pairwise point-dipole forces between magnets fixed to plant bodies."""
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 from typing import NamedTuple
