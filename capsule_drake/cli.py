@@ -1,2 +1,105 @@
-def main(argv=None):
-    raise SystemExit("not yet")
+"""capsule-sim: the command line. Parses arguments and calls `station` and `run`; nothing else."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="capsule-sim",
+        description="Magnetically actuated endoscopic capsule simulator (Drake).")
+    verbs = parser.add_subparsers(dest="verb", required=True)
+    run = verbs.add_parser(
+        "run", help="simulate a scenario and write its metrics and Meshcat recording",
+        description="Simulate a scenario. Writes metrics.json, scenario.yaml, logs.npz and "
+                    "recording.html (a self-contained Meshcat replay) into the output folder.")
+    run.add_argument("scenario_file", nargs="?", type=Path, default=DEFAULT_SCENARIO_FILE,
+                     help="YAML file of named scenarios (default: diagrams/default.yaml)")
+    run.add_argument("--scenario", metavar="NAME",
+                     help="which scenario in the file (default: the only one, or 'Default')")
+    run.add_argument("--scenario-text", metavar="YAML",
+                     help="YAML layered on top of the scenario, e.g. '{colon: {seed: 3}}'")
+    run.add_argument("--duration", type=float, metavar="S", help="simulated seconds")
+    run.add_argument("--meshcat", action="store_true",
+                     help="serve a live Meshcat page, pace the run to real time, and keep "
+                          "serving after the run until Ctrl-C")
+    run.add_argument("--port", type=int, default=7000, help="Meshcat port with --meshcat")
+    run.add_argument("--out", type=Path, metavar="DIR",
+                     help="output folder (default: runs/<scenario>-<date-time>)")
+    run.add_argument("--no-recording", action="store_true",
+                     help="skip the Meshcat recording (a little faster)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    return parser
+
+
+def _run(args) -> int:
+    if args.duration is not None and args.duration < 0:
+        raise ScenarioError(f"--duration must be >= 0, got {args.duration}")
+    scenario = load_scenario(args.scenario_file, args.scenario, args.scenario_text)
+    if args.duration is not None:
+        scenario = dataclasses.replace(scenario, duration=args.duration)
+
+    # Imported here so that `capsule-sim --help` and argument errors answer at once.
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from capsule_drake.run import simulate
+
+    meshcat = None
+    if args.meshcat:
+        meshcat = Meshcat(MeshcatParams(port=args.port))
+        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
+    elif not args.no_recording:
+        meshcat = Meshcat(MeshcatParams(port=0))
+    name = args.scenario or "run"
+    out_dir = args.out or Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
+                      realtime_rate=1.0 if args.meshcat else 0.0,
+                      progress=not args.quiet, live_meshcat=args.meshcat)
+    m = result.metrics
+    if "advance_m" in m:
+        print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
+              f"{m['start_s_m'] * 100:.1f} cm to s = {m['final_s_m'] * 100:.1f} cm of "
+              f"{m['colon_length_m'] * 100:.1f} cm; stopped in the {m['stop_segment']}")
+        print(f"simulated {m['sim_time_s']:.2f} s in {m['wall_time_s']:.2f} s "
+              f"(x{m['real_time_factor']:.2f} real time); peak contact force "
+              f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
+              f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
+              f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    if m.get("stopped_early"):
+        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
+    print(f"outputs in {out_dir}/ (metrics.json"
+          f"{', recording.html' if meshcat is not None else ''})")
+    if args.meshcat:
+        print("serving Meshcat; Ctrl-C to quit", file=sys.stderr)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 1 if m.get("stopped_early") and "error" in m["stopped_early"] else 0
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.verb == "run":
+            return _run(args)
+    except ScenarioError as e:
+        print(f"capsule-sim: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("capsule-sim: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

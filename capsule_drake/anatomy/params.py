@@ -1,0 +1,178 @@
+"""Typed, YAML-loadable parameters of the procedural colon.
+
+Status tags follow the project reference: V = checked in a primary source, S = secondary
+source, U = engineering assumption. Every length is in metres, every angle in radians unless
+the field name says otherwise.
+
+Sources (numbers quoted in the project reference, section "Colon anatomy"):
+  - total length 150 +- 19 cm (110-196), CT colonography, n = 295 (V).
+  - haustral fold height: ascending 14.6, transverse 9.5, descending 6.5 mm (V).
+  - segment lengths: cecum 6-8, ascending 15-20, transverse 45-50, descending ~25,
+    sigmoid 35-45, rectum 12-15 cm (U).
+  - diameters: cecum < 9 cm, ascending ~46 mm, transverse < 6 cm, descending ~29 mm,
+    sigmoid 25-40 mm (S/U).
+  - fold spacing 2-4 cm, sigmoid with few haustra, 3 taeniae (U/S).
+  - abdomen ~20-25 cm front to back supine; depth of the transverse colon ~3-8 cm,
+    ascending/descending ~8-12 cm, sigmoid/rectum ~10-15 cm (U).
+"""
+
+from dataclasses import dataclass, field
+
+SEGMENT_NAMES = ("rectum", "sigmoid", "descending", "transverse", "ascending", "cecum")
+"""Segments in the order met from the anus (s = 0) to the cecal pole."""
+
+
+@dataclass
+class SegmentParams:
+    """Dimensions of one colon segment. Lengths are sampled per patient from [min, max]."""
+
+    # Shortest arc length of the segment's centreline [m]; source per segment below.
+    length_min: float = 0.15
+    # Longest arc length of the segment's centreline [m].
+    length_max: float = 0.20
+    # Nominal lumen diameter (distended) [m].
+    diameter: float = 0.04
+    # Haustral fold height as measured (before `ColonParams.fold_height_scale`) [m].
+    fold_height: float = 0.0
+    # Smallest axial distance between consecutive haustral folds [m].
+    fold_spacing_min: float = 0.02
+    # Largest axial distance between consecutive haustral folds [m].
+    fold_spacing_max: float = 0.04
+    # True where the three taeniae run (haustra are crescents between them); the taeniae
+    # spread into a continuous layer on the rectum (S).
+    has_taeniae: bool = True
+
+
+def _rectum() -> SegmentParams:
+    # Length 12-15 cm (U). Diameter 40 mm: not in the reference, assumed for a distended
+    # ampulla (U). No haustra: the rectal valves are modelled separately (ColonParams).
+    return SegmentParams(
+        length_min=0.12, length_max=0.15, diameter=0.040, fold_height=0.0,
+        fold_spacing_min=1.0, fold_spacing_max=1.0, has_taeniae=False)
+
+
+def _sigmoid() -> SegmentParams:
+    # Length 35-45 cm (U); diameter 25-40 mm, 32 mm used (S/U). "Few haustra" (S): wide
+    # spacing 5-8 cm (U); fold height 5 mm, below the descending 6.5 mm (U).
+    return SegmentParams(
+        length_min=0.35, length_max=0.45, diameter=0.032, fold_height=0.005,
+        fold_spacing_min=0.05, fold_spacing_max=0.08)
+
+
+def _descending() -> SegmentParams:
+    # Length ~25 cm, sampled 23-27 cm (U); diameter ~29 mm (S); folds 6.5 mm (V);
+    # spacing 2-4 cm (U).
+    return SegmentParams(
+        length_min=0.23, length_max=0.27, diameter=0.029, fold_height=0.0065,
+        fold_spacing_min=0.02, fold_spacing_max=0.04)
+
+
+def _transverse() -> SegmentParams:
+    # Length 45-50 cm, the longest (U); diameter < 6 cm, 50 mm used (S/U); folds 9.5 mm
+    # (V); spacing 2-4 cm (U).
+    return SegmentParams(
+        length_min=0.45, length_max=0.50, diameter=0.050, fold_height=0.0095,
+        fold_spacing_min=0.02, fold_spacing_max=0.04)
+
+
+def _ascending() -> SegmentParams:
+    # Length 15-20 cm (U); diameter ~46 mm (S); folds 14.6 mm (V); spacing 2-4 cm (U).
+    return SegmentParams(
+        length_min=0.15, length_max=0.20, diameter=0.046, fold_height=0.0146,
+        fold_spacing_min=0.02, fold_spacing_max=0.04)
+
+
+def _cecum() -> SegmentParams:
+    # Length 6-8 cm (U); the widest segment, < 9 cm: 70 mm used (S/U); fold height taken
+    # as the ascending colon's 14.6 mm (U); spacing 2-3 cm (U).
+    return SegmentParams(
+        length_min=0.06, length_max=0.08, diameter=0.070, fold_height=0.0146,
+        fold_spacing_min=0.02, fold_spacing_max=0.03)
+
+
+@dataclass
+class AbdomenParams:
+    """Anterior abdominal wall of a supine patient (table top z = 0, +y toward the head)."""
+
+    # Skin height above the table at the umbilicus = front-to-back size [m]; 20-25 cm (U).
+    depth_at_umbilicus: float = 0.22
+    # Skin height above the table at the pubic symphysis [m] (U).
+    depth_at_pubis: float = 0.175
+    # Skin height above the table at the xiphoid [m] (U).
+    depth_at_xiphoid: float = 0.20
+    # Height of the flank line (widest point of the torso cross-section) [m] (U).
+    flank_height: float = 0.10
+    # Half width of the torso at the flank line [m] (U).
+    half_width: float = 0.17
+    # y of the umbilicus [m]; the world origin is placed there (convention).
+    umbilicus_y: float = 0.0
+    # y of the pubic symphysis [m] (U).
+    pubis_y: float = -0.17
+    # y of the xiphoid process [m] (U).
+    xiphoid_y: float = 0.20
+    # y range of the displayed torso mesh [m] (display only).
+    torso_y_min: float = -0.26
+    torso_y_max: float = 0.30
+
+
+@dataclass
+class ColonParams:
+    """Everything that defines one procedural colon. Same params -> same colon."""
+
+    # Patient seed: segment lengths, landmark jitter and fold placement derive from it.
+    seed: int = 0
+
+    rectum: SegmentParams = field(default_factory=_rectum)
+    sigmoid: SegmentParams = field(default_factory=_sigmoid)
+    descending: SegmentParams = field(default_factory=_descending)
+    transverse: SegmentParams = field(default_factory=_transverse)
+    ascending: SegmentParams = field(default_factory=_ascending)
+    cecum: SegmentParams = field(default_factory=_cecum)
+
+    # Multiplies every measured fold height: an insufflated colon during a procedure has
+    # lower folds than the measured ones [-] (U).
+    fold_height_scale: float = 0.5
+    # Per-fold random height factor is uniform in [1 - jitter, 1 + jitter] [-] (U).
+    fold_height_jitter: float = 0.25
+    # Half width of a haustral fold's raised-cosine axial profile [m]: folds are ~1 cm
+    # wide at the base (U).
+    fold_half_width: float = 0.006
+    # Random axial shift of each crescent relative to its neighbours around the lumen:
+    # haustra of the three sectors are staggered [m] (U).
+    fold_stagger: float = 0.004
+    # Taeniae: angle of the first band in the rotation-minimising frame [rad] (U); the
+    # other two follow at +120 and +240 degrees (S).
+    taenia_angle: float = 0.5
+    # Height of the inward ridge along each taenia [m] (U).
+    taenia_height: float = 0.001
+    # Width (Gaussian sigma, along the wall) of the taenia ridge [m]; bands are ~8 mm (U).
+    taenia_width: float = 0.003
+    # Rectal (Houston) valves: distances from the anus [m]; three valves at ~5-11 cm (S/U).
+    rectal_valve_positions: list[float] = field(
+        default_factory=lambda: [0.055, 0.08, 0.105])
+    # Rectal valve height before `fold_height_scale` [m] (U).
+    rectal_valve_height: float = 0.008
+    # Distance over which the nominal radius blends between segments [m] (U).
+    radius_blend_length: float = 0.04
+
+    # Standard deviation of the random offset of every course landmark [m] (U).
+    landmark_jitter: float = 0.008
+    # Centreline sampling step [m].
+    centerline_step: float = 0.001
+
+    # Collision mesh: axial step between rings [m] and vertices per ring.
+    collision_axial_step: float = 0.003
+    collision_points_around: int = 32
+    # Visual mesh: axial step between rings [m] and vertices per ring.
+    visual_axial_step: float = 0.0015
+    visual_points_around: int = 64
+    # Number of OBJ files the collision tube is split into along its length.
+    collision_chunks: int = 15
+
+    abdomen: AbdomenParams = field(default_factory=AbdomenParams)
+
+    def segment(self, name: str) -> SegmentParams:
+        """The parameters of the segment called `name` (one of SEGMENT_NAMES)."""
+        if name not in SEGMENT_NAMES:
+            raise KeyError(f"unknown colon segment {name!r}")
+        return getattr(self, name)

@@ -1,0 +1,95 @@
+"""What a run achieved, computed from its logs and the colon's ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RotationMatrix
+
+from capsule_drake.epm_path import skin_gap
+
+
+def capsule_surface_points_C(radius: float, length: float, n_around: int = 12) -> np.ndarray:
+    """Points on a capsule's surface in its own frame (axis z, cylinder of `length`).
+
+    Rings on the cylinder and on both hemispherical caps: the extreme points in every direction
+    that matters for how far the capsule reaches past the wall (the farthest point of a convex
+    body in direction n is on one of these rings, up to the ring spacing).
+    """
+    angles = np.linspace(0.0, 2.0 * np.pi, n_around, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)])
+    points = []
+    half = 0.5 * length
+    for z in (-half, 0.0, half):
+        points.append(radius * ring + [0.0, 0.0, z])
+    for sign in (-1.0, 1.0):
+        for elevation in np.deg2rad([30.0, 60.0]):
+            cap = radius * np.column_stack([np.cos(elevation) * ring[:, 0],
+                                            np.cos(elevation) * ring[:, 1],
+                                            np.full(n_around, sign * np.sin(elevation))])
+            points.append(cap + [0.0, 0.0, sign * half])
+        points.append([[0.0, 0.0, sign * (half + radius)]])
+    return np.vstack(points)
+
+
+def capsule_poses(state_log: np.ndarray):
+    """Rotation matrices (K, 3, 3) and positions (K, 3) from logged capsule states (13, K)."""
+    q = state_log[:4].T
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    R = np.array([RotationMatrix(Quaternion(w, x, y, z)).matrix() for w, x, y, z in q])
+    return R, state_log[4:7].T.copy()
+
+
+def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarray) -> np.ndarray:
+    """Per pose, how far the capsule reaches beyond the colon wall (m; <= 0 means inside)."""
+    points_W = np.einsum("kij,nj->kni", R_WC, points_C) + p_WC[:, None, :]
+    excursion = colon.excursion(points_W.reshape(-1, 3)).reshape(len(p_WC), len(points_C))
+    return excursion.max(axis=1)
+
+
+def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule_radius,
+                capsule_length, epm_geometry, start_s, wall_time, stopped_early=None):
+    """Metrics of one run as a JSON-ready dict.
+
+    Args:
+        colon: the run's Colon (centerline and wall ground truth).
+        times: (K,) log times (s).
+        capsule_state: (13, K) capsule state log [quaternion wxyz, p_WC, w, v].
+        contact_load: (K,) summed contact force magnitudes (N).
+        epm_state: (10, K) stage state log [x y z yaw pitch, rates].
+        capsule_radius, capsule_length: capsule collision shape (m).
+        epm_geometry: MagnetGeometry of the EPM (for its clearance to the skin).
+        start_s: the scenario's start arc length (m).
+        wall_time: seconds of wall-clock time the simulation took.
+        stopped_early: None, or why the run ended before its duration.
+    """
+    R_WC, p_WC = capsule_poses(capsule_state)
+    s, _, _ = colon.centerline.closest(p_WC)
+    excursion = wall_excursion(colon, R_WC, p_WC, capsule_surface_points_C(capsule_radius,
+                                                                           capsule_length))
+    final_s = float(s[-1])
+    sim_time = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+
+    x, y, z, yaw, pitch = epm_state[:5]
+    m_hat = np.stack([np.cos(yaw) * np.sin(pitch), np.sin(yaw) * np.sin(pitch), np.cos(pitch)])
+    gaps = [skin_gap(colon, (x[k], y[k], z[k]), m_hat[:, k], epm_geometry)
+            for k in range(0, len(times), max(1, len(times) // 400))]
+    distance = np.linalg.norm(epm_state[:3].T - p_WC, axis=1)
+    return {
+        "start_s_m": float(s[0]),
+        "scenario_start_s_m": float(start_s),
+        "final_s_m": final_s,
+        "max_s_m": float(np.max(s)),
+        "advance_m": final_s - float(s[0]),
+        "stop_segment": colon.centerline.segment_at(final_s),
+        "colon_length_m": float(colon.centerline.s[-1]),
+        "sim_time_s": sim_time,
+        "wall_time_s": float(wall_time),
+        "real_time_factor": sim_time / wall_time if wall_time > 0 else None,
+        "peak_contact_force_N": float(np.max(contact_load)) if len(contact_load) else 0.0,
+        "max_wall_excursion_m": float(np.max(excursion)),
+        "time_of_max_wall_excursion_s": float(times[int(np.argmax(excursion))]),
+        "min_epm_skin_gap_m": float(np.min(gaps)),
+        "min_epm_capsule_distance_m": float(np.min(distance)),
+        "stopped_early": stopped_early,
+    }

@@ -1,0 +1,160 @@
+"""Simulate a built station: logging, pacing, progress, and the run's output folder."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Capsule
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from capsule_drake.metrics import run_metrics
+from capsule_drake.scenario import Scenario, dump_scenario
+from capsule_drake.station import CAPSULE_BODY, colon_for, make_station
+from capsule_drake.systems.contact_monitor import ContactMonitor
+
+
+@dataclass
+class RunResult:
+    """What `simulate` returns: metrics and the raw logs they were computed from."""
+
+    metrics: dict
+    times: np.ndarray          # (K,) s
+    capsule_state: np.ndarray  # (13, K)
+    contact_load: np.ndarray   # (K,) N
+    epm_state: np.ndarray      # (10, K)
+    out_dir: Path | None
+
+
+class Progress:
+    """A one-line progress bar on stderr (plain lines every 10 % when not a terminal)."""
+
+    def __init__(self, total: float, enabled: bool = True, stream=sys.stderr):
+        self.total = max(total, 1e-9)
+        self.enabled = enabled
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.start = time.perf_counter()
+        self._last_decile = -1
+
+    def update(self, t: float):
+        if not self.enabled:
+            return
+        fraction = min(1.0, t / self.total)
+        elapsed = time.perf_counter() - self.start
+        rate = t / elapsed if elapsed > 0 else 0.0
+        line = f"{t:7.2f} / {self.total:.2f} s sim  {elapsed:6.1f} s wall  x{rate:4.1f} real time"
+        if self.tty:
+            bar = "#" * int(30 * fraction)
+            self.stream.write(f"\r[{bar:<30}] {line}")
+            self.stream.flush()
+        elif int(fraction * 10) > self._last_decile:
+            self._last_decile = int(fraction * 10)
+            self.stream.write(f"[{int(fraction * 100):3d} %] {line}\n")
+
+    def close(self):
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+
+
+def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
+             realtime_rate: float = 0.0, progress: bool = True,
+             live_meshcat: bool = False) -> RunResult:
+    """Builds the station for `scenario`, runs it for `scenario.duration` and scores it.
+
+    Args:
+        meshcat: a pydrake Meshcat to draw into and record, or None.
+        out_dir: if given, writes metrics.json, scenario.yaml, logs.npz and (with meshcat)
+            recording.html there. A simulation error or Ctrl-C still writes what was logged.
+        realtime_rate: 0 runs as fast as possible; 1 paces to wall-clock time.
+        progress: show a progress bar on stderr.
+        live_meshcat: keep drawing while recording (for a user watching the live page).
+    """
+    colon = colon_for(scenario)
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
+    builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
+    capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder,
+                                  scenario.log_period)
+    contact_log = LogVectorOutput(monitor.get_output_port(), builder, scenario.log_period)
+    epm_log = LogVectorOutput(station.GetOutputPort("epm.state"), builder, scenario.log_period)
+    diagram = builder.Build()
+
+    plant = station.GetSubsystemByName("plant")
+    scene_graph = station.GetSubsystemByName("scene_graph")
+    capsule_radius, capsule_length = _capsule_dimensions(plant, scene_graph)
+
+    simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
+    if meshcat is not None:
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.visual_period,
+                               set_visualizations_while_recording=live_meshcat)
+    bar = Progress(scenario.duration, enabled=progress)
+    stopped_early = None
+    wall_start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        chunk = max(scenario.duration / 200.0, 0.05)
+        t = 0.0
+        while t < scenario.duration - 1e-12:
+            t = min(scenario.duration, t + chunk)
+            simulator.AdvanceTo(t)
+            bar.update(t)
+    except KeyboardInterrupt:
+        stopped_early = f"interrupted at t = {simulator.get_context().get_time():.3f} s"
+    except RuntimeError as e:
+        stopped_early = (f"simulation error at t = {simulator.get_context().get_time():.3f} s: "
+                         f"{str(e).splitlines()[0]}")
+    finally:
+        bar.close()
+    wall_time = time.perf_counter() - wall_start
+
+    context = simulator.get_context()
+    logs = [log.FindLog(context) for log in (capsule_log, contact_log, epm_log)]
+    times = logs[0].sample_times()
+    result = RunResult(metrics={}, times=times, capsule_state=logs[0].data(),
+                       contact_load=logs[1].data()[0], epm_state=logs[2].data(),
+                       out_dir=Path(out_dir) if out_dir is not None else None)
+    if len(times) > 0:
+        result.metrics = run_metrics(
+            colon, times, result.capsule_state, result.contact_load, result.epm_state,
+            capsule_radius=capsule_radius, capsule_length=capsule_length,
+            epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
+            wall_time=wall_time, stopped_early=stopped_early)
+    else:
+        result.metrics = {"stopped_early": stopped_early, "wall_time_s": wall_time}
+
+    if meshcat is not None:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+    if result.out_dir is not None:
+        _write_outputs(result, scenario, meshcat)
+    return result
+
+
+def _capsule_dimensions(plant, scene_graph):
+    """Radius and cylinder length of the capsule's collision shape."""
+    inspector = scene_graph.model_inspector()
+    for geometry_id in plant.GetCollisionGeometriesForBody(plant.GetBodyByName(CAPSULE_BODY)):
+        shape = inspector.GetShape(geometry_id)
+        if isinstance(shape, Capsule):
+            return shape.radius(), shape.length()
+    raise RuntimeError("the capsule model has no Capsule collision shape")
+
+
+def _write_outputs(result: RunResult, scenario: Scenario, meshcat):
+    out = result.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out / "logs.npz", times=result.times, capsule_state=result.capsule_state,
+                        contact_load=result.contact_load, epm_state=result.epm_state)
+    (out / "scenario.yaml").write_text(dump_scenario(scenario))
+    (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+    if meshcat is not None:
+        (out / "recording.html").write_text(meshcat.StaticHtml())

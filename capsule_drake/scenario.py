@@ -1,0 +1,243 @@
+"""Scenario: everything that defines one simulation, as typed dataclasses loaded from YAML.
+
+A scenario file holds one or more named scenarios as top-level keys:
+
+    Default: {}
+    FarMagnet:
+      epm:
+        path: !HoldAbove {height: 0.5}
+
+Every field has a default, so `Default: {}` is a complete scenario. Unknown keys, wrong types
+and missing files raise `ScenarioError` with one line naming the file and the key.
+Units are SI throughout (metres, seconds, newtons, tesla, A m^2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+from capsule_drake.anatomy import ColonParams
+from capsule_drake.magnetics import MagnetGeometry
+from capsule_drake.schema import SchemaError, check, parse_yaml
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DIAGRAMS_DIR = REPO_ROOT / "diagrams"
+DEFAULT_SCENARIO_FILE = DIAGRAMS_DIR / "default.yaml"
+
+
+class ScenarioError(ValueError):
+    """A scenario file or override is wrong; the message is one line naming where."""
+
+
+@dataclass
+class ContactConfig:
+    """How the capsule touches the colon wall."""
+
+    # "hydroelastic": the colon wall is a rigid non-convex triangle mesh split into chunks and
+    # the capsule a compliant hydroelastic capsule (REFERENCE section 6: the measured design
+    # that keeps the capsule within ~0.7 mm of the wall at 1 ms steps).
+    model: str = "hydroelastic"
+    # Hydroelastic modulus of the capsule's compliant layer (Pa). 5e6 keeps the penetration
+    # under a 1 N load near 0.6 mm (measured, REFERENCE section 6). Engineering assumption.
+    capsule_hydroelastic_modulus: float = 5.0e6
+    # Edge length of the capsule's tetrahedral pressure mesh (m). Finer costs query time.
+    capsule_resolution_hint: float = 0.004
+    # Hunt-Crossley dissipation of the contact (s/m). Engineering assumption.
+    hunt_crossley_dissipation: float = 5.0
+    # Coulomb friction between capsule and mucosa (dynamic = static). Measured values span
+    # 0.0004-0.054 on small-bowel mucosa; REFERENCE section 3 suggests sweeping 0.05-0.3.
+    friction: float = 0.2
+    # Drake's discrete contact approximation: "lagged" (default of Drake 1.58), "sap",
+    # "similar" or "tamsi" (gone in 1.58).
+    discrete_contact_approximation: str = "lagged"
+
+
+@dataclass
+class CapsuleConfig:
+    """The capsule: where it starts and its internal permanent magnet (IPM)."""
+
+    # Arc length along the colon's centerline, from the anus, where the capsule starts (m).
+    start_s: float = 0.05
+    # The IPM: an N52 cylinder of 11.1 x 11.1 mm, m = 1.26 A m^2 (REFERENCE section 1).
+    # Its pose in the capsule is the `ipm` frame of models/capsule.sdf (axial magnetisation).
+    ipm: MagnetGeometry = field(default_factory=lambda: MagnetGeometry(
+        shape="cylinder", dimensions=[0.0111, 0.0111], remanence=1.48))
+
+
+@dataclass
+class AlongColon:
+    """The EPM travels over the colon's course at a constant speed, outside the abdomen.
+
+    At each instant it hovers over the centerline point s(t), as low as its clearance from the
+    skin allows, with its moment turned so that its field at that centerline point lies along
+    the colon's tangent (REFERENCE section 1: m_E along (3/2 u u^T - I) h), so the capsule's
+    magnet, and with it the camera, points down the lumen.
+    """
+
+    # Seconds the EPM waits over the capsule's start before moving (the capsule settles).
+    settle_time: float = 1.0
+    # Travel speed along the centerline (m/s).
+    speed: float = 0.01
+    # How far ahead of the capsule's start the EPM begins (m).
+    lead: float = 0.0
+    # Arc length at which the EPM stops (m); 0 means the cecum end of the colon.
+    end_s: float = 0.0
+
+
+@dataclass
+class HoldAbove:
+    """The EPM stays still, straight above the capsule's start point."""
+
+    # Distance from the capsule's start point up to the EPM's centre (m).
+    height: float = 0.5
+
+
+@dataclass
+class Gains:
+    """PD gains of the EPM stage's joint servos (implicit in Drake's SAP-family solvers)."""
+
+    # Proportional gain: N/m for translation, N m/rad for rotation.
+    p: float = 2.0e4
+    # Derivative gain: N s/m for translation, N m s/rad for rotation.
+    d: float = 7.0e2
+
+
+@dataclass
+class EpmConfig:
+    """The external permanent magnet and the stage that carries it."""
+
+    # 101.6 x 101.6 mm N52 cylinder, 970 A m^2 (REFERENCE section 1).
+    magnet: MagnetGeometry = field(default_factory=MagnetGeometry)
+    # Where the EPM goes: !AlongColon (default) or !HoldAbove.
+    path: AlongColon | HoldAbove = field(default_factory=AlongColon)
+    # Smallest allowed gap between the magnet's surface and the patient's skin (m).
+    clearance: float = 0.02
+    # Servo gains of the x, y, z axes.
+    translation_gains: Gains = field(default_factory=Gains)
+    # Servo gains of the yaw and pitch axes.
+    rotation_gains: Gains = field(default_factory=lambda: Gains(p=400.0, d=4.0))
+
+
+@dataclass
+class Scenario:
+    """One simulation: patient, capsule, magnet, contact model and timing."""
+
+    # The patient's colon (anatomy, seed, mesh resolution).
+    colon: ColonParams = field(default_factory=ColonParams)
+    # The capsule and its internal magnet.
+    capsule: CapsuleConfig = field(default_factory=CapsuleConfig)
+    # The external magnet and its path.
+    epm: EpmConfig = field(default_factory=EpmConfig)
+    # Contact between capsule and colon wall.
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    # Discrete time step of the MultibodyPlant (s).
+    time_step: float = 1.0e-3
+    # Simulated time of a run (s).
+    duration: float = 60.0
+    # Period at which the run records poses and contact forces for its metrics (s).
+    log_period: float = 0.01
+    # Period at which Meshcat is updated, when it is used (s).
+    visual_period: float = 1.0 / 32.0
+
+
+def _read(path: Path) -> str:
+    try:
+        return Path(path).read_text()
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: scenario file not found") from None
+    except OSError as e:
+        raise ScenarioError(f"{path}: cannot read scenario file ({e.strerror})") from None
+
+
+def scenario_names(path: Path) -> list[str]:
+    """The named scenarios in a scenario file."""
+    try:
+        doc = parse_yaml(_read(path), str(path))
+    except SchemaError as e:
+        raise ScenarioError(str(e)) from None
+    if not isinstance(doc, dict):
+        raise ScenarioError(f"{path}: expected a mapping of scenario names to scenarios")
+    return list(doc)
+
+
+def _load_one(text: str, source: str, child_name: str | None, base: Scenario | None) -> Scenario:
+    try:
+        doc = parse_yaml(text, source)
+        node = doc if child_name is None else doc[child_name]
+        if node is None:
+            node = {}
+        check(Scenario, node, "")
+    except SchemaError as e:
+        message = str(e)
+        raise ScenarioError(message if message.startswith(source) else f"{source}: {message}") from None
+    try:
+        return yaml_load_typed(schema=Scenario, data=text, child_name=child_name,
+                               defaults=base if base is not None else Scenario())
+    except (RuntimeError, ValueError) as e:
+        raise ScenarioError(f"{source}: {str(e).splitlines()[0]}") from None
+
+
+def load_scenario(path: Path | str | None = None, name: str | None = None,
+                  override: str | None = None) -> Scenario:
+    """Loads scenario `name` from `path` (default: diagrams/default.yaml), then layers the
+    YAML text `override` (same schema, e.g. "duration: 5") on top.
+
+    Without a name, a file holding a single scenario yields it, and otherwise the one called
+    `Default`.
+    """
+    path = Path(path) if path is not None else DEFAULT_SCENARIO_FILE
+    names = scenario_names(path)
+    if name is None:
+        if len(names) == 1:
+            name = names[0]
+        elif "Default" in names:
+            name = "Default"
+        else:
+            raise ScenarioError(f"{path}: holds several scenarios ({', '.join(names)}); "
+                                "choose one with --scenario")
+    if name not in names:
+        raise ScenarioError(f"{path}: no scenario named {name!r} "
+                            f"(the file has: {', '.join(names)})")
+    scenario = _load_one(_read(path), f"{path} [{name}]", name, None)
+    if override:
+        scenario = _load_one(override, "override", None, scenario)
+    validate(scenario)
+    return scenario
+
+
+def validate(scenario: Scenario) -> None:
+    """Range checks that the type system cannot express; raises ScenarioError."""
+    def need(ok: bool, what: str):
+        if not ok:
+            raise ScenarioError(f"scenario: {what}")
+
+    need(scenario.time_step > 0, f"time_step must be positive, got {scenario.time_step}")
+    need(scenario.duration >= 0, f"duration must be >= 0, got {scenario.duration}")
+    need(scenario.log_period > 0, f"log_period must be positive, got {scenario.log_period}")
+    need(scenario.contact.model in ("hydroelastic",),
+         f"contact.model must be 'hydroelastic', got {scenario.contact.model!r}")
+    need(scenario.contact.friction >= 0, "contact.friction must be >= 0")
+    need(scenario.epm.clearance >= 0, "epm.clearance must be >= 0")
+    for where, magnet in (("capsule.ipm", scenario.capsule.ipm), ("epm.magnet", scenario.epm.magnet)):
+        try:
+            magnet.moment()
+        except ValueError as e:
+            raise ScenarioError(f"scenario: {where}: {e}") from None
+    path = scenario.epm.path
+    if isinstance(path, AlongColon):
+        need(path.speed >= 0, "epm.path.speed must be >= 0")
+        need(path.settle_time >= 0, "epm.path.settle_time must be >= 0")
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """The scenario as YAML, every field spelled out (for a run's output folder)."""
+    return yaml_dump_typed(scenario)
+
+
+def with_changes(scenario: Scenario, **changes) -> Scenario:
+    """A copy of the scenario with top-level fields replaced; the original is untouched."""
+    return dataclasses.replace(scenario, **changes)

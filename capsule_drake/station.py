@@ -1,0 +1,223 @@
+"""The capsule station: the one place that builds and wires the diagram.
+
+    make_station(scenario, meshcat=None) -> Diagram
+
+Blocks (each a named subsystem) and their wiring:
+
+    epm_path (TrajectorySource) --> plant.epm_stage desired state (PD servos)
+    plant.body_poses --> magnet_force --> plant.applied_spatial_force
+    scene_graph <--> plant (capsule, colon wall chunks, EPM stage, table)
+
+Exported ports, named `<instance>.<signal>`:
+    capsule.state          [q (quaternion wxyz, p_WC); v (w_WC, v_WC)] of the capsule body
+    capsule.B_C            field at the IPM in the capsule frame (T): a magnetometer's truth
+    epm.state              stage joint positions and velocities [x y z yaw pitch, ...dot]
+    epm.desired_state      the commanded stage state
+    epm.F_W                spatial force on the EPM at its centre, world frame [torque; force]
+    body_poses             every body's pose (list[RigidTransform])
+    contact_results        the plant's ContactResults
+    query_object           SceneGraph's query object (for cameras and distance queries)
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Mesh,
+    ProximityProperties,
+    Rgba,
+    Role,
+    RoleAssign,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlantConfig,
+)
+from pydrake.multibody.tree import PdControllerGains
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import TrajectorySource
+from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
+
+from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
+from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
+from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
+from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+
+MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+PACKAGE = "capsule_drake"
+
+CAPSULE_BODY = "capsule"
+EPM_BODY = "epm"
+STAGE_JOINTS = ("x", "y", "z", "yaw", "pitch")
+WALL_COLOR = Rgba(0.80, 0.42, 0.40, 1.0)
+TORSO_COLOR = Rgba(0.93, 0.78, 0.68, 0.18)
+
+
+def configure_parser(parser: Parser) -> Parser:
+    """Registers the package://capsule_drake/ models with a parser."""
+    parser.package_map().AddPackageXml(str(MODELS_DIR / "package.xml"))
+    return parser
+
+
+@functools.lru_cache(maxsize=4)
+def _colon_cached(params_yaml: str, params: ColonParams):
+    return build_colon(params)
+
+
+def colon_for(scenario: Scenario):
+    """The scenario's colon (built once per process for equal parameters)."""
+    return _colon_cached(yaml_dump_typed(scenario.colon), scenario.colon)
+
+
+def capsule_start_pose(colon, s: float) -> RigidTransform:
+    """Capsule on the centerline at arc length s, its axis (camera forward) down the lumen."""
+    p = colon.centerline.point_at(s)
+    z = colon.centerline.tangent_at(s)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross([1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return RigidTransform(RotationMatrix(np.column_stack([x, y, z])), p)
+
+
+def _epm_trajectory(scenario: Scenario, colon):
+    path = scenario.epm.path
+    make = {AlongColon: along_colon_trajectory, HoldAbove: hold_above_trajectory}[type(path)]
+    try:
+        return make(colon, scenario.capsule.start_s, path, scenario.epm.clearance,
+                    scenario.epm.magnet)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {e}") from None
+
+
+def _contact_properties(scenario: Scenario) -> ProximityProperties:
+    props = ProximityProperties()
+    mu = scenario.contact.friction
+    AddContactMaterial(dissipation=scenario.contact.hunt_crossley_dissipation,
+                       friction=CoulombFriction(mu, mu), properties=props)
+    return props
+
+
+def _add_colon(plant, scene_graph, scenario: Scenario, colon):
+    """The colon wall: rigid hydroelastic chunks (collision), one visual mesh, the torso."""
+    assets = colon_assets(scenario.colon)
+    world = plant.world_body()
+    for i, chunk in enumerate(assets.collision_objs):
+        props = _contact_properties(scenario)
+        AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
+                                        f"colon_wall_{i:02d}", props)
+    plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(assets.visual_obj)),
+                                 "colon_mucosa", WALL_COLOR)
+    return plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(assets.torso_obj)),
+                                        "torso", TORSO_COLOR)
+
+
+def _set_capsule_contact(plant, scene_graph, scenario: Scenario):
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    for geometry_id in plant.GetCollisionGeometriesForBody(capsule):
+        props = _contact_properties(scenario)
+        AddCompliantHydroelasticProperties(
+            resolution_hint=scenario.contact.capsule_resolution_hint,
+            hydroelastic_modulus=scenario.contact.capsule_hydroelastic_modulus,
+            properties=props)
+        scene_graph.AssignRole(plant.get_source_id(), geometry_id, props, RoleAssign.kReplace)
+
+
+def make_station(scenario: Scenario, meshcat=None):
+    """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is given.
+
+    Pure construction: the scenario is not modified, nothing is simulated.
+    """
+    colon = colon_for(scenario)
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(
+        MultibodyPlantConfig(
+            time_step=scenario.time_step,
+            discrete_contact_approximation=scenario.contact.discrete_contact_approximation),
+        builder)
+    plant.set_name("plant")
+    parser = configure_parser(Parser(plant))
+    capsule_instance, = parser.AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+    epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
+    parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
+    torso_id = _add_colon(plant, scene_graph, scenario, colon)
+    _set_capsule_contact(plant, scene_graph, scenario)
+
+    # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
+    # its weight is the stage's business, not the simulation's.
+    plant.set_gravity_enabled(epm_instance, False)
+    for index in plant.GetJointActuatorIndices(epm_instance):
+        actuator = plant.get_joint_actuator(index)
+        gains = (scenario.epm.translation_gains if actuator.joint().name() in ("x", "y", "z")
+                 else scenario.epm.rotation_gains)
+        actuator.set_controller_gains(PdControllerGains(p=gains.p, d=gains.d))
+    plant.Finalize()
+    # The torso is drawn for orientation only: cameras must not see it.
+    scene_graph.RemoveRole(plant.get_source_id(), torso_id, Role.kPerception)
+
+    actuated = [plant.get_joint_actuator(i).joint().name()
+                for i in plant.GetJointActuatorIndices(epm_instance)]
+    assert tuple(actuated) == STAGE_JOINTS, actuated
+
+    # Initial state: capsule on the centerline at its start, stage where its path begins.
+    plant.SetDefaultFreeBodyPose(plant.GetBodyByName(CAPSULE_BODY),
+                                 capsule_start_pose(colon, scenario.capsule.start_s))
+    trajectory, _ = _epm_trajectory(scenario, colon)
+    q0 = trajectory.value(trajectory.start_time()).ravel()
+    for name, value in zip(STAGE_JOINTS, q0):
+        joint = plant.GetJointByName(name, epm_instance)
+        if name in ("x", "y", "z"):
+            joint.set_default_translation(value)
+        else:
+            joint.set_default_angle(value)
+
+    epm_path = builder.AddNamedSystem(
+        "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
+    builder.Connect(epm_path.get_output_port(), plant.get_desired_state_input_port(epm_instance))
+
+    X_C_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
+    magnets = [
+        MagnetSpec(name="ipm", body=CAPSULE_BODY, model_instance="capsule",
+                   p_BM=list(X_C_ipm.translation()),
+                   axis_B=list(X_C_ipm.rotation().col(2)),
+                   moment=scenario.capsule.ipm.moment()),
+        MagnetSpec(name="epm", body=EPM_BODY, model_instance="epm_stage",
+                   p_BM=[0.0, 0.0, 0.0], axis_B=[0.0, 0.0, 1.0],
+                   moment=scenario.epm.magnet.moment()),
+    ]
+    magnet_force = builder.AddNamedSystem("magnet_force", MagneticForce(plant, magnets))
+    builder.Connect(plant.get_body_poses_output_port(),
+                    magnet_force.get_body_poses_input_port())
+    builder.Connect(magnet_force.get_applied_spatial_force_output_port(),
+                    plant.get_applied_spatial_force_input_port())
+
+    builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
+    builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")
+    builder.ExportOutput(plant.get_state_output_port(epm_instance), "epm.state")
+    builder.ExportOutput(epm_path.get_output_port(), "epm.desired_state")
+    builder.ExportOutput(magnet_force.get_F_W_output_port("epm"), "epm.F_W")
+    builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
+    builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
+    builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
+
+    if meshcat is not None:
+        ApplyVisualizationConfig(
+            VisualizationConfig(publish_period=scenario.visual_period,
+                                publish_contacts=True, publish_inertia=False),
+            builder, meshcat=meshcat)
+
+    diagram = builder.Build()
+    diagram.set_name("capsule_station")
+    return diagram
