@@ -9,7 +9,8 @@ from pydrake.math import RigidTransform, RigidTransform_, RollPitchYaw, Rotation
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, InputPortSelection, OutputPortSelection
+from pydrake.systems.primitives import FirstOrderTaylorApproximation
 
 from capsule_drake.magnetics import dipole_field, dipole_pair_wrench
 from capsule_drake.systems.magnet_force import MagneticForce, MagneticForce_, MagnetSpec
@@ -263,3 +264,37 @@ def test_short_simulation_with_gravity_is_finite_and_attracts():
     )
     # Both fall together under gravity; the magnets close the gap a little.
     assert 0.40 < gap < 0.4995
+
+
+def test_linearized_plant_sees_the_magnetic_stiffness():
+    # Discrete step v+ = v + h M^-1 F(q): d(v+)/d(p_capsule) = h K / m, with K the
+    # gradient of the magnetic force w.r.t. the magnet's position (EPM welded).
+    # The capsule is pulled, so not at rest: a first-order Taylor approximation
+    # (Linearize without the equilibrium requirement).
+    diagram, plant, magnetic, context = build(weld_epm=True, gravity=False)
+    linear = FirstOrderTaylorApproximation(
+        diagram,
+        context,
+        input_port_index=InputPortSelection.kNoInput,
+        output_port_index=OutputPortSelection.kNoOutput,
+    )
+    capsule = plant.GetBodyByName("capsule")
+    q_start = capsule.floating_positions_start() + 4  # after the quaternion
+    v_start = plant.num_positions() + capsule.floating_velocities_start_in_v() + 3
+    block = linear.A()[v_start : v_start + 3, q_start : q_start + 3]
+    assert np.all(np.isfinite(linear.A()))
+
+    p_ipm, m_ipm, p_epm, m_epm = world_magnets()
+    h = 1e-7
+    stiffness = np.column_stack(
+        [
+            (
+                dipole_pair_wrench(m_epm, m_ipm, p_ipm + h * e - p_epm).force_target
+                - dipole_pair_wrench(m_epm, m_ipm, p_ipm - h * e - p_epm).force_target
+            )
+            / (2 * h)
+            for e in np.eye(3)
+        ]
+    )
+    time_step = plant.time_step()
+    assert_allclose(block, time_step * stiffness / CAPSULE_MASS, rtol=1e-5, atol=1e-8)

@@ -61,6 +61,10 @@ class _MagnetValues(NamedTuple):
     f_W: list  # force (N), world frame
 
 
+def _accumulate(sums, i, value):
+    sums[i] = value if sums[i] is None else sums[i] + value
+
+
 def _resolve_magnets(plant, magnets):
     if not plant.is_finalized():
         raise ValueError("MagneticForce needs a finalized MultibodyPlant")
@@ -154,6 +158,11 @@ def MagneticForce_(T):
             LeafSystem_[T].__init__(self, converter)
             self._magnets = magnets
             self._min_distance = float(min_distance)
+            # Resolve templates and indices once: a template lookup per call
+            # costs microseconds, comparable to the physics itself.
+            self._make_applied_force = ExternallyAppliedSpatialForce_[T]
+            self._make_spatial_force = SpatialForce_[T]
+            self._body_indices = [BodyIndex(m.body_index) for m in magnets]
             if T is float:
                 self._pair = dipole_pair_interaction_float
                 self._p_BM = [np.array(m.p_BM) for m in magnets]
@@ -232,27 +241,32 @@ def MagneticForce_(T):
             n = len(self._magnets)
             R_WB, p_WM, m_W = [], [], []
             for i, magnet in enumerate(self._magnets):
-                X_WB = poses[magnet.body_index]
-                R = X_WB.rotation().matrix()
+                X_WB = poses[magnet.body_index].GetAsMatrix34()
+                R = X_WB[:, :3]
                 R_WB.append(R)
-                p_WM.append(X_WB.translation() + R @ self._p_BM[i])
+                p_WM.append(X_WB[:, 3] + R @ self._p_BM[i])
                 m_W.append(R @ self._m_B[i])
-            zero = np.zeros(3) if T is float else np.array([T(0.0)] * 3)
-            B_W = [zero] * n
-            tau_W = [zero] * n
-            f_W = [zero] * n
+            # None = nothing accumulated yet (avoids adding zero arrays).
+            B_W = [None] * n
+            tau_W = [None] * n
+            f_W = [None] * n
             pair = self._pair
             d_min = self._min_distance
             for i in range(n):
                 for j in range(i + 1, n):
                     # i is the source, j the target: p points from i to j.
                     result = pair(m_W[i], m_W[j], p_WM[j] - p_WM[i], d_min)
-                    B_W[j] = B_W[j] + result.field_at_target
-                    B_W[i] = B_W[i] + result.field_at_source
-                    f_W[j] = f_W[j] + result.force_target
-                    tau_W[j] = tau_W[j] + result.torque_target
-                    f_W[i] = f_W[i] + result.force_source
-                    tau_W[i] = tau_W[i] + result.torque_source
+                    _accumulate(B_W, j, result.field_at_target)
+                    _accumulate(B_W, i, result.field_at_source)
+                    _accumulate(f_W, j, result.force_target)
+                    _accumulate(tau_W, j, result.torque_target)
+                    _accumulate(f_W, i, result.force_source)
+                    _accumulate(tau_W, i, result.torque_source)
+            zero = np.zeros(3) if T is float else np.array([T(0.0)] * 3)
+            for values in (B_W, tau_W, f_W):
+                for i in range(n):
+                    if values[i] is None:
+                        values[i] = zero
             abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W))
 
         def _calc_applied_spatial_force(self, context, output):
@@ -261,10 +275,10 @@ def MagneticForce_(T):
             for i, magnet in enumerate(self._magnets):
                 if not magnet.applies_force:
                     continue
-                force = ExternallyAppliedSpatialForce_[T]()
-                force.body_index = BodyIndex(magnet.body_index)
+                force = self._make_applied_force()
+                force.body_index = self._body_indices[i]
                 force.p_BoBq_B = self._p_BM[i]
-                force.F_Bq_W = SpatialForce_[T](values.tau_W[i], values.f_W[i])
+                force.F_Bq_W = self._make_spatial_force(values.tau_W[i], values.f_W[i])
                 forces.append(force)
             output.set_value(forces)
 
