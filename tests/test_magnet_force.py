@@ -298,3 +298,26 @@ def test_linearized_plant_sees_the_magnetic_stiffness():
     )
     time_step = plant.time_step()
     assert_allclose(block, time_step * stiffness / CAPSULE_MASS, rtol=1e-5, atol=1e-8)
+
+
+def test_outputs_share_one_computation_per_context():
+    diagram, plant, magnetic, context = build()
+    mf_context = magnetic.GetMyContextFromRoot(context)
+    calls = []
+    original = magnetic._pair
+
+    def counting_pair(*args):
+        calls.append(1)
+        return original(*args)
+
+    magnetic._pair = counting_pair
+    magnetic.get_applied_spatial_force_output_port().Eval(mf_context)
+    for name in magnetic.magnet_names():
+        magnetic.get_B_B_output_port(name).Eval(mf_context)
+        magnetic.get_F_W_output_port(name).Eval(mf_context)
+    assert len(calls) == 1  # one pair, evaluated once for all five outputs
+    # Moving a body invalidates the cache.
+    plant_context = plant.GetMyContextFromRoot(context)
+    plant.SetFreeBodyPose(plant_context, plant.GetBodyByName("capsule"), RigidTransform())
+    magnetic.get_F_W_output_port("ipm").Eval(mf_context)
+    assert len(calls) == 2
