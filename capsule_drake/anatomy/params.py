@@ -101,9 +101,9 @@ class AbdomenParams:
     # Skin height above the table at the xiphoid [m] (U).
     depth_at_xiphoid: float = 0.20
     # Height of the flank line (widest point of the torso cross-section) [m] (U).
-    flank_height: float = 0.10
+    flank_height: float = 0.11
     # Half width of the torso at the flank line [m] (U).
-    half_width: float = 0.17
+    half_width: float = 0.18
     # y of the umbilicus [m]; the world origin is placed there (convention).
     umbilicus_y: float = 0.0
     # y of the pubic symphysis [m] (U).
@@ -157,6 +157,9 @@ class ColonParams:
 
     # Standard deviation of the random offset of every course landmark [m] (U).
     landmark_jitter: float = 0.008
+    # Gaussian smoothing (sigma, along the arc) of the landmark spline [m]: rounds the
+    # flexures so their radius of curvature stays above the lumen radius (U).
+    course_smoothing: float = 0.025
     # Centreline sampling step [m].
     centerline_step: float = 0.001
 

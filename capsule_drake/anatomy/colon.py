@@ -1,0 +1,180 @@
+"""Procedural colon (rectum to cecum): build from a seed, query the wall, cache meshes.
+
+`build_colon(params)` is pure and deterministic; `colon_assets(params)` writes the OBJ/MTL
+meshes and the centreline once per parameter set and returns their paths.
+"""
+
+import hashlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
+
+from .abdomen import Abdomen
+from .centerline import Centerline, rotation_minimising_frame
+from .course import nominal_radius, solve_course
+from .mesh import MUCOSA_MTL, SKIN_MTL, closed_tube, tube_chunks, write_obj
+from .params import SEGMENT_NAMES, ColonParams
+from .wall import HaustralWall
+
+GEOMETRY_VERSION = 1
+"""Bump whenever code changes the generated geometry: it invalidates cached assets."""
+
+
+class Colon:
+    """One patient's colon: centreline, analytic wall and abdomen.
+
+    Attributes:
+        params: the `ColonParams` it was built from (not mutated).
+        centerline: the `Centerline` from the anus (s = 0) to the cecal pole.
+        wall: the `HaustralWall` (folds, taeniae, rectal valves).
+        abdomen: the `Abdomen` (anterior skin surface).
+        target_lengths: sampled length of each segment [m] (the course matches them).
+    """
+
+    def __init__(self, params: ColonParams, centerline: Centerline, wall: HaustralWall,
+                 abdomen: Abdomen, target_lengths: dict[str, float]):
+        self.params = params
+        self.centerline = centerline
+        self.wall = wall
+        self.abdomen = abdomen
+        self.target_lengths = target_lengths
+
+    def wall_radius(self, s, theta) -> np.ndarray:
+        """Distance [m] from the centreline to the mucosa at arc length s [m], angle theta."""
+        return self.wall.wall_radius(s, theta)
+
+    def excursion(self, points_W) -> np.ndarray:
+        """How far each world point lies beyond the wall [m] (> 0: inside the tissue).
+
+        Radial excursion at the closest centreline station; beyond the end caps the axial
+        distance past the cap counts too. Args: points_W (K, 3) or (3,). Returns (K,).
+        """
+        p = np.atleast_2d(np.asarray(points_W, dtype=float))
+        cl = self.centerline
+        s, dist, theta = cl.closest(p)
+        e = dist - self.wall_radius(s, theta)
+        for s_end, sign in ((0.0, -1.0), (cl.length, 1.0)):
+            at_end = s == s_end
+            if np.any(at_end):
+                t = cl.tangent_at(s_end)
+                past = sign * (p[at_end] - cl.point_at(s_end)) @ t
+                e[at_end] = np.maximum(e[at_end], past)
+        return e
+
+    def depth_below_skin(self, s) -> np.ndarray:
+        """Depth [m] of the centreline at arc length s below the anterior skin."""
+        return self.abdomen.depth(self.centerline.point_at(np.atleast_1d(s)))
+
+    def segment_lengths(self) -> dict[str, float]:
+        """name -> arc length [m] of each segment."""
+        return {k: b - a for k, (a, b) in self.centerline.segment_ranges().items()}
+
+    def visual_mesh(self):
+        """Closed wall at visual resolution (trimesh), normals into the lumen."""
+        p = self.params
+        return closed_tube(self, p.visual_axial_step, p.visual_points_around)
+
+    def collision_meshes(self):
+        """The wall at collision resolution in `collision_chunks` pieces (trimesh list)."""
+        p = self.params
+        return tube_chunks(self, p.collision_axial_step, p.collision_points_around,
+                           p.collision_chunks)
+
+
+def build_colon(params: ColonParams) -> Colon:
+    """Build the colon of patient `params.seed`. Pure and deterministic."""
+    rng = np.random.default_rng(params.seed)
+    s, points, boundaries, targets = solve_course(params, rng)
+    segment = np.clip(np.searchsorted(boundaries, s, side="right") - 1, 0,
+                      len(SEGMENT_NAMES) - 1)
+    radius = nominal_radius(s, boundaries, params)
+    # Tangents for the frame from finite differences; the Centerline refits them.
+    tangents = np.gradient(points, s, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    normals = rotation_minimising_frame(points, tangents, np.array([0.0, 0.0, 1.0]))
+    centerline = Centerline(s, points, normals, radius, segment, SEGMENT_NAMES)
+    wall = HaustralWall(params, centerline, np.random.default_rng([params.seed, 1]))
+    return Colon(params, centerline, wall, Abdomen(params.abdomen), targets)
+
+
+@dataclass
+class ColonAssets:
+    """Files of one generated colon (all in one cache directory)."""
+
+    visual_obj: Path
+    collision_objs: list[Path]
+    centerline_npz: Path
+    torso_obj: Path
+
+
+def params_hash(params: ColonParams) -> str:
+    """Cache key: hash of the YAML dump of the params plus GEOMETRY_VERSION."""
+    text = f"v{GEOMETRY_VERSION}\n" + yaml_dump_typed(params)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def default_cache_root() -> Path:
+    """$CAPSULE_DRAKE_CACHE/colon if set, else ~/.cache/capsule_drake/colon."""
+    env = os.environ.get("CAPSULE_DRAKE_CACHE")
+    base = Path(env) if env else Path.home() / ".cache" / "capsule_drake"
+    return base / "colon"
+
+
+def _asset_paths(directory: Path, chunks: int) -> ColonAssets:
+    return ColonAssets(
+        visual_obj=directory / "colon_visual.obj",
+        collision_objs=[directory / f"colon_collision_{k:02d}.obj" for k in range(chunks)],
+        centerline_npz=directory / "centerline.npz",
+        torso_obj=directory / "torso.obj")
+
+
+def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
+    """Write every mesh and the centreline of `colon` into `directory`."""
+    directory.mkdir(parents=True, exist_ok=True)
+    chunks = colon.collision_meshes()
+    assets = _asset_paths(directory, len(chunks))
+    (directory / "colon_visual.mtl").write_text(MUCOSA_MTL)
+    write_obj(assets.visual_obj, colon.visual_mesh(), normals=True,
+              material=("colon_visual.mtl", "mucosa"))
+    for path, mesh in zip(assets.collision_objs, chunks):
+        write_obj(path, mesh)
+    colon.centerline.save(assets.centerline_npz)
+    (directory / "torso.mtl").write_text(SKIN_MTL)
+    write_obj(assets.torso_obj, colon.abdomen.torso_mesh(), normals=True,
+              material=("torso.mtl", "skin"))
+    return assets
+
+
+def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
+    """Generated files of the colon for `params`, built once and cached.
+
+    The files live in `<root>/<params_hash>/`, root = `cache_dir` if given, else
+    `default_cache_root()`. They are written to a temporary directory and renamed into
+    place, so concurrent processes never see a half-written set.
+    """
+    root = Path(cache_dir) if cache_dir is not None else default_cache_root()
+    final = root / params_hash(params)
+    chunks = params.collision_chunks
+    if (final / "centerline.npz").exists():
+        paths = sorted(final.glob("colon_collision_*.obj"))
+        return _asset_paths(final, len(paths))
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=root))
+    try:
+        written = write_colon_assets(build_colon(params), tmp)
+        chunks = len(written.collision_objs)
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            if not (final / "centerline.npz").exists():
+                raise
+            # Another process won the race; its files are identical.
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return _asset_paths(final, chunks)
