@@ -12,7 +12,6 @@ and missing files raise `ScenarioError` with one line naming the file and the ke
 Units are SI throughout (metres, seconds, newtons, tesla, A m^2).
 """
 
-from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
