@@ -21,7 +21,6 @@ Exported ports, named `<instance>.<signal>`:
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +29,11 @@ from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
     AddContactMaterial,
     AddRigidHydroelasticProperties,
+    GeometryInstance,
+    IllustrationProperties,
     Mesh,
+    PerceptionProperties,
     ProximityProperties,
-    Rgba,
     Role,
     RoleAssign,
 )
@@ -48,7 +49,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
-from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
+from capsule_drake.anatomy import build_colon, colon_assets
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
@@ -59,8 +60,7 @@ PACKAGE = "capsule_drake"
 CAPSULE_BODY = "capsule"
 EPM_BODY = "epm"
 STAGE_JOINTS = ("x", "y", "z", "yaw", "pitch")
-WALL_COLOR = Rgba(0.80, 0.42, 0.40, 1.0)
-TORSO_COLOR = Rgba(0.93, 0.78, 0.68, 0.18)
+TORSO_RGBA = np.array([0.93, 0.78, 0.68, 0.18])
 
 
 def configure_parser(parser: Parser) -> Parser:
@@ -69,14 +69,17 @@ def configure_parser(parser: Parser) -> Parser:
     return parser
 
 
-@functools.lru_cache(maxsize=4)
-def _colon_cached(params_yaml: str, params: ColonParams):
-    return build_colon(params)
+_COLONS: dict[str, object] = {}
 
 
 def colon_for(scenario: Scenario):
     """The scenario's colon (built once per process for equal parameters)."""
-    return _colon_cached(yaml_dump_typed(scenario.colon), scenario.colon)
+    key = yaml_dump_typed(scenario.colon)
+    if key not in _COLONS:
+        if len(_COLONS) >= 4:
+            _COLONS.pop(next(iter(_COLONS)))
+        _COLONS[key] = build_colon(scenario.colon)
+    return _COLONS[key]
 
 
 def capsule_start_pose(colon, s: float) -> RigidTransform:
@@ -118,10 +121,13 @@ def _add_colon(plant, scene_graph, scenario: Scenario, colon):
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
                                         f"colon_wall_{i:02d}", props)
-    plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(assets.visual_obj)),
-                                 "colon_mucosa", WALL_COLOR)
+    # The mucosa's look comes from the mesh's own material (MTL), so no colour is imposed.
+    mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
+    mucosa.set_illustration_properties(IllustrationProperties())
+    mucosa.set_perception_properties(PerceptionProperties())
+    plant.RegisterVisualGeometry(world, mucosa)
     return plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(assets.torso_obj)),
-                                        "torso", TORSO_COLOR)
+                                        "torso", TORSO_RGBA)
 
 
 def _set_capsule_contact(plant, scene_graph, scenario: Scenario):
@@ -158,11 +164,11 @@ def make_station(scenario: Scenario, meshcat=None):
     # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
     # its weight is the stage's business, not the simulation's.
     plant.set_gravity_enabled(epm_instance, False)
-    for index in plant.GetJointActuatorIndices(epm_instance):
-        actuator = plant.get_joint_actuator(index)
-        gains = (scenario.epm.translation_gains if actuator.joint().name() in ("x", "y", "z")
+    for name in STAGE_JOINTS:
+        gains = (scenario.epm.translation_gains if name in ("x", "y", "z")
                  else scenario.epm.rotation_gains)
-        actuator.set_controller_gains(PdControllerGains(p=gains.p, d=gains.d))
+        plant.GetJointActuatorByName(name, epm_instance).set_controller_gains(
+            PdControllerGains(p=gains.p, d=gains.d))
     plant.Finalize()
     # The torso is drawn for orientation only: cameras must not see it.
     scene_graph.RemoveRole(plant.get_source_id(), torso_id, Role.kPerception)
@@ -172,7 +178,7 @@ def make_station(scenario: Scenario, meshcat=None):
     assert tuple(actuated) == STAGE_JOINTS, actuated
 
     # Initial state: capsule on the centerline at its start, stage where its path begins.
-    plant.SetDefaultFreeBodyPose(plant.GetBodyByName(CAPSULE_BODY),
+    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
                                  capsule_start_pose(colon, scenario.capsule.start_s))
     trajectory, _ = _epm_trajectory(scenario, colon)
     q0 = trajectory.value(trajectory.start_time()).ravel()
