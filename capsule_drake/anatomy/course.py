@@ -23,8 +23,8 @@ from .params import SEGMENT_NAMES, ColonParams
 
 # Fixed anatomical anchors [m] (U, chosen to match the reference's course and depths).
 _ANUS = np.array([0.0, -0.205, 0.085])
-_DESCENDING_SIGMOID = np.array([0.130, -0.075, 0.08])   # left pelvic brim
-_HEPATIC_FLEXURE = np.array([-0.105, 0.13, 0.12])       # under the liver, right
+_DESCENDING_SIGMOID = np.array([0.130, -0.065, 0.08])   # left pelvic brim
+_HEPATIC_FLEXURE = np.array([-0.105, 0.105, 0.12])       # under the liver, right
 _FLEXURE_RADIUS = 0.042   # half the front-to-back span of the flexure hairpins (U)
 _FLEXURE_Z = 0.12         # height of the flexures' centre above the table (U)
 
@@ -241,7 +241,7 @@ def _solve_lengths(params: ColonParams, rng: np.random.Generator, targets):
         course = _Course(pts + jitter, params.course_smoothing)
         return course, course.s_knots[ends]
 
-    for _ in range(4):  # Gauss-Seidel sweeps: each parameter mostly moves its own segment
+    for _ in range(3):  # Gauss-Seidel sweeps: each parameter mostly moves its own segment
         for k, name in enumerate(SEGMENT_NAMES):
             lo, hi = _SHAPE_BRACKETS[name]
 
@@ -262,7 +262,7 @@ def _solve_lengths(params: ColonParams, rng: np.random.Generator, targets):
                     hi = mid
                 else:
                     lo = mid
-                if hi - lo < 1e-6:
+                if hi - lo < 1e-5:
                     break
             shape[name] = 0.5 * (lo + hi)
     return build(shape)
