@@ -50,7 +50,7 @@ if [ ! -x "$_venv/bin/python" ] || [ "$(cat "$_venv/.capsule-stamp" 2>/dev/null)
         echo "  Ubuntu/Debian: sudo apt install python3-venv (or python3.12-venv), then run this again." >&2
         exit 1
     fi
-    "$_venv/bin/python" -m pip install --quiet --upgrade pip >&2
-    "$_venv/bin/python" -m pip install --quiet -e "$_repo[test]" >&2
+    "$_venv/bin/python" -m pip install -qq --upgrade pip >&2
+    "$_venv/bin/python" -m pip install -qq -e "$_repo[test]" >&2
     _stamp > "$_venv/.capsule-stamp"
 fi
