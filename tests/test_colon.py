@@ -235,22 +235,48 @@ def test_excursion(colon, visual):
     cl = colon.centerline
     s = np.linspace(0.01, cl.length - 0.01, 50)
     points = cl.point_at(s)
-    # On the centreline the point is one wall radius inside the lumen.
+    # On the centreline the point is well inside the lumen, no deeper than the wall radius.
     _, _, theta = cl.closest(points)
-    np.testing.assert_allclose(colon.excursion(points), -colon.wall_radius(s, theta),
-                               atol=1e-6)
-    assert np.all(colon.excursion(points) < -0.005)
+    e = colon.excursion(points)
+    assert np.all(e < -0.005)
+    assert np.all(e >= -colon.wall_radius(s, theta) - 1e-9)
     # Mesh vertices (without the two cap centres) lie on the wall.
     e = colon.excursion(visual.vertices[:-2])
     assert np.max(np.abs(e)) < 2e-4
-    # 3 mm outward along the wall normal direction is 3 mm of excursion.
-    _, n, b = cl.frame_at(s)
-    w = colon.wall_radius(s, np.zeros_like(s))
-    outside = points + (w + 0.003)[:, None] * n
-    np.testing.assert_allclose(colon.excursion(outside), 0.003, atol=5e-5)
     # Beyond the anal cap.
     beyond = cl.point_at(0.0) - 0.004 * cl.tangent_at(0.0)
     assert colon.excursion(beyond)[0] == pytest.approx(0.004, abs=1e-6)
+
+
+def test_excursion_is_the_distance_to_the_wall(colon, visual):
+    # Independent route: the exact distance to the fine visual mesh (within ~0.3 mm of the
+    # analytic wall), for points scattered 0-3 mm on both sides of the wall, folds included.
+    rng = np.random.default_rng(7)
+    cl = colon.centerline
+    s = rng.uniform(0.02, cl.length - 0.02, 3000)
+    theta = rng.uniform(-np.pi, np.pi, 3000)
+    offset = rng.uniform(-0.003, 0.003, 3000)
+    _, n, b = cl.frame_at(s)
+    rho = colon.wall_radius(s, theta) + offset
+    points = cl.point_at(s) + rho[:, None] * (np.cos(theta)[:, None] * n
+                                              + np.sin(theta)[:, None] * b)
+    _, distance, _ = trimesh.proximity.closest_point(visual, points)
+    e = colon.excursion(points)
+    clear = np.abs(offset) > 0.0008
+    assert np.all(np.sign(e[clear]) == np.sign(offset[clear]))
+    # Beyond the wall (what the excursion metric is for) it is the distance to the wall.
+    outside = offset > 0
+    error = np.abs(e[outside] - distance[outside])
+    radial = np.abs(offset[outside] - distance[outside])
+    print("excursion vs mesh distance: max %.3f mm, 99th %.3f mm; radial measure: max %.3f, "
+          "99th %.3f mm" % (1e3 * error.max(), 1e3 * np.percentile(error, 99),
+                             1e3 * radial.max(), 1e3 * np.percentile(radial, 99)))
+    # The mesh itself is up to ~0.35 mm off the analytic wall; the first-order distance is
+    # least exact in the sharp corners at the foot of a fold.
+    assert np.percentile(error, 99) < 4e-4 and error.max() < 8e-4
+    # The plain radial measure overstates the distance on fold flanks (why the slope is
+    # divided out).
+    assert np.percentile(radial, 99) > 1.5 * np.percentile(error, 99)
 
 
 def test_face_normals_point_into_lumen(colon, visual):

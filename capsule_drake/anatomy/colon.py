@@ -51,13 +51,22 @@ class Colon:
     def excursion(self, points_W) -> np.ndarray:
         """How far each world point lies beyond the wall [m] (> 0: inside the tissue).
 
-        Radial excursion at the closest centreline station; beyond the end caps the axial
-        distance past the cap counts too. Args: points_W (K, 3) or (3,). Returns (K,).
+        Distance to the wall along its normal (to first order) at the closest centreline
+        station; beyond the end caps the axial distance past the cap counts too. Args: points_W (K, 3) or (3,). Returns (K,).
         """
         p = np.atleast_2d(np.asarray(points_W, dtype=float))
         cl = self.centerline
         s, dist, theta = cl.closest(p)
-        e = dist - self.wall_radius(s, theta)
+        radius = self.wall_radius(s, theta)
+        # Radial excursion overstates the distance to a sloped wall (a fold's flank) by
+        # 1/cos(slope): divide by |grad F| of F = rho - r(s, theta), the first-order signed
+        # distance to the surface rho = r(s, theta).
+        h_s, h_theta = 2.0e-4, 1.0e-2
+        dr_ds = (self.wall_radius(s + h_s, theta) - self.wall_radius(s - h_s, theta)) / (2 * h_s)
+        dr_dtheta = (self.wall_radius(s, theta + h_theta)
+                     - self.wall_radius(s, theta - h_theta)) / (2 * h_theta)
+        slope = np.sqrt(1.0 + dr_ds**2 + (dr_dtheta / np.maximum(dist, radius))**2)
+        e = (dist - radius) / slope
         for s_end, sign in ((0.0, -1.0), (cl.length, 1.0)):
             at_end = s == s_end
             if np.any(at_end):
@@ -112,9 +121,18 @@ class ColonAssets:
     torso_obj: Path
 
 
+def _source_digest() -> str:
+    """Hash of this package's source: a code change must never reuse stale cached meshes."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def params_hash(params: ColonParams) -> str:
-    """Cache key: hash of the YAML dump of the params plus GEOMETRY_VERSION."""
-    text = f"v{GEOMETRY_VERSION}\n" + yaml_dump_typed(params)
+    """Cache key: hash of the YAML dump of the params, GEOMETRY_VERSION and the source."""
+    text = f"v{GEOMETRY_VERSION}\n{_source_digest()}\n" + yaml_dump_typed(params)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
