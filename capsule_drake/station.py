@@ -37,8 +37,10 @@ from pydrake.geometry import (
     Role,
     RoleAssign,
 )
+from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
+from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
     CoulombFriction,
@@ -47,7 +49,6 @@ from pydrake.multibody.plant import (
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
-from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
 from capsule_drake.anatomy import build_colon, colon_assets
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
@@ -141,6 +142,17 @@ def _set_capsule_contact(plant, scene_graph, scenario: Scenario):
         scene_graph.AssignRole(plant.get_source_id(), geometry_id, props, RoleAssign.kReplace)
 
 
+def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
+    """Illustration geometry and contact forces in Meshcat; the view looks at the abdomen
+    from the patient's right, above the table."""
+    MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
+                                   MeshcatVisualizerParams(publish_period=period))
+    ContactVisualizer.AddToBuilder(builder, plant, meshcat,
+                                   ContactVisualizerParams(publish_period=period,
+                                                           newtons_per_meter=20.0))
+    meshcat.SetCameraPose(camera_in_world=[-0.55, -0.35, 0.65], target_in_world=[0.0, 0.0, 0.1])
+
+
 def make_station(scenario: Scenario, meshcat=None):
     """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is given.
 
@@ -219,10 +231,7 @@ def make_station(scenario: Scenario, meshcat=None):
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
-        ApplyVisualizationConfig(
-            VisualizationConfig(publish_period=scenario.visual_period,
-                                publish_contacts=True, publish_inertia=False),
-            builder, meshcat=meshcat)
+        _add_meshcat(builder, plant, scene_graph, meshcat, scenario.visual_period)
 
     diagram = builder.Build()
     diagram.set_name("capsule_station")
