@@ -17,7 +17,7 @@ from pydrake.common.yaml import yaml_dump_typed
 from .abdomen import Abdomen
 from .centerline import Centerline, rotation_minimising_frame
 from .course import nominal_radius, solve_course
-from .mesh import MUCOSA_MTL, SKIN_MTL, closed_tube, tube_chunks, write_obj
+from .mesh import MUCOSA_MTL, SKIN_MTL, closed_tube, ring_stations, tube_chunks, write_obj
 from .params import SEGMENT_NAMES, ColonParams
 from .wall import HaustralWall
 
@@ -86,13 +86,16 @@ class Colon:
     def visual_mesh(self):
         """Closed wall at visual resolution (trimesh), normals into the lumen."""
         p = self.params
-        return closed_tube(self, p.visual_axial_step, p.visual_points_around)
+        return closed_tube(self, ring_stations(self, p.visual_axial_step),
+                           p.visual_points_around)
 
     def collision_meshes(self):
         """The wall at collision resolution in `collision_chunks` pieces (trimesh list)."""
         p = self.params
-        return tube_chunks(self, p.collision_axial_step, p.collision_points_around,
-                           p.collision_chunks)
+        stations = ring_stations(self, p.collision_axial_step,
+                                 p.collision_tolerance if p.collision_tolerance > 0 else None,
+                                 p.collision_min_step)
+        return tube_chunks(self, stations, p.collision_points_around, p.collision_chunks)
 
 
 def build_colon(params: ColonParams) -> Colon:

@@ -30,15 +30,43 @@ illum 2
 """
 
 
-def tube_rings(colon, axial_step: float, points_around: int):
-    """Ring stations and vertices of the wall.
+def ring_stations(colon, max_step: float, tolerance: float | None = None,
+                  min_step: float = 0.001) -> np.ndarray:
+    """Arc lengths of the wall's rings, from 0 to L.
+
+    Uniform at `max_step` when `tolerance` is None. Otherwise the spacing adapts to the
+    wall's axial curvature so that the straight edges between rings stay within `tolerance`
+    of the analytic wall: a chord of length h across a curve with second derivative k sags
+    by k h^2 / 8, so h = sqrt(8 tolerance / k), clipped to [min_step, max_step]. Folds get
+    dense rings and the smooth stretches between them sparse ones.
+    """
+    length = colon.centerline.length
+    if tolerance is None:
+        return np.linspace(0.0, length, int(np.ceil(length / max_step)) + 1)
+    fine = np.arange(0.0, length + 2.5e-4, 2.5e-4)
+    theta = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+    r = colon.wall_radius(fine[:, None], theta[None, :])
+    k = np.zeros(len(fine))
+    k[1:-1] = np.max(np.abs(r[2:] - 2.0 * r[1:-1] + r[:-2]), axis=1) / 2.5e-4**2
+    k = np.maximum.reduce([k, np.roll(k, 1), np.roll(k, -1)])
+    step = np.clip(np.sqrt(8.0 * tolerance / np.maximum(k, 1e-9)), min_step, max_step)
+    stations = [0.0]
+    while stations[-1] < length:
+        here = stations[-1]
+        window = (fine >= here) & (fine <= here + max_step)
+        # The smallest spacing wanted anywhere the next edge will span.
+        stations.append(min(length, here + float(np.min(step[window]))))
+    return np.array(stations)
+
+
+def tube_rings(colon, stations: np.ndarray, points_around: int):
+    """Ring vertices of the wall at the given arc lengths.
 
     Returns:
-        (s, theta, rings): s (R,) stations from 0 to L, theta (M,), rings (R, M, 3).
+        (s, theta, rings): s (R,) the stations, theta (M,), rings (R, M, 3).
     """
     cl = colon.centerline
-    n_rings = int(np.ceil(cl.length / axial_step)) + 1
-    s = np.linspace(0.0, cl.length, n_rings)
+    s = np.asarray(stations, dtype=float)
     theta = np.linspace(0.0, 2.0 * np.pi, points_around, endpoint=False)
     _, n, b = cl.frame_at(s)
     w = colon.wall_radius(s[:, None], theta[None, :])
@@ -72,9 +100,9 @@ def cap_faces(ring_start: int, m: int, center: int, at_start: bool) -> np.ndarra
     return np.stack([cen, a, b] if at_start else [cen, b, a], axis=-1)
 
 
-def closed_tube(colon, axial_step: float, points_around: int) -> trimesh.Trimesh:
+def closed_tube(colon, stations: np.ndarray, points_around: int) -> trimesh.Trimesh:
     """The whole wall with both end caps, as one mesh."""
-    s, _, rings = tube_rings(colon, axial_step, points_around)
+    s, _, rings = tube_rings(colon, stations, points_around)
     r, m, _ = rings.shape
     cl = colon.centerline
     verts = np.concatenate([rings.reshape(-1, 3), cl.point_at(np.array([0.0, cl.length]))])
@@ -83,9 +111,9 @@ def closed_tube(colon, axial_step: float, points_around: int) -> trimesh.Trimesh
     return trimesh.Trimesh(verts, faces, process=False)
 
 
-def tube_chunks(colon, axial_step: float, points_around: int, chunks: int):
+def tube_chunks(colon, stations: np.ndarray, points_around: int, chunks: int):
     """The wall split along its length; consecutive chunks share their boundary ring."""
-    s, _, rings = tube_rings(colon, axial_step, points_around)
+    s, _, rings = tube_rings(colon, stations, points_around)
     r, m, _ = rings.shape
     cl = colon.centerline
     chunks = max(1, min(chunks, r - 1))

@@ -163,8 +163,16 @@ class ColonParams:
     # Centreline sampling step [m].
     centerline_step: float = 0.001
 
-    # Collision mesh: axial step between rings [m] and vertices per ring.
-    collision_axial_step: float = 0.003
+    # Collision mesh: largest axial step between rings [m].
+    collision_axial_step: float = 0.004
+    # Largest gap between a collision edge and the analytic wall along the axis [m]: rings
+    # crowd (down to `collision_min_step`) where folds curve the wall; 0 spaces them
+    # uniformly at `collision_axial_step`, which then leaves up to ~1.3 mm at the
+    # ascending colon's fold crests.
+    collision_tolerance: float = 0.0003
+    # Smallest axial step between collision rings [m].
+    collision_min_step: float = 0.001
+    # Collision mesh vertices per ring.
     collision_points_around: int = 32
     # Visual mesh: axial step between rings [m] and vertices per ring.
     visual_axial_step: float = 0.0015
