@@ -52,6 +52,14 @@ def parse_yaml(text: str, source: str) -> typing.Any:
         raise SchemaError(f"{where}: YAML syntax error: {problem}") from None
 
 
+def _is_float_text(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _type_name(t) -> str:
     return getattr(t, "__name__", str(t))
 
@@ -101,6 +109,8 @@ def check(schema, node, path: str) -> None:
             check(args[1], item, f"{path}.{key}")
         return
     if schema is float:
+        if isinstance(node, str) and _is_float_text(node):
+            return  # YAML 1.1 reads 1.0e4 (no exponent sign) as text; Drake converts it.
         if isinstance(node, bool) or not isinstance(node, (int, float)):
             raise SchemaError(f"{path}: expected a number, got {node!r}")
         return

@@ -40,6 +40,12 @@ def test_override_layers_on_top_without_touching_defaults(tmp_path):
     assert Scenario().epm.clearance == 0.02  # shared defaults were not mutated
 
 
+def test_exponent_without_sign_is_a_number(tmp_path):
+    # YAML 1.1 reads 5e6 as text; scenario files use that notation for moduli and gains.
+    path = write(tmp_path, "A:\n  contact: {capsule_hydroelastic_modulus: 5e6}\n")
+    assert load_scenario(path).contact.capsule_hydroelastic_modulus == 5e6
+
+
 def test_dump_round_trips(tmp_path):
     s = load_scenario(name="FarMagnet")
     path = write(tmp_path, "X:\n" + "".join("  " + line + "\n" for line in dump_scenario(s).splitlines()))

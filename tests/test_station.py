@@ -76,3 +76,13 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
     html = (out / "recording.html").read_text()
     assert "<html" in html.lower() and len(html) > 10_000
     assert (out / "logs.npz").exists() and (out / "scenario.yaml").exists()
+
+
+@pytest.mark.parametrize("name", ["Default", "OneOfEverything"])
+def test_named_scenarios_simulate(name):
+    scenario = load_scenario(name=name)
+    scenario = dataclasses.replace(scenario, duration=min(scenario.duration, 0.5))
+    result = simulate(scenario, progress=False)
+    assert result.metrics["stopped_early"] is None
+    assert np.all(np.isfinite(result.capsule_state))
+    assert result.metrics["max_wall_excursion_m"] < 1e-3
