@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import sys
 import time
 from pathlib import Path
@@ -57,7 +58,12 @@ def _run(args) -> int:
         meshcat = Meshcat(MeshcatParams(port=args.port))
         print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
     elif not args.no_recording:
+        # Only for the recording: its server's address would be noise.
+        drake_log = logging.getLogger("drake")
+        level = drake_log.level
+        drake_log.setLevel(logging.WARNING)
         meshcat = Meshcat(MeshcatParams(port=0))
+        drake_log.setLevel(level)
     name = args.scenario or "run"
     out_dir = args.out or Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
