@@ -48,7 +48,7 @@ def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarr
 
 
 def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule_radius,
-                capsule_length, epm_geometry, start_s, wall_time, stopped_early=None):
+                capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None):
     """Metrics of one run as a JSON-ready dict.
 
     Args:
@@ -60,6 +60,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule
         capsule_radius, capsule_length: capsule collision shape (m).
         epm_geometry: MagnetGeometry of the EPM (for its clearance to the skin).
         start_s: the scenario's start arc length (m).
+        sim_time: simulated seconds.
         wall_time: seconds of wall-clock time the simulation took.
         stopped_early: None, or why the run ended before its duration.
     """
@@ -68,7 +69,6 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule
     excursion = wall_excursion(colon, R_WC, p_WC, capsule_surface_points_C(capsule_radius,
                                                                            capsule_length))
     final_s = float(s[-1])
-    sim_time = float(times[-1] - times[0]) if len(times) > 1 else 0.0
 
     x, y, z, yaw, pitch = epm_state[:5]
     m_hat = np.stack([np.cos(yaw) * np.sin(pitch), np.sin(yaw) * np.sin(pitch), np.cos(pitch)])
@@ -83,7 +83,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule
         "advance_m": final_s - float(s[0]),
         "stop_segment": colon.centerline.segment_at(final_s),
         "colon_length_m": float(colon.centerline.s[-1]),
-        "sim_time_s": sim_time,
+        "sim_time_s": float(sim_time),
         "wall_time_s": float(wall_time),
         "real_time_factor": sim_time / wall_time if wall_time > 0 else None,
         "peak_contact_force_N": float(np.max(contact_load)) if len(contact_load) else 0.0,

@@ -127,7 +127,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             colon, times, result.capsule_state, result.contact_load, result.epm_state,
             capsule_radius=capsule_radius, capsule_length=capsule_length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
-            wall_time=wall_time, stopped_early=stopped_early)
+            sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early)
     else:
         result.metrics = {"stopped_early": stopped_early, "wall_time_s": wall_time}
 
