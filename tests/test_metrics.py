@@ -40,11 +40,11 @@ def test_excursion_of_a_capsule_pushed_into_a_straight_tube():
     R_tilt = RotationMatrix(RollPitchYaw(-np.pi / 2 + np.radians(10), 0, 0)).matrix()
     expected = LENGTH / 2 * np.sin(np.radians(10)) + RADIUS - 0.015
     got = wall_excursion(tube, R_tilt[None], np.zeros((1, 3)), points)[0]
-    assert got == pytest.approx(expected, abs=2e-4)  # the ring sampling costs < 0.2 mm
+    assert got == pytest.approx(expected, abs=1e-4)  # the ring sampling costs < 0.1 mm
 
 
 def test_sampled_excursion_matches_a_dense_surface_sampling():
-    # In the real colon, the 62 sampled surface points find the capsule's largest excursion
+    # In the real colon, the sampled surface points find the capsule's largest excursion
     # as well as 20,000 random points on its surface do, within 0.3 mm.
     colon = colon_for(Scenario())
     rng = np.random.default_rng(3)
@@ -62,4 +62,4 @@ def test_sampled_excursion_matches_a_dense_surface_sampling():
         p = X.translation() + side * 0.01  # pressed toward the wall
         coarse = wall_excursion(colon, R[None], p[None], capsule_surface_points_C(RADIUS, LENGTH))
         fine = wall_excursion(colon, R[None], p[None], dense)
-        assert coarse[0] == pytest.approx(fine[0], abs=3e-4)
+        assert coarse[0] == pytest.approx(fine[0], abs=1.5e-4)
