@@ -29,6 +29,7 @@ from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
     AddContactMaterial,
     AddRigidHydroelasticProperties,
+    Convex,
     GeometryInstance,
     IllustrationProperties,
     Mesh,
@@ -50,7 +51,7 @@ from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 
-from capsule_drake.anatomy import build_colon, colon_assets
+from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
@@ -109,19 +110,42 @@ def _contact_properties(scenario: Scenario) -> ProximityProperties:
     props = ProximityProperties()
     mu = scenario.contact.friction
     AddContactMaterial(dissipation=scenario.contact.hunt_crossley_dissipation,
+                       point_stiffness=scenario.contact.point_stiffness,
                        friction=CoulombFriction(mu, mu), properties=props)
     return props
 
 
+def _pieces_for(scenario: Scenario, colon):
+    """The colon wall's convex pieces (built once per process for equal parameters)."""
+    contact = scenario.contact
+    key = (yaml_dump_typed(scenario.colon), contact.piece_axial_length,
+           contact.piece_max_chord_depth)
+    if key not in _PIECES:
+        _PIECES.clear()
+        _PIECES[key] = wall_pieces(colon, axial_length=contact.piece_axial_length,
+                                   max_chord_depth=contact.piece_max_chord_depth)
+    return _PIECES[key]
+
+
+_PIECES: dict[tuple, list] = {}
+
+
 def _add_colon(plant, scene_graph, scenario: Scenario, colon):
-    """The colon wall: rigid hydroelastic chunks (collision), one visual mesh, the torso."""
+    """The colon wall (collision, by the scenario's contact model), one visual mesh, the
+    torso."""
     assets = colon_assets(scenario.colon)
     world = plant.world_body()
-    for i, chunk in enumerate(assets.collision_objs):
-        props = _contact_properties(scenario)
-        AddRigidHydroelasticProperties(properties=props)
-        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
-                                        f"colon_wall_{i:02d}", props)
+    if scenario.contact.model == "convex_pieces":
+        for i, vertices in enumerate(_pieces_for(scenario, colon)):
+            name = f"colon_piece_{i:04d}"
+            plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(vertices, name),
+                                            name, _contact_properties(scenario))
+    else:
+        for i, chunk in enumerate(assets.collision_objs):
+            props = _contact_properties(scenario)
+            AddRigidHydroelasticProperties(properties=props)
+            plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
+                                            f"colon_wall_{i:02d}", props)
     # The mucosa's look comes from the mesh's own material (MTL), so no colour is imposed.
     mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
     mucosa.set_illustration_properties(IllustrationProperties())
@@ -135,6 +159,10 @@ def _set_capsule_contact(plant, scene_graph, scenario: Scenario):
     capsule = plant.GetBodyByName(CAPSULE_BODY)
     for geometry_id in plant.GetCollisionGeometriesForBody(capsule):
         props = _contact_properties(scenario)
+        if scenario.contact.model == "convex_pieces":
+            scene_graph.AssignRole(plant.get_source_id(), geometry_id, props,
+                                   RoleAssign.kReplace)
+            continue
         AddCompliantHydroelasticProperties(
             resolution_hint=scenario.contact.capsule_resolution_hint,
             hydroelastic_modulus=scenario.contact.capsule_hydroelastic_modulus,
@@ -153,17 +181,21 @@ def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     meshcat.SetCameraPose(camera_in_world=[-0.55, -0.35, 0.65], target_in_world=[0.0, 0.0, 0.1])
 
 
-def make_station(scenario: Scenario, meshcat=None):
+def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool = True):
     """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is given.
 
     Pure construction: the scenario is not modified, nothing is simulated.
+    `apply_magnet_force=False` leaves the magnet system's outputs available but does not
+    apply its forces (the capsule lies on the wall under gravity): for ablation benchmarks.
     """
     colon = colon_for(scenario)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(
             time_step=scenario.time_step,
-            discrete_contact_approximation=scenario.contact.discrete_contact_approximation),
+            discrete_contact_approximation=scenario.contact.discrete_contact_approximation,
+            # Point contact is cheap enough that sampling outputs is a measurable cost.
+            use_sampled_output_ports=scenario.contact.model != "convex_pieces"),
         builder)
     plant.set_name("plant")
     parser = configure_parser(Parser(plant))
@@ -218,8 +250,9 @@ def make_station(scenario: Scenario, meshcat=None):
     magnet_force = builder.AddNamedSystem("magnet_force", MagneticForce(plant, magnets))
     builder.Connect(plant.get_body_poses_output_port(),
                     magnet_force.get_body_poses_input_port())
-    builder.Connect(magnet_force.get_applied_spatial_force_output_port(),
-                    plant.get_applied_spatial_force_input_port())
+    if apply_magnet_force:
+        builder.Connect(magnet_force.get_applied_spatial_force_output_port(),
+                        plant.get_applied_spatial_force_input_port())
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")

@@ -86,3 +86,13 @@ def test_named_scenarios_simulate(name):
     assert result.metrics["stopped_early"] is None
     assert np.all(np.isfinite(result.capsule_state))
     assert result.metrics["max_wall_excursion_m"] < 1e-3
+
+
+def test_fast_contact_model_drags_the_capsule_inside_the_wall():
+    # The convex-pieces wall (point contact) keeps the capsule inside as the hydroelastic one
+    # does. 12 s: the capsule is dragged out of the rectum into the sigmoid.
+    scenario = dataclasses.replace(load_scenario(name="FastContact"), duration=12.0)
+    m = simulate(scenario, progress=False).metrics
+    assert m["stopped_early"] is None
+    assert m["max_wall_excursion_m"] < 1e-3
+    assert m["max_s_m"] > 0.15

@@ -5,10 +5,11 @@ from .centerline import Centerline
 from .colon import (GEOMETRY_VERSION, Colon, ColonAssets, build_colon, colon_assets,
                     default_cache_root, params_hash)
 from .params import SEGMENT_NAMES, AbdomenParams, ColonParams, SegmentParams
+from .pieces import wall_pieces
 from .wall import HaustralWall
 
 __all__ = [
     "Abdomen", "AbdomenParams", "Centerline", "Colon", "ColonAssets", "ColonParams",
     "GEOMETRY_VERSION", "HaustralWall", "SEGMENT_NAMES", "SegmentParams", "build_colon",
-    "colon_assets", "default_cache_root", "params_hash",
+    "colon_assets", "default_cache_root", "params_hash", "wall_pieces",
 ]
