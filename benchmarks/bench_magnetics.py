@@ -6,12 +6,21 @@ Prints the median microseconds per call of:
   - a MagneticForce output evaluation inside a plant diagram (cache invalidated by
     a change of the plant positions; the plant's own pose kinematics is timed
     separately and subtracted),
-  - one 1 ms simulator step with and without the magnets.
+  - one 1 ms simulator step with and without the magnets,
+  - the default station's 1 ms step (``--station``): as built, with the magnet moments
+    set to zero (same Python work, no magnetic physics), and with MagneticForce's
+    output not applied (``apply_magnet_force=False``). The last two follow identical
+    trajectories, so their difference is what MagneticForce costs inside the
+    simulation. The simulators advance in interleaved 50 ms chunks and chunk times
+    are compared pairwise, so load from other processes mostly cancels.
 
-Run: python benchmarks/bench_magnetics.py
+Run: python benchmarks/bench_magnetics.py [--station [--sim-seconds 3]]
 """
 
 import argparse
+import contextlib
+import dataclasses
+import random
 import statistics
 import time
 
@@ -31,6 +40,9 @@ from capsule_drake.magnetics import (
     dipole_torque,
 )
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+
+# Only for --station (imports the colon builder).
+STATION_VARIANTS = ("as built", "zero moments", "no MagneticForce")
 
 
 def median_us(fn, repeats, number):
@@ -84,10 +96,72 @@ def build_diagram(with_magnets):
     return diagram, plant, magnetic, context
 
 
+@contextlib.contextmanager
+def _patched(module, name, value):
+    original = getattr(module, name)
+    setattr(module, name, value)
+    try:
+        yield
+    finally:
+        setattr(module, name, original)
+
+
+def build_station(variant):
+    """The default station, or a variant of it built by patching ``make_station``."""
+    from capsule_drake import station
+    from capsule_drake.scenario import load_scenario
+
+    scenario = load_scenario()
+    if variant == "as built":
+        return station.make_station(scenario)
+    if variant == "zero moments":
+        def zero_moment_force(plant, magnets):
+            return MagneticForce(
+                plant, [dataclasses.replace(m, moment=0.0) for m in magnets]
+            )
+
+        with _patched(station, "MagneticForce", zero_moment_force):
+            return station.make_station(scenario)
+    assert variant == "no MagneticForce"
+    return station.make_station(scenario, apply_magnet_force=False)
+
+
+def station_steps(sim_seconds, chunk=0.05, seed=0):
+    """Per-step CPU time of each station variant, in interleaved chunks."""
+    rng = random.Random(seed)
+    simulators = {}
+    for variant in STATION_VARIANTS:
+        simulators[variant] = Simulator(build_station(variant))
+        simulators[variant].Initialize()
+    per_step = {variant: [] for variant in STATION_VARIANTS}
+    for k in range(int(round(sim_seconds / chunk))):
+        order = list(STATION_VARIANTS)
+        rng.shuffle(order)  # no variant always runs right after another
+        for variant in order:
+            start = time.process_time()
+            simulators[variant].AdvanceTo((k + 1) * chunk)
+            # CPU seconds per simulated second = ms per 1 ms step.
+            per_step[variant].append((time.process_time() - start) / chunk)
+    baseline = per_step["no MagneticForce"]
+    print(f"\ndefault station, {sim_seconds:g} s in {chunk * 1e3:g} ms chunks "
+          "(CPU time, median over chunks)")
+    print(f"{'us per 1 ms step':>20}  {'RTF':>5}  {'minus no-magnet':>15}  variant")
+    for variant, times in per_step.items():
+        extra = statistics.median(t - b for t, b in zip(times, baseline))
+        step = statistics.median(times)
+        print(f"{step * 1e3:20.1f}  {1.0 / step:5.2f}  {extra * 1e3:15.1f}  {variant}")
+    print("(zero moments minus no-magnet = MagneticForce's cost per step in the "
+          "simulation; as built also differs in physics: the capsule is dragged)")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--number", type=int, default=2000)
+    parser.add_argument("--station", action="store_true",
+                        help="also time the default station's step (builds the colon)")
+    parser.add_argument("--sim-seconds", type=float, default=3.0,
+                        help="simulated seconds per station variant")
     args = parser.parse_args()
     R, N = args.repeats, args.number
 
@@ -95,6 +169,7 @@ def main():
     m_t = 1.26 * np.array([1.0, 0.0, 0.0])
     p = np.array([0.02, -0.03, 0.14])
     p_ad = InitializeAutoDiff(p).reshape(3)
+    m_s_tuple, m_t_tuple, p_tuple = tuple(m_s.tolist()), tuple(m_t.tolist()), tuple(p.tolist())
     p_ad14 = InitializeAutoDiff(p, 14).reshape(3)
 
     rows = [
@@ -103,8 +178,8 @@ def main():
         ("generic float: dipole_pair_wrench", lambda: dipole_pair_wrench(m_s, m_t, p), N),
         ("generic float: dipole_pair_interaction (2 fields + wrenches)",
          lambda: dipole_pair_interaction(m_s, m_t, p), N),
-        ("fast float: dipole_pair_interaction_float",
-         lambda: dipole_pair_interaction_float(m_s, m_t, p), N),
+        ("fast float: dipole_pair_interaction_float (tuples in and out)",
+         lambda: dipole_pair_interaction_float(m_s_tuple, m_t_tuple, p_tuple), N),
         ("AutoDiffXd (3 derivs): dipole_force + dipole_torque",
          lambda: (dipole_force(m_s, m_t, p_ad), dipole_torque(m_s, m_t, p_ad)), N // 10),
         ("AutoDiffXd (14 derivs): dipole_pair_interaction",
@@ -162,6 +237,9 @@ def main():
         per_step = (time.perf_counter() - start) / steps * 1e6
         label = "with" if with_magnets else "without"
         print(f"{per_step:20.2f}  simulator step (1 ms, free capsule, welded EPM) {label} magnets")
+
+    if args.station:
+        station_steps(args.sim_seconds)
 
 
 if __name__ == "__main__":

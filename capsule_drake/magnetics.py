@@ -200,16 +200,17 @@ def dipole_pair_interaction_float(
 
     Works on plain Python floats component by component: for 3-vectors this is
     several times faster than numpy, whose per-call overhead dominates at this size.
-    Accepts any length-3 sequences of floats; returns float numpy arrays.
+    Accepts any length-3 sequences of floats and returns a ``DipolePairInteraction``
+    of 3-tuples of floats (no numpy arrays are made: ``MagneticForce`` calls this at
+    every step of a 1 kHz simulation and hands the tuples straight to Drake).
     """
-    sx, sy, sz = float(m_source[0]), float(m_source[1]), float(m_source[2])
-    tx, ty, tz = float(m_target[0]), float(m_target[1]), float(m_target[2])
-    px, py, pz = float(p[0]), float(p[1]), float(p[2])
+    sx, sy, sz = m_source
+    tx, ty, tz = m_target
+    px, py, pz = p
     r2 = px * px + py * py + pz * pz
     if r2 == 0.0:
-        zero = np.zeros(3)
-        return DipolePairInteraction(zero, zero.copy(), zero.copy(), zero.copy(),
-                                     zero.copy(), zero.copy())
+        zero = (0.0, 0.0, 0.0)
+        return DipolePairInteraction(zero, zero, zero, zero, zero, zero)
     r = math.sqrt(r2)
     r_eff = min_distance if r < min_distance else r
     ux, uy, uz = px / r, py / r, pz / r
@@ -219,8 +220,8 @@ def dipole_pair_interaction_float(
     s_t = sx * tx + sy * ty + sz * tz
     # Field of the source at the target, and of the target at the source
     # (u -> -u leaves 3 u u^T unchanged).
-    bx, by, bz = k3 * (3.0 * s_u * ux - sx), k3 * (3.0 * s_u * uy - sy), k3 * (3.0 * s_u * uz - sz)
-    cx, cy, cz = k3 * (3.0 * t_u * ux - tx), k3 * (3.0 * t_u * uy - ty), k3 * (3.0 * t_u * uz - tz)
+    a, c = 3.0 * s_u, 3.0 * t_u
+    bx, by, bz = k3 * (a * ux - sx), k3 * (a * uy - sy), k3 * (a * uz - sz)
     k4 = 3.0 * k3 / r_eff
     w = s_t - 5.0 * s_u * t_u
     fx = k4 * (sx * t_u + tx * s_u + ux * w)
@@ -230,17 +231,15 @@ def dipole_pair_interaction_float(
     qx, qy, qz = ty * bz - tz * by, tz * bx - tx * bz, tx * by - ty * bx
     # Reaction torque on the source about its centre: -T - p x F.
     return DipolePairInteraction(
-        np.array((bx, by, bz)),
-        np.array((cx, cy, cz)),
-        np.array((fx, fy, fz)),
-        np.array((qx, qy, qz)),
-        np.array((-fx, -fy, -fz)),
-        np.array(
-            (
-                -qx - (py * fz - pz * fy),
-                -qy - (pz * fx - px * fz),
-                -qz - (px * fy - py * fx),
-            )
+        (bx, by, bz),
+        (k3 * (c * ux - tx), k3 * (c * uy - ty), k3 * (c * uz - tz)),
+        (fx, fy, fz),
+        (qx, qy, qz),
+        (-fx, -fy, -fz),
+        (
+            -qx - (py * fz - pz * fy),
+            -qy - (pz * fx - px * fz),
+            -qz - (px * fy - py * fx),
         ),
     )
 

@@ -65,6 +65,18 @@ def _accumulate(sums, i, value):
     sums[i] = value if sums[i] is None else sums[i] + value
 
 
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _accumulate3(sums, i, value):
+    """_accumulate for 3-tuples of floats; sums start as the shared ``_ZERO3``."""
+    total = sums[i]
+    if total is _ZERO3:
+        sums[i] = value
+    else:
+        sums[i] = (total[0] + value[0], total[1] + value[1], total[2] + value[2])
+
+
 def _resolve_magnets(plant, magnets):
     if not plant.is_finalized():
         raise ValueError("MagneticForce needs a finalized MultibodyPlant")
@@ -89,7 +101,8 @@ def _resolve_magnets(plant, magnets):
         index = int(body.index())
         resolved.append(
             _ResolvedMagnet(
-                spec.name, index, tuple(p_BM), tuple(m_B), index not in welded
+                spec.name, index, tuple(p_BM.tolist()), tuple(m_B.tolist()),
+                index not in welded,
             )
         )
     return tuple(resolved)
@@ -134,7 +147,9 @@ def MagneticForce_(T):
         depends only on ``body_poses``. A discrete plant's ``body_poses`` does
         not depend on its applied-force input, so this makes no algebraic loop.
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()`` for
-        linearisation); the float path uses the scalar fast kernel.
+        linearisation). The float path is a separate plain-float kernel
+        (tested against the generic one) with preallocated output forces: at
+        1 kHz its Python cost is most of what this system adds to a step.
 
         Args:
             plant: a finalized MultibodyPlant (any scalar type); only body
@@ -164,13 +179,27 @@ def MagneticForce_(T):
             self._make_spatial_force = SpatialForce_[T]
             self._body_indices = [BodyIndex(m.body_index) for m in magnets]
             if T is float:
+                # Fast path (see _calc_magnet_values_float): plain floats.
                 self._pair = dipole_pair_interaction_float
                 self._p_BM = [np.array(m.p_BM) for m in magnets]
-                self._m_B = [np.array(m.m_B) for m in magnets]
+                calc_values = self._calc_magnet_values_float
+                calc_applied = self._calc_applied_spatial_force_float
             else:
                 self._pair = dipole_pair_interaction
                 self._p_BM = [np.array([T(x) for x in m.p_BM]) for m in magnets]
-                self._m_B = [np.array(m.m_B) for m in magnets]
+                calc_values = self._calc_magnet_values
+                calc_applied = self._calc_applied_spatial_force
+            self._m_B = [np.array(m.m_B) for m in magnets]
+            # The applied forces, built once: a calc only replaces their F_Bq_W.
+            # set_value() copies them into the output, so reuse is safe.
+            self._applied = []
+            for i, magnet in enumerate(magnets):
+                if magnet.applies_force:
+                    force = self._make_applied_force()
+                    force.body_index = self._body_indices[i]
+                    force.p_BoBq_B = self._p_BM[i]
+                    self._applied.append((i, force))
+            self._applied_forces = [force for _, force in self._applied]
 
             self._body_poses_port = self.DeclareAbstractInputPort(
                 "body_poses", AbstractValue.Make([RigidTransform_[T]()])
@@ -179,7 +208,7 @@ def MagneticForce_(T):
                 description="magnet fields and wrenches",
                 value_producer=ValueProducer(
                     allocate=AbstractValue.Make(_MagnetValues([], [], [], [])).Clone,
-                    calc=self._calc_magnet_values,
+                    calc=calc_values,
                 ),
                 prerequisites_of_calc={self._body_poses_port.ticket()},
             )
@@ -187,7 +216,7 @@ def MagneticForce_(T):
             self._applied_spatial_force_port = self.DeclareAbstractOutputPort(
                 "applied_spatial_force",
                 lambda: AbstractValue.Make([ExternallyAppliedSpatialForce_[T]()]),
-                self._calc_applied_spatial_force,
+                calc_applied,
                 prerequisites_of_calc=deps,
             )
             self._B_B_ports = []
@@ -269,22 +298,74 @@ def MagneticForce_(T):
                         values[i] = zero
             abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W))
 
+        def _calc_magnet_values_float(self, context, abstract_value):
+            """_calc_magnet_values for T = float, in plain Python floats.
+
+            Same result; numpy's per-call overhead on 3-vectors would cost more
+            than the arithmetic. Vectors are 3-tuples, R_WB tuples of rows.
+            """
+            poses = self._body_poses_port.Eval(context)
+            R_WB, p_WM, m_W = [], [], []
+            for magnet in self._magnets:
+                # One array out of the bindings (each costs ~1 us) and one tolist().
+                (r00, r01, r02, x), (r10, r11, r12, y), (r20, r21, r22, z) = poses[
+                    magnet.body_index
+                ].GetAsMatrix34().tolist()
+                a, b, c = magnet.p_BM
+                p_WM.append(
+                    (
+                        r00 * a + r01 * b + r02 * c + x,
+                        r10 * a + r11 * b + r12 * c + y,
+                        r20 * a + r21 * b + r22 * c + z,
+                    )
+                )
+                a, b, c = magnet.m_B
+                m_W.append(
+                    (
+                        r00 * a + r01 * b + r02 * c,
+                        r10 * a + r11 * b + r12 * c,
+                        r20 * a + r21 * b + r22 * c,
+                    )
+                )
+                R_WB.append(((r00, r01, r02), (r10, r11, r12), (r20, r21, r22)))
+            n = len(p_WM)
+            B_W, tau_W, f_W = [_ZERO3] * n, [_ZERO3] * n, [_ZERO3] * n
+            pair = self._pair
+            d_min = self._min_distance
+            for i in range(n):
+                xi, yi, zi = p_WM[i]
+                for j in range(i + 1, n):
+                    # i is the source, j the target: p points from i to j.
+                    xj, yj, zj = p_WM[j]
+                    result = pair(m_W[i], m_W[j], (xj - xi, yj - yi, zj - zi), d_min)
+                    _accumulate3(B_W, j, result.field_at_target)
+                    _accumulate3(B_W, i, result.field_at_source)
+                    _accumulate3(f_W, j, result.force_target)
+                    _accumulate3(tau_W, j, result.torque_target)
+                    _accumulate3(f_W, i, result.force_source)
+                    _accumulate3(tau_W, i, result.torque_source)
+            abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W))
+
         def _calc_applied_spatial_force(self, context, output):
             values = self._cache.Eval(context)
-            forces = []
-            for i, magnet in enumerate(self._magnets):
-                if not magnet.applies_force:
-                    continue
-                force = self._make_applied_force()
-                force.body_index = self._body_indices[i]
-                force.p_BoBq_B = self._p_BM[i]
-                force.F_Bq_W = self._make_spatial_force(values.tau_W[i], values.f_W[i])
-                forces.append(force)
-            output.set_value(forces)
+            make_spatial_force = self._make_spatial_force
+            for i, force in self._applied:
+                force.F_Bq_W = make_spatial_force(values.tau_W[i], values.f_W[i])
+            output.set_value(self._applied_forces)
+
+        def _calc_applied_spatial_force_float(self, context, output):
+            values = self._cache.Eval(context)
+            make_spatial_force = self._make_spatial_force
+            tau_W, f_W = values.tau_W, values.f_W
+            for i, force in self._applied:
+                # One 6-vector: the (tau, f) constructor converts each
+                # 3-tuple through Eigen, several times slower.
+                force.F_Bq_W = make_spatial_force(np.array(tau_W[i] + f_W[i]))
+            output.set_value(self._applied_forces)
 
         def _calc_B_B(self, i, context, output):
             values = self._cache.Eval(context)
-            output.SetFromVector(values.R_WB[i].T @ values.B_W[i])
+            output.SetFromVector(np.asarray(values.R_WB[i]).T @ np.asarray(values.B_W[i]))
 
         def _calc_F_W(self, i, context, output):
             values = self._cache.Eval(context)
