@@ -11,14 +11,9 @@ Printed per model: wall geometries, build time (wall geometry generation, then p
 peak memory, real-time factor (median of the repeats), the capsule's largest excursion beyond
 the analytic wall and how far it moved along the centreline.
 
-Registration of the pieces model (what `add_wall_pieces` and `set_capsule_point_contact` do):
-  - plant: MultibodyPlantConfig(time_step=1e-3, discrete_contact_approximation="lagged",
-    use_sampled_output_ports=False);
-  - each piece: plant.RegisterCollisionGeometry(world, X=identity, Convex(vertices_3xK, label),
-    name, props) with props = AddContactMaterial(dissipation=5 s/m, point_stiffness=2e4 N/m,
-    friction=CoulombFriction(0.2, 0.2)); no hydroelastic properties, so point contact;
-  - the capsule's collision geometry: the same material, swapped in before Finalize with
-    scene_graph.AssignRole(source_id, geometry_id, props, RoleAssign.kReplace).
+The wall and the capsule's contact properties are registered exactly as the station does
+(`capsule_drake.station.add_colon_wall` and `set_capsule_contact`), from a Scenario whose
+`contact.model` is "hydroelastic" or "convex_pieces".
 """
 
 from __future__ import annotations
@@ -33,21 +28,10 @@ import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (
-    AddCompliantHydroelasticProperties,
-    AddContactMaterial,
-    AddRigidHydroelasticProperties,
-    Convex,
-    Mesh,
-    ProximityProperties,
-    RoleAssign,
-)
-from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
-    CoulombFriction,
     ExternallyAppliedSpatialForce,
     MultibodyPlantConfig,
 )
@@ -56,66 +40,21 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, VectorLogSink
 
 from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
-from capsule_drake.anatomy.pieces import wall_pieces
 from capsule_drake.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
-from capsule_drake.station import capsule_start_pose, configure_parser
+from capsule_drake.scenario import ContactConfig, Scenario
+from capsule_drake.station import (
+    add_colon_wall,
+    capsule_start_pose,
+    configure_parser,
+    set_capsule_contact,
+    wall_pieces_for,
+)
 
 CAPSULE_RADIUS = 0.0058
 CAPSULE_LENGTH = 0.0199
 START_S = 0.75            # middle of the default colon's transverse segment [m]
 PRESS_N = 1.0             # external load toward the wall [N]
 DRAG_N = 0.3              # external load along the colon [N]
-FRICTION = 0.2
-DISSIPATION = 5.0         # Hunt-Crossley [s/m]
-POINT_STIFFNESS = 2.0e4   # per geometry [N/m]; capsule and piece in series: 1e4 N/m
-HYDRO_MODULUS = 5.0e6     # the station's compliant capsule [Pa]
-HYDRO_RESOLUTION = 0.004  # [m]
-
-
-def point_contact_properties() -> ProximityProperties:
-    """Point-contact material shared by the capsule and every wall piece."""
-    props = ProximityProperties()
-    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=POINT_STIFFNESS,
-                       friction=CoulombFriction(FRICTION, FRICTION), properties=props)
-    return props
-
-
-def add_wall_pieces(plant, pieces) -> None:
-    """Registers each convex piece (3, K) as a collision geometry of the world body."""
-    world = plant.world_body()
-    for i, vertices in enumerate(pieces):
-        name = f"colon_piece_{i:04d}"
-        plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(vertices, name), name,
-                                        point_contact_properties())
-
-
-def set_capsule_point_contact(plant, scene_graph, body) -> None:
-    """Replaces the capsule's hydroelastic proximity properties by point contact."""
-    for geometry_id in plant.GetCollisionGeometriesForBody(body):
-        scene_graph.AssignRole(plant.get_source_id(), geometry_id, point_contact_properties(),
-                               RoleAssign.kReplace)
-
-
-def add_hydroelastic_wall(plant, scene_graph, body, colon_params) -> int:
-    """The station's current design: rigid hydroelastic chunks + compliant capsule."""
-    world = plant.world_body()
-    chunks = colon_assets(colon_params).collision_objs
-    for i, path in enumerate(chunks):
-        props = ProximityProperties()
-        AddContactMaterial(dissipation=DISSIPATION,
-                           friction=CoulombFriction(FRICTION, FRICTION), properties=props)
-        AddRigidHydroelasticProperties(properties=props)
-        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(path)),
-                                        f"colon_wall_{i:02d}", props)
-    for geometry_id in plant.GetCollisionGeometriesForBody(body):
-        props = ProximityProperties()
-        AddContactMaterial(dissipation=DISSIPATION,
-                           friction=CoulombFriction(FRICTION, FRICTION), properties=props)
-        AddCompliantHydroelasticProperties(resolution_hint=HYDRO_RESOLUTION,
-                                           hydroelastic_modulus=HYDRO_MODULUS,
-                                           properties=props)
-        scene_graph.AssignRole(plant.get_source_id(), geometry_id, props, RoleAssign.kReplace)
-    return len(chunks)
 
 
 def load_W(colon, s: float) -> np.ndarray:
@@ -128,9 +67,12 @@ def load_W(colon, s: float) -> np.ndarray:
 
 def build(model: str, colon, axial_length: float, chord_depth: float):
     """Diagram, capsule state logger and wall geometry count; times the two build stages."""
+    contact = ContactConfig(model="convex_pieces" if model == "pieces" else "hydroelastic",
+                            piece_axial_length=axial_length, piece_max_chord_depth=chord_depth)
+    scenario = Scenario(colon=colon.params, contact=contact)
     start = time.perf_counter()
-    pieces = (wall_pieces(colon, axial_length=axial_length, max_chord_depth=chord_depth)
-              if model == "pieces" else None)
+    if model == "pieces":
+        wall_pieces_for(scenario, colon)  # generated once per process: timed on its own
     geometry_seconds = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -141,12 +83,8 @@ def build(model: str, colon, axial_length: float, chord_depth: float):
     capsule_instance, = configure_parser(Parser(plant)).AddModels(
         url="package://capsule_drake/capsule.sdf")
     body = plant.GetBodyByName("capsule")
-    if model == "pieces":
-        add_wall_pieces(plant, pieces)
-        set_capsule_point_contact(plant, scene_graph, body)
-        count = len(pieces)
-    else:
-        count = add_hydroelastic_wall(plant, scene_graph, body, colon.params)
+    count = add_colon_wall(plant, scenario, colon)
+    set_capsule_contact(plant, scene_graph, scenario)
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(body, capsule_start_pose(colon, START_S))
 

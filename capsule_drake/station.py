@@ -115,7 +115,7 @@ def _contact_properties(scenario: Scenario) -> ProximityProperties:
     return props
 
 
-def _pieces_for(scenario: Scenario, colon):
+def wall_pieces_for(scenario: Scenario, colon):
     """The colon wall's convex pieces (built once per process for equal parameters)."""
     contact = scenario.contact
     key = (yaml_dump_typed(scenario.colon), contact.piece_axial_length,
@@ -130,23 +130,31 @@ def _pieces_for(scenario: Scenario, colon):
 _PIECES: dict[tuple, list] = {}
 
 
-def _add_colon(plant, scene_graph, scenario: Scenario, colon):
-    """The colon wall (collision, by the scenario's contact model), one visual mesh, the
-    torso."""
-    assets = colon_assets(scenario.colon)
+def add_colon_wall(plant, scenario: Scenario, colon) -> int:
+    """Registers the colon wall's collision geometry on the world body, by the scenario's
+    contact model; returns how many geometries it took."""
     world = plant.world_body()
     if scenario.contact.model == "convex_pieces":
-        for i, vertices in enumerate(_pieces_for(scenario, colon)):
+        pieces = wall_pieces_for(scenario, colon)
+        for i, vertices in enumerate(pieces):
             name = f"colon_piece_{i:04d}"
             plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(vertices, name),
                                             name, _contact_properties(scenario))
-    else:
-        for i, chunk in enumerate(assets.collision_objs):
-            props = _contact_properties(scenario)
-            AddRigidHydroelasticProperties(properties=props)
-            plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
-                                            f"colon_wall_{i:02d}", props)
-    # The mucosa's look comes from the mesh's own material (MTL), so no colour is imposed.
+        return len(pieces)
+    chunks = colon_assets(scenario.colon).collision_objs
+    for i, chunk in enumerate(chunks):
+        props = _contact_properties(scenario)
+        AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
+                                        f"colon_wall_{i:02d}", props)
+    return len(chunks)
+
+
+def _add_colon_visuals(plant, scenario: Scenario):
+    """The mucosa (its look from the mesh's own material) and the torso; returns the torso's
+    geometry id."""
+    assets = colon_assets(scenario.colon)
+    world = plant.world_body()
     mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
     mucosa.set_illustration_properties(IllustrationProperties())
     mucosa.set_perception_properties(PerceptionProperties())
@@ -155,7 +163,9 @@ def _add_colon(plant, scene_graph, scenario: Scenario, colon):
                                         "torso", TORSO_RGBA)
 
 
-def _set_capsule_contact(plant, scene_graph, scenario: Scenario):
+def set_capsule_contact(plant, scene_graph, scenario: Scenario):
+    """Gives the capsule's collision geometry the scenario's contact properties (compliant
+    hydroelastic, or point contact for the convex-pieces wall). Call before Finalize."""
     capsule = plant.GetBodyByName(CAPSULE_BODY)
     for geometry_id in plant.GetCollisionGeometriesForBody(capsule):
         props = _contact_properties(scenario)
@@ -202,8 +212,9 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     capsule_instance, = parser.AddModels(url=f"package://{PACKAGE}/capsule.sdf")
     epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
     parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
-    torso_id = _add_colon(plant, scene_graph, scenario, colon)
-    _set_capsule_contact(plant, scene_graph, scenario)
+    add_colon_wall(plant, scenario, colon)
+    torso_id = _add_colon_visuals(plant, scenario)
+    set_capsule_contact(plant, scene_graph, scenario)
 
     # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
     # its weight is the stage's business, not the simulation's.

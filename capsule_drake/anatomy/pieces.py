@@ -147,7 +147,6 @@ def wall_pieces(colon, axial_length: float = 0.010, max_chord_depth: float = 0.0
         `pydrake.geometry.Convex(vertices, label)`.
     """
     cl = colon.centerline
-    length = cl.length
     taenia = colon.params.taenia_angle
     stations = _stations(colon, axial_length, max_chord_depth, sample_step, min_length)
     pieces = [_hull_vertices(_end_cap(colon, True, sample_step, thickness))]
