@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from capsule_drake.anatomy import ColonParams
+from capsule_drake.anatomy import ColonParams, check_colon_params
 from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
 
@@ -239,6 +239,11 @@ def validate(scenario: Scenario) -> None:
             magnet.moment()
         except ValueError as e:
             raise ScenarioError(f"scenario: {where}: {e}") from None
+    try:
+        check_colon_params(scenario.colon)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {e}") from None
+    need(scenario.capsule.start_s >= 0, "capsule.start_s must be >= 0")
     path = scenario.epm.path
     if isinstance(path, AlongColon):
         need(path.speed >= 0, "epm.path.speed must be >= 0")

@@ -199,6 +199,13 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     apply its forces (the capsule lies on the wall under gravity): for ablation benchmarks.
     """
     colon = colon_for(scenario)
+    # The capsule must start inside the colon, clear of both end caps.
+    half_length = 0.02
+    if not half_length <= scenario.capsule.start_s <= colon.centerline.length - half_length:
+        raise ScenarioError(
+            f"scenario: capsule.start_s {scenario.capsule.start_s} m is outside this colon "
+            f"(the capsule fits between {half_length} and "
+            f"{colon.centerline.length - half_length:.3f} m)")
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(

@@ -61,6 +61,12 @@ def test_dump_round_trips(tmp_path):
     ("A:\n  duration: -1\n", "duration must be >= 0"),
     ("A:\n  capsule: {ipm: {shape: torus}}\n", "capsule.ipm"),
     ("A: [1, 2\n", "YAML syntax error"),
+    ("A:\n  colon: {sigmoid: {diameter: -0.03}}\n", "colon.sigmoid.diameter must be > 0"),
+    ("A:\n  colon: {transverse: {length_min: 0.6, length_max: 0.5}}\n",
+     "colon.transverse.length_max must be >= length_min"),
+    ("A:\n  colon: {ascending: {fold_height: 0.05}}\n", "colon.ascending.fold_height"),
+    ("A:\n  colon: {collision_chunks: 0}\n", "colon.collision_chunks must be >= 1"),
+    ("A:\n  contact: {model: mujoco}\n", "contact.model must be one of"),
 ])
 def test_bad_scenarios_name_the_key(tmp_path, text, expected):
     path = write(tmp_path, text)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capsule_drake.cli import main as cli_main
-from capsule_drake.scenario import Scenario, load_scenario
+from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
 from capsule_drake.run import simulate
 from capsule_drake.station import colon_for, make_station
 
@@ -17,6 +17,13 @@ def test_station_exports_named_ports():
     names = {diagram.get_output_port(i).get_name() for i in range(diagram.num_output_ports())}
     assert {"capsule.state", "capsule.B_C", "epm.state", "epm.desired_state", "epm.F_W",
             "body_poses", "contact_results", "query_object"} <= names
+
+
+def test_capsule_outside_the_colon_is_a_scenario_error():
+    scenario = Scenario()
+    scenario.capsule.start_s = 5.0  # the default colon is ~1.5 m long
+    with pytest.raises(ScenarioError, match="capsule.start_s 5.0 m is outside this colon"):
+        make_station(scenario)
 
 
 def test_magnet_field_at_capsule_points_down_the_colon():

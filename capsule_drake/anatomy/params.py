@@ -187,3 +187,48 @@ class ColonParams:
         if name not in SEGMENT_NAMES:
             raise KeyError(f"unknown colon segment {name!r}")
         return getattr(self, name)
+
+
+def check_colon_params(params: ColonParams) -> None:
+    """Raises ValueError naming the first field (as `colon.<path>`) with an impossible value.
+
+    Only what would make the geometry meaningless or crash its generation; plausibility
+    (a 9 cm sigmoid, say) is the user's business.
+    """
+    def need(ok: bool, path: str, what: str, value):
+        if not ok:
+            raise ValueError(f"colon.{path} {what}, got {value!r}")
+
+    for name in SEGMENT_NAMES:
+        seg = params.segment(name)
+        need(seg.length_min > 0, f"{name}.length_min", "must be > 0", seg.length_min)
+        need(seg.length_max >= seg.length_min, f"{name}.length_max",
+             f"must be >= length_min ({seg.length_min})", seg.length_max)
+        need(seg.diameter > 0, f"{name}.diameter", "must be > 0", seg.diameter)
+        need(seg.fold_height >= 0, f"{name}.fold_height", "must be >= 0", seg.fold_height)
+        need(seg.fold_height * params.fold_height_scale * (1 + params.fold_height_jitter)
+             < 0.5 * seg.diameter, f"{name}.fold_height",
+             "(after fold_height_scale and jitter) must stay below the lumen radius",
+             seg.fold_height)
+        need(seg.fold_spacing_min > 0, f"{name}.fold_spacing_min", "must be > 0",
+             seg.fold_spacing_min)
+        need(seg.fold_spacing_max >= seg.fold_spacing_min, f"{name}.fold_spacing_max",
+             f"must be >= fold_spacing_min ({seg.fold_spacing_min})", seg.fold_spacing_max)
+    need(params.fold_height_scale >= 0, "fold_height_scale", "must be >= 0",
+         params.fold_height_scale)
+    need(0 <= params.fold_height_jitter < 1, "fold_height_jitter", "must be in [0, 1)",
+         params.fold_height_jitter)
+    need(params.fold_half_width > 0, "fold_half_width", "must be > 0", params.fold_half_width)
+    for field_name in ("centerline_step", "collision_axial_step", "collision_min_step",
+                       "visual_axial_step", "course_smoothing"):
+        value = getattr(params, field_name)
+        need(value > 0, field_name, "must be > 0", value)
+    need(params.collision_min_step <= params.collision_axial_step, "collision_min_step",
+         "must be <= collision_axial_step", params.collision_min_step)
+    need(params.collision_tolerance >= 0, "collision_tolerance", "must be >= 0",
+         params.collision_tolerance)
+    for field_name in ("collision_points_around", "visual_points_around"):
+        value = getattr(params, field_name)
+        need(value >= 8, field_name, "must be >= 8", value)
+    need(params.collision_chunks >= 1, "collision_chunks", "must be >= 1",
+         params.collision_chunks)
