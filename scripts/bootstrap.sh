@@ -52,5 +52,11 @@ if [ ! -x "$_venv/bin/python" ] || [ "$(cat "$_venv/.capsule-stamp" 2>/dev/null)
     fi
     "$_venv/bin/python" -m pip install -qq --upgrade pip >&2
     "$_venv/bin/python" -m pip install -qq -e "$_repo[test]" >&2
+    # Drake's wheels use a few libraries of the host system; a minimal image may lack them.
+    if ! _err="$("$_venv/bin/python" -c 'import pydrake.all' 2>&1)"; then
+        echo "Drake is installed but does not load: $(echo "$_err" | tail -n 1)" >&2
+        echo "  Ubuntu/Debian: sudo apt-get install --no-install-recommends libx11-6 libsm6 libglib2.0-0" >&2
+        exit 1
+    fi
     _stamp > "$_venv/.capsule-stamp"
 fi
