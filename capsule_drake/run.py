@@ -118,11 +118,13 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
 
     context = simulator.get_context()
     logs = [log.FindLog(context) for log in (capsule_log, contact_log, epm_log)]
-    times = logs[0].sample_times()
-    result = RunResult(metrics={}, times=times, capsule_state=logs[0].data(),
-                       contact_load=logs[1].data()[0], epm_state=logs[2].data(),
+    # A run cut short may stop between two loggers' samples: keep the common part.
+    k = min(log.num_samples() for log in logs)
+    times = logs[0].sample_times()[:k]
+    result = RunResult(metrics={}, times=times, capsule_state=logs[0].data()[:, :k],
+                       contact_load=logs[1].data()[0, :k], epm_state=logs[2].data()[:, :k],
                        out_dir=Path(out_dir) if out_dir is not None else None)
-    if len(times) > 0:
+    if k > 0:
         result.metrics = run_metrics(
             colon, times, result.capsule_state, result.contact_load, result.epm_state,
             capsule_radius=capsule_radius, capsule_length=capsule_length,

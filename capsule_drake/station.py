@@ -42,14 +42,16 @@ from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
+from pydrake.common.value import AbstractValue
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
+    ExternallyAppliedSpatialForce,
     CoulombFriction,
     MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import TrajectorySource
+from pydrake.systems.primitives import TrajectorySource, ZeroOrderHold
 
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
@@ -269,8 +271,16 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     builder.Connect(plant.get_body_poses_output_port(),
                     magnet_force.get_body_poses_input_port())
     if apply_magnet_force:
-        builder.Connect(magnet_force.get_applied_spatial_force_output_port(),
-                        plant.get_applied_spatial_force_input_port())
+        force_port = magnet_force.get_applied_spatial_force_output_port()
+        if scenario.magnet_update_period > scenario.time_step:
+            # Typed as list[ExternallyAppliedSpatialForce], empty until the first sample.
+            no_forces = AbstractValue.Make([ExternallyAppliedSpatialForce()])
+            no_forces.set_value([])
+            hold = builder.AddNamedSystem("magnet_force_hold", ZeroOrderHold(
+                scenario.magnet_update_period, no_forces))
+            builder.Connect(force_port, hold.get_input_port())
+            force_port = hold.get_output_port()
+        builder.Connect(force_port, plant.get_applied_spatial_force_input_port())
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")

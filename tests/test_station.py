@@ -103,3 +103,23 @@ def test_fast_contact_model_drags_the_capsule_inside_the_wall():
     assert m["stopped_early"] is None
     assert m["max_wall_excursion_m"] < 1e-3
     assert m["max_s_m"] > 0.15
+
+
+def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch):
+    import capsule_drake.run as run_module
+
+    class FailingSimulator(run_module.Simulator):
+        def AdvanceTo(self, t):
+            if t > 0.2:
+                raise RuntimeError("solver diverged (injected)\nsecond line")
+            return super().AdvanceTo(t)
+
+    monkeypatch.setattr(run_module, "Simulator", FailingSimulator)
+    scenario = dataclasses.replace(load_scenario(), duration=1.0)
+    result = simulate(scenario, progress=False, out_dir=tmp_path)
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["stopped_early"].startswith("simulation error at t = 0.")
+    assert "solver diverged (injected)" in m["stopped_early"]
+    assert 0.15 < m["sim_time_s"] < 0.25
+    logs = np.load(tmp_path / "logs.npz")
+    assert logs["times"][-1] > 0.15 and len(logs["times"]) == len(result.times)
