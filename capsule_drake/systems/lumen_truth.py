@@ -1,0 +1,131 @@
+"""LumenTruth: where the lumen really is in the capsule camera's image."""
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+from pydrake.systems.sensors import ImageDepth32F
+
+
+def lumen_target(colon, p_WC, z_WC, lookahead: float):
+    """The centerline point `lookahead` metres ahead of the camera along the colon.
+
+    "Ahead" follows the way the camera looks: toward the cecum when its optical axis z_WC
+    points down the colon (positive s), toward the anus otherwise. Returns (point_W, s).
+    """
+    s, _, _ = colon.centerline.closest(np.asarray(p_WC, dtype=float))
+    direction = 1.0 if float(np.dot(z_WC, colon.centerline.tangent_at(s))) >= 0.0 else -1.0
+    s_target = float(np.clip(s + direction * lookahead, 0.0, colon.centerline.length))
+    return colon.centerline.point_at(s_target), s_target
+
+
+def project_lumen(lens, X_WC: RigidTransform, point_W, depth=None, depth_is_range=True,
+                  tolerance: float = 0.003):
+    """Pixel of a world point through the lens, and whether the camera sees it.
+
+    Visible means: inside the lens's field of view and image, and, when a depth image is
+    given, not hidden behind nearer tissue (the depth at that pixel reaches within
+    `tolerance` of the point's own distance).
+    Returns (pixel (2,), visible bool).
+    """
+    p_C = X_WC.inverse().multiply(np.asarray(point_W, dtype=float))
+    distance = float(np.linalg.norm(p_C))
+    if distance < 1e-9:
+        return np.array([np.nan, np.nan]), False
+    pixels, valid = lens.project((p_C / distance)[None, :])
+    pixel = pixels[0]
+    if not bool(valid[0]):
+        return pixel, False
+    u, v = int(round(pixel[0])), int(round(pixel[1]))
+    if depth is not None:
+        height, width = depth.shape[:2]
+        if not (0 <= u < width and 0 <= v < height):
+            return pixel, False
+        seen = float(depth[v, u])
+        expected = distance if depth_is_range else float(p_C[2])
+        if np.isfinite(seen) and seen < expected - tolerance:
+            return pixel, False
+    return pixel, True
+
+
+class LumenTruth(LeafSystem):
+    """The lumen centre in the image: the centerline point a fixed distance ahead of the
+    camera, projected through the camera's lens model, with a visibility flag.
+
+    .. pydrake_system::
+
+        name: LumenTruth
+        input_ports:
+        - capsule_state
+        - depth (optional)
+        output_ports:
+        - lumen_pixel
+        - lumen_visible
+        - lumen_point_W
+
+    capsule_state: [quaternion wxyz, p_WC, w, v] of the capsule body (the station's
+    `capsule.state`). depth: the camera's depth image (m), for the occlusion test; when it is
+    not connected, visibility is the field of view alone. lumen_pixel: (u, v) in pixels
+    (NaN when behind the lens). lumen_visible: 1.0 or 0.0. lumen_point_W: the target (m)
+    and its arc length, [x, y, z, s].
+
+    Args:
+        colon: the scenario's Colon (centerline ground truth).
+        lens: the camera's lens model (`project(rays (N,3)) -> (pixels (N,2), valid (N,))`).
+        X_BC: camera pose in the capsule body frame.
+        lookahead: distance ahead along the centerline (m).
+        depth_is_range: whether the depth image holds range along the ray (else z-depth).
+    """
+
+    def __init__(self, colon, lens, X_BC: RigidTransform, lookahead: float = 0.05,
+                 depth_is_range: bool = True):
+        super().__init__()
+        self._colon = colon
+        self._lens = lens
+        self._X_BC = X_BC
+        self._lookahead = float(lookahead)
+        self._depth_is_range = depth_is_range
+        self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
+        self._depth_port = self.DeclareAbstractInputPort(
+            "depth", AbstractValue.Make(ImageDepth32F()))
+        self._cache = self.DeclareCacheEntry(
+            description="lumen truth",
+            value_producer=ValueProducer(
+                allocate=AbstractValue.Make((np.zeros(2), 0.0, np.zeros(4))).Clone,
+                calc=self._calc_truth),
+            prerequisites_of_calc={self._state_port.ticket(), self._depth_port.ticket()})
+        self.DeclareVectorOutputPort("lumen_pixel", 2, self._calc_pixel,
+                                     {self._cache.ticket()})
+        self.DeclareVectorOutputPort("lumen_visible", 1, self._calc_visible,
+                                     {self._cache.ticket()})
+        self.DeclareVectorOutputPort("lumen_point_W", 4, self._calc_point,
+                                     {self._cache.ticket()})
+
+    def camera_pose(self, state) -> RigidTransform:
+        """X_WC from the capsule state vector."""
+        q = np.asarray(state[:4], dtype=float)
+        X_WB = RigidTransform(Quaternion(q / np.linalg.norm(q)), np.asarray(state[4:7]))
+        return X_WB.multiply(self._X_BC)
+
+    def _calc_truth(self, context, abstract_value):
+        X_WC = self.camera_pose(self._state_port.Eval(context))
+        z_WC = X_WC.rotation().col(2)
+        point_W, s = lumen_target(self._colon, X_WC.translation(), z_WC, self._lookahead)
+        depth = None
+        if self._depth_port.HasValue(context):
+            image = self._depth_port.Eval(context)
+            if image.width() > 0:
+                depth = image.data[:, :, 0]
+        pixel, visible = project_lumen(self._lens, X_WC, point_W, depth,
+                                       self._depth_is_range)
+        abstract_value.set_value((pixel, 1.0 if visible else 0.0, np.append(point_W, s)))
+
+    def _calc_pixel(self, context, output: BasicVector):
+        output.SetFromVector(self._cache.Eval(context)[0])
+
+    def _calc_visible(self, context, output: BasicVector):
+        output.SetAtIndex(0, self._cache.Eval(context)[1])
+
+    def _calc_point(self, context, output: BasicVector):
+        output.SetFromVector(self._cache.Eval(context)[2])
