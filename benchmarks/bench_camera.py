@@ -1,0 +1,112 @@
+"""Milliseconds per camera frame, rendered from inside the default colon.
+
+    python benchmarks/bench_camera.py [--frames 30] [--save DIR]
+
+Scene: the capsule (models/capsule.sdf) on the centreline of the default colon, looking down
+the lumen, and the colon's visual mesh as one visual on the world body; the camera's VTK
+renderer with its point light. For each lens (120-degree pinhole, 172-degree fisheye, at
+256 px) it prints the median time of colour + depth and of colour alone, the pinhole views
+each frame needs and the pixels they render, and, with --save, writes the images as PNGs.
+"""
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from pydrake.geometry import (GeometryInstance, IllustrationProperties, Mesh,
+                              PerceptionProperties)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
+from capsule_drake.station import PACKAGE, capsule_start_pose, configure_parser
+from capsule_drake.systems.camera import CameraConfig, LensRenderer, add_camera_renderer
+from capsule_drake.vision import LensConfig
+
+LENSES = {
+    "pinhole 120 deg": LensConfig(model="pinhole_radtan", fov_deg=120.0),
+    "pinhole 120 deg radtan": LensConfig(model="pinhole_radtan", fov_deg=120.0,
+                                         radtan_coefficients=[-0.28, 0.07, 0.0, 0.0, 0.0]),
+    "fisheye 172 deg": LensConfig(model="equidistant", fov_deg=172.0),
+}
+
+
+def colon_scene(start_s: float = 0.30, config: CameraConfig | None = None):
+    """(diagram, context, plant, scene_graph) with the capsule at `start_s` in the default
+    colon and the camera renderer added."""
+    params = ColonParams()
+    colon = build_colon(params)
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
+    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+    mucosa = GeometryInstance(RigidTransform(), Mesh(str(colon_assets(params).visual_obj)),
+                              "colon_mucosa")
+    mucosa.set_illustration_properties(IllustrationProperties())
+    mucosa.set_perception_properties(PerceptionProperties())
+    plant.RegisterVisualGeometry(plant.world_body(), mucosa)
+    plant.Finalize()
+    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("capsule"),
+                                         capsule_start_pose(colon, start_s))
+    add_camera_renderer(scene_graph, config or CameraConfig())
+    diagram = builder.Build()
+    return diagram, diagram.CreateDefaultContext(), plant, scene_graph
+
+
+def time_frames(function, frames: int) -> float:
+    """Median wall time of `function()` in ms, after two warm-up calls."""
+    function()
+    function()
+    times = []
+    for _ in range(frames):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--save", type=Path, default=None, help="directory for PNGs")
+    args = parser.parse_args()
+
+    config = CameraConfig()
+    diagram, context, plant, scene_graph = colon_scene(config=config)
+    query_object = scene_graph.get_query_output_port().Eval(
+        scene_graph.GetMyContextFromRoot(context))
+    body_frame = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName("capsule").index())
+    X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+
+    print(f"{'lens':24s} {'views':>5s} {'view px':>8s} {'rgb+depth ms':>13s} "
+          f"{'rgb ms':>7s} {'depth ms':>9s}")
+    for name, lens in LENSES.items():
+        renderer = LensRenderer(dataclasses.replace(config, lens=lens))
+        rgb = lambda: renderer.render_rgba(query_object, body_frame, X_BC)  # noqa: E731
+        depth = lambda: renderer.render_range(query_object, body_frame, X_BC)  # noqa: E731
+        # Interleave the three measurements so a busy machine biases them alike.
+        both_ms, rgb_ms, depth_ms = [], [], []
+        for _ in range(3):
+            both_ms.append(time_frames(lambda: (rgb(), depth()), args.frames // 3 + 1))
+            rgb_ms.append(time_frames(rgb, args.frames // 3 + 1))
+            depth_ms.append(time_frames(depth, args.frames // 3 + 1))
+        pixels = sum(view.width * view.height for view in renderer.views)
+        print(f"{name:24s} {len(renderer.views):5d} {pixels:8d} {np.median(both_ms):13.1f} "
+              f"{np.median(rgb_ms):7.1f} {np.median(depth_ms):9.1f}")
+        if args.save is not None:
+            args.save.mkdir(parents=True, exist_ok=True)
+            stem = name.replace(" ", "_")
+            cv2.imwrite(str(args.save / f"{stem}_rgb.png"),
+                        cv2.cvtColor(rgb(), cv2.COLOR_RGBA2BGR))
+            rng = depth()
+            shown = np.where(np.isfinite(rng), rng, 0.0)
+            cv2.imwrite(str(args.save / f"{stem}_depth.png"),
+                        np.clip(shown / config.far * 255.0, 0, 255).astype(np.uint8))
+
+
+if __name__ == "__main__":
+    main()
