@@ -151,11 +151,13 @@ def tilt_and_heading_error(R_WB_estimate, R_WB_true):
 class MahonyAhrs(LeafSystem):
     """Attitude and heading reference: Mahony's complementary filter on gyro and accelerometer.
 
-    Runs every ``1 / sample_rate`` s, half a period after the IMU samples (so it reads the
-    sample the IMU has just taken: latency half a period). On its first update with a
-    nonzero accelerometer sample it initialises (from ``config.initial_q_WB`` or from the
-    accelerometer's tilt, see ``AhrsConfig``), then applies ``mahony_update``. Outputs are
-    discrete state (sample-and-hold); before initialisation the orientation is the identity.
+    Runs every ``1 / sample_rate`` s, half a period after the IMU samples, so it reads the
+    sample the IMU has just taken. Each update applies ``mahony_update`` to the held sample
+    k (taken at t_k): the output then estimates the orientation at t_{k+1}, half a period
+    ahead of the update, so at any time it is at most half a period off. The first update
+    with a nonzero accelerometer sample starts from ``config.initial_q_WB`` or from the
+    accelerometer's tilt (``AhrsConfig``). Outputs are discrete state (sample-and-hold);
+    before the first update the orientation is the identity and the bias zero.
 
     .. pydrake_system::
 
@@ -230,16 +232,16 @@ class MahonyAhrs(LeafSystem):
         if context.get_discrete_state(self._started).get_value()[0] == 0.0:
             if not np.any(accel):
                 return  # the IMU has not sampled yet
+            # The orientation at this sample; the step below carries it to the next one.
             q = self._q_WS0 if self._q_WS0 is not None else tilt_quaternion(accel)
             bias = (0.0, 0.0, 0.0)
             discrete_state.get_mutable_vector(self._started).SetAtIndex(0, 1.0)
         else:
-            c = self._config
-            q, bias = mahony_update(
-                tuple(context.get_discrete_state(self._q_WS_state).get_value()),
-                tuple(context.get_discrete_state(self._bias_state).get_value()),
-                accel, self._gyro_port.Eval(context), self._period, c.kp, c.ki,
-                c.accel_rejection, self._gravity)
+            q = tuple(context.get_discrete_state(self._q_WS_state).get_value())
+            bias = tuple(context.get_discrete_state(self._bias_state).get_value())
+        c = self._config
+        q, bias = mahony_update(q, bias, accel, self._gyro_port.Eval(context), self._period,
+                                c.kp, c.ki, c.accel_rejection, self._gravity)
         discrete_state.get_mutable_vector(self._q_WS_state).SetFromVector(q)
         discrete_state.get_mutable_vector(self._q_WB_state).SetFromVector(
             _quat_multiply(q, self._q_SB))
