@@ -5,7 +5,8 @@ The Allan variance of a rate signal y sampled every ``dt`` seconds, at averaging
 With the integrated signal ``theta_k = dt * sum_{j<k} y_j`` (``theta_0 = 0``), the
 overlapping estimator uses every start index, not only multiples of ``m``:
 
-    sigma^2(tau) = 1 / (2 tau^2 (N - 2m)) * sum_{k=0}^{N-2m-1} (theta_{k+2m} - 2 theta_{k+m} + theta_k)^2
+    sigma^2(tau) = 1 / (2 tau^2 (N - 2m))
+                   * sum_{k=0}^{N-2m-1} (theta_{k+2m} - 2 theta_{k+m} + theta_k)^2
 
 with ``N`` the number of points of ``theta`` (one more than the samples). This is the
 estimator of IEEE Std 952-1997 (fiber optic gyros), Annex C, and IEEE Std 1293-2018

@@ -249,8 +249,9 @@ def test_imu_and_ahrs_on_a_spinning_plant_body():
     assert np.degrees(max(tilts)) < 0.05 + 0.5 * 0.5
     b_est = b_log.FindLog(context).data().T[-1]
     b_true = true_b_log.FindLog(context).data().T
-    # 40 s is two time constants of the bias loop at this rate and tilt.
-    assert np.linalg.norm(b_est - b_true[-1]) < 0.3 * np.linalg.norm(b_true[1])  # [0]: before the first sample
+    # 40 s is two time constants of the bias loop at this rate and tilt ([0] is logged
+    # before the first sample).
+    assert np.linalg.norm(b_est - b_true[-1]) < 0.3 * np.linalg.norm(b_true[1])
 
 
 def _spatial_velocity(w_W):
