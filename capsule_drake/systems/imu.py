@@ -1,9 +1,9 @@
 """MEMS IMU: Drake's ideal accelerometer and gyroscope followed by a sampled noise model.
 
-    plant --> Accelerometer (specific force at S, in S) --\
-                                                           ImuNoise --> accel, gyro
-    plant --> Gyroscope     (angular velocity, in S)  ----/            (+ truth, biases)
-                            RandomSource x3 (Gaussian) --/
+    plant --> Accelerometer (specific force at S, in S) ---+
+                                                           +--> ImuNoise --> accel, gyro
+    plant --> Gyroscope     (angular velocity, in S)  -----+                 (+ truth, biases)
+                            RandomSource x3 (Gaussian) ----+
 
 The error model of each axis of each sensor (IEEE Std 952-1997 Annex C, IEEE Std 1293-2018;
 El-Sheimy, Hou and Niu, IEEE TIM 2008) is
