@@ -266,3 +266,18 @@ def test_same_seed_same_recording_other_seed_other_recording():
     # The turn-on bias is drawn per run, with the configured spread (0.2 deg/s).
     assert np.all(np.abs(first["gyro_bias"][0]) < 5 * config.gyro_initial_bias_sigma)
     assert not np.allclose(first["gyro_bias"][0], other["gyro_bias"][0])
+
+
+def test_sensor_configs_load_from_yaml_and_reject_unknown_keys():
+    from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+    from capsule_drake.systems.ahrs import AhrsConfig
+    from capsule_drake.systems.magnetometer import MagnetometerConfig
+
+    for schema in (ImuConfig, AhrsConfig, MagnetometerConfig):
+        assert yaml_load_typed(schema=schema, data=yaml_dump_typed(schema())) == schema()
+        with pytest.raises(RuntimeError, match="unknown"):
+            yaml_load_typed(schema=schema, data="{no_such_field: 1}")
+    config = yaml_load_typed(schema=ImuConfig, data="{sample_rate: 200, p_BS: [0, 0, 0.004]}")
+    assert config.sample_rate == 200.0 and config.p_BS == [0.0, 0.0, 0.004]
+    assert config.gyro_noise_density == ImuConfig().gyro_noise_density

@@ -26,7 +26,6 @@ heading in open space, but next to the external permanent magnet the earth's fie
 swamped, so this filter deliberately has none.
 """
 
-from __future__ import annotations
 
 import copy
 import dataclasses

@@ -32,7 +32,6 @@ range and Q an optional rounding to the ADC step. The parameters are what datash
 - **Range** and **resolution**: saturation at the full-scale range and a 16-bit ADC step.
 """
 
-from __future__ import annotations
 
 import copy
 import dataclasses

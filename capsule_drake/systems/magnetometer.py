@@ -14,7 +14,6 @@ The noise is the same per-axis model as the IMU's (``capsule_drake.systems.imu.C
 white noise of a one-sided density, bias random walk, turn-on bias, range, quantisation.
 """
 
-from __future__ import annotations
 
 import copy
 import dataclasses
