@@ -17,12 +17,17 @@ from pydrake.common.yaml import yaml_dump_typed
 from .abdomen import Abdomen
 from .centerline import Centerline, rotation_minimising_frame
 from .course import nominal_radius, solve_course
-from .mesh import MUCOSA_MTL, SKIN_MTL, closed_tube, ring_stations, tube_chunks, write_obj
+from .mesh import (SKIN_MTL, closed_tube, mucosa_mtl, ring_stations, textured_tube,
+                   tube_chunks, write_obj, write_textured_obj)
 from .params import SEGMENT_NAMES, ColonParams
+from .texture import write_mucosa_texture
 from .wall import HaustralWall
 
 GEOMETRY_VERSION = 1
 """Bump whenever code changes the generated geometry: it invalidates cached assets."""
+
+MUCOSA_TEXTURE = "colon_mucosa.png"
+"""File name of the mucosa texture, next to the visual OBJ (its MTL refers to it)."""
 
 
 class Colon:
@@ -88,6 +93,19 @@ class Colon:
         p = self.params
         return closed_tube(self, ring_stations(self, p.visual_axial_step),
                            p.visual_points_around)
+
+    def textured_visual_mesh(self):
+        """`visual_mesh` with texture coordinates for the mucosa texture (`TexturedMesh`;
+        the seam column and the caps' rims are duplicated, so it is not watertight)."""
+        p = self.params
+        m = p.mucosa
+        return textured_tube(self, ring_stations(self, p.visual_axial_step),
+                             p.visual_points_around, m.texels_per_metre / m.texels_along,
+                             m.texels_per_metre / m.texels_around)
+
+    def texture_seed(self) -> list[int]:
+        """Seed of the mucosa texture: the patient seed's own stream (the wall uses [seed, 1])."""
+        return [self.params.seed, 2]
 
     def collision_meshes(self):
         """The wall at collision resolution in `collision_chunks` pieces (trimesh list)."""
@@ -159,9 +177,12 @@ def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
     directory.mkdir(parents=True, exist_ok=True)
     chunks = colon.collision_meshes()
     assets = _asset_paths(directory, len(chunks))
-    (directory / "colon_visual.mtl").write_text(MUCOSA_MTL)
-    write_obj(assets.visual_obj, colon.visual_mesh(), normals=True,
-              material=("colon_visual.mtl", "mucosa"))
+    mucosa = colon.params.mucosa
+    write_mucosa_texture(directory / MUCOSA_TEXTURE, mucosa, colon.texture_seed())
+    (directory / "colon_visual.mtl").write_text(
+        mucosa_mtl(MUCOSA_TEXTURE, mucosa.specular, mucosa.shininess))
+    write_textured_obj(assets.visual_obj, colon.textured_visual_mesh(),
+                       material=("colon_visual.mtl", "mucosa"))
     for path, mesh in zip(assets.collision_objs, chunks):
         write_obj(path, mesh)
     colon.centerline.save(assets.centerline_npz)

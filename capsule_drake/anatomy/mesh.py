@@ -4,19 +4,24 @@ The colon tissue is the solid and the lumen is outside it, so face normals point
 lumen (toward the centreline). Rings of vertices lie exactly on `wall_radius`.
 """
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-MUCOSA_MTL = """# Colonic mucosa: moist pinkish red, with a soft specular highlight.
+def mucosa_mtl(texture_file: str, specular: float, shininess: float) -> str:
+    """Material of the mucosa: the texture as diffuse map (Kd = 1 leaves its colours as
+    they are) and a moderate specular term for the wet sheen."""
+    return f"""# Colonic mucosa: procedural texture, moist surface with a soft specular highlight.
 newmtl mucosa
-Ka 0.20 0.06 0.05
-Kd 0.80 0.36 0.32
-Ks 0.35 0.30 0.30
-Ns 40.0
+Ka 0.20 0.08 0.07
+Kd 1.00 1.00 1.00
+Ks {specular:.3f} {specular:.3f} {specular:.3f}
+Ns {shininess:.1f}
 d 1.0
 illum 2
+map_Kd {texture_file}
 """
 
 SKIN_MTL = """# Abdominal skin, meant to be drawn semi-transparent.
@@ -111,6 +116,92 @@ def closed_tube(colon, stations: np.ndarray, points_around: int) -> trimesh.Trim
     return trimesh.Trimesh(verts, faces, process=False)
 
 
+@dataclass
+class TexturedMesh:
+    """A mesh with per-vertex normals and texture coordinates, ready for an OBJ.
+
+    Attributes:
+        vertices: (V, 3) positions [m].
+        normals: (V, 3) unit vertex normals.
+        uv: (V, 2) texture coordinates (u around the lumen, v along it).
+        faces: (F, 3) vertex indices, wound so normals face the centreline.
+    """
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray
+    faces: np.ndarray
+
+
+def textured_tube(colon, stations: np.ndarray, points_around: int, v_per_metre: float,
+                  cap_u_per_metre: float) -> TexturedMesh:
+    """The closed wall of `closed_tube` with texture coordinates for a tileable texture.
+
+    Texture coordinates stay within [0, 1], so no renderer has to repeat the texture (Drake's
+    VTK engine clamps it): u = theta / 2 pi runs 0..1 once around the lumen, the ring's first
+    vertex being repeated at theta = 2 pi with u = 1, so no triangle interpolates u across
+    the seam. v = s * `v_per_metre` modulo 1: a ring is inserted at every whole period of v
+    and doubled there (v = 1 below, v = 0 above), which the tileable texture hides. The end
+    caps get their own vertices, with flat normals and a planar projection of the texture
+    (`cap_u_per_metre` across, `v_per_metre` along) centred on (0.5, 0.5). Positions and wall
+    normals are those of the watertight tube: the duplicates are invisible.
+    """
+    length = colon.centerline.length
+    period = 1.0 / v_per_metre
+    wraps = np.arange(period, length - 1e-6, period)
+    stations = np.asarray(stations, dtype=float)
+    # Stations very close to a wrap would only make sliver triangles.
+    near = np.min(np.abs(stations[:, None] - wraps[None, :]), axis=1,
+                  initial=np.inf) < 1e-4
+    stations = np.concatenate([stations[~near | (stations == 0) | (stations == length)],
+                               wraps])
+    order = np.argsort(stations, kind="stable")
+    stations = stations[order]
+    is_wrap = (np.arange(len(order)) >= len(order) - len(wraps))[order]
+
+    s, theta, rings = tube_rings(colon, stations, points_around)
+    r, m, _ = rings.shape
+    # Normals from the wall alone, closed around the seam.
+    wall = trimesh.Trimesh(rings.reshape(-1, 3), tube_faces(r, m), process=False)
+    normals = np.asarray(wall.vertex_normals).reshape(r, m, 3)
+    # Rows of vertices: every ring once, wrap rings twice (first closing a period at v = 1).
+    ring_of_row = np.repeat(np.arange(r), np.where(is_wrap, 2, 1))
+    phase = s * v_per_metre
+    v_row = (phase - np.floor(phase))[ring_of_row]
+    first_copy = np.r_[True, ring_of_row[1:] != ring_of_row[:-1]]
+    v_row[is_wrap[ring_of_row] & first_copy] = 1.0
+    v_row[is_wrap[ring_of_row] & ~first_copy] = 0.0
+    rows = len(ring_of_row)
+    seam = np.r_[np.arange(m), 0]
+    vertices = [rings[ring_of_row][:, seam].reshape(-1, 3)]
+    vertex_normals = [normals[ring_of_row][:, seam].reshape(-1, 3)]
+    u = np.arange(m + 1) / m
+    uv = [np.stack(np.broadcast_arrays(u[None, :], v_row[:, None]), axis=-1).reshape(-1, 2)]
+    # Quads between consecutive rows of different rings, same winding as `tube_faces`.
+    lower = np.flatnonzero(ring_of_row[1:] != ring_of_row[:-1])
+    i = lower[:, None] * (m + 1)
+    j = np.arange(m)[None, :]
+    a, b = i + j, i + j + 1
+    c, d = a + m + 1, b + m + 1
+    faces = [np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)]
+
+    cl = colon.centerline
+    count = rows * (m + 1)
+    for ring, at_start in ((0, True), (r - 1, False)):
+        t, n, bn = (x[0] for x in cl.frame_at(np.array([s[ring]])))
+        centre = cl.point_at(s[ring])
+        points = np.concatenate([rings[ring], centre[None, :]])
+        local = points - centre
+        vertices.append(points)
+        vertex_normals.append(np.tile(t if at_start else -t, (m + 1, 1)))
+        uv.append(np.column_stack([0.5 + cap_u_per_metre * (local @ n),
+                                   0.5 + v_per_metre * (local @ bn)]))
+        faces.append(cap_faces(count, m, count + m, at_start))
+        count += m + 1
+    return TexturedMesh(np.concatenate(vertices), np.concatenate(vertex_normals),
+                        np.concatenate(uv), np.concatenate(faces))
+
+
 def tube_chunks(colon, stations: np.ndarray, points_around: int, chunks: int):
     """The wall split along its length; consecutive chunks share their boundary ring."""
     s, _, rings = tube_rings(colon, stations, points_around)
@@ -155,6 +246,17 @@ def write_obj(path, mesh: trimesh.Trimesh, normals: bool = False,
     else:
         body.append(_rows("f", f, "%d"))
     path.write_text("\n".join(lines) + "\n" + "".join(body))
+
+
+def write_textured_obj(path, mesh: TexturedMesh, material: tuple[str, str]) -> None:
+    """OBJ with `v`, `vt`, `vn` and `f v/vt/vn` faces (one index shared by all three);
+    `material` = (mtl file name, material name)."""
+    f = np.repeat(np.asarray(mesh.faces) + 1, 3, axis=1)
+    body = [_rows("v", mesh.vertices, "%.6f"), _rows("vt", mesh.uv, "%.5f"),
+            _rows("vn", mesh.normals, "%.5f"), f"usemtl {material[1]}\n",
+            _rows("f", f, "%d/%d/%d %d/%d/%d %d/%d/%d", row_fmt=True)]
+    Path(path).write_text(f"# generated by capsule_drake.anatomy\nmtllib {material[0]}\n"
+                          + "".join(body))
 
 
 def _rows(tag: str, array, fmt: str, row_fmt: bool = False) -> str:

@@ -116,6 +116,47 @@ class AbdomenParams:
 
 
 @dataclass
+class MucosaParams:
+    """Look of the mucosa: a seeded procedural texture (see `anatomy.texture`) and the
+    material's sheen. Colours are RGB in [0, 1] as stored in the PNG (display values)."""
+
+    # Mean colour of the mucosa between vessels: salmon pink-red as seen in white-light
+    # colonoscopy (U).
+    base_color: list[float] = field(default_factory=lambda: [0.86, 0.46, 0.40])
+    # Strength of the low-frequency colour variation: patches up to this fraction of the way
+    # toward a paler and toward a redder tint (about +-2 sigma) [-] (U).
+    variation_amplitude: float = 0.25
+    # Size of those patches (correlation length along the wall) [m] (U).
+    variation_scale: float = 0.006
+    # Relative brightness noise of the fine granular grain (crypt openings, texel-size) [-] (U).
+    grain_amplitude: float = 0.035
+    # Fraction of the mucosa covered by visible submucosal vessels [-] (U).
+    vessel_density: float = 0.07
+    # Colour of the superficial vessels: darker red with a purple cast (U).
+    vessel_color: list[float] = field(default_factory=lambda: [0.55, 0.12, 0.20])
+    # Colour of the deeper vessels, seen through more tissue: bluish purple, blurrier (U).
+    deep_vessel_color: list[float] = field(default_factory=lambda: [0.62, 0.30, 0.40])
+    # Share of the vessel trees drawn in the deep layer [-] (U).
+    deep_fraction: float = 0.4
+    # Diameter of a vessel tree's trunk where it enters the view [m]: submucosal vessels of
+    # a few tenths of a millimetre, branching down to capillary size (U).
+    vessel_width: float = 0.0006
+    # Texture resolution: texels around the lumen (image width; u = theta / 2 pi spans it
+    # once, so the texel size around scales with the lumen's circumference).
+    texels_around: int = 512
+    # Texture resolution along the axis (image height); the pattern repeats every
+    # texels_along / texels_per_metre metres along the centreline (0.57 m by default).
+    texels_along: int = 2048
+    # Texels per metre of arc length along the axis. 3600 makes texels square where the
+    # lumen's circumference is texels_around / 3600 = 0.14 m (a 45 mm diameter).
+    texels_per_metre: float = 3600.0
+    # Specular colour (grey level of Ks) of the wet surface: a moderate highlight [-] (U).
+    specular: float = 0.35
+    # Phong exponent (Ns) of that highlight: larger is a smaller, sharper spot [-] (U).
+    shininess: float = 40.0
+
+
+@dataclass
 class ColonParams:
     """Everything that defines one procedural colon. Same params -> same colon."""
 
@@ -181,6 +222,8 @@ class ColonParams:
     collision_chunks: int = 15
 
     abdomen: AbdomenParams = field(default_factory=AbdomenParams)
+    # Texture and sheen of the visual wall (no effect on contact).
+    mucosa: MucosaParams = field(default_factory=MucosaParams)
 
     def segment(self, name: str) -> SegmentParams:
         """The parameters of the segment called `name` (one of SEGMENT_NAMES)."""
@@ -232,3 +275,18 @@ def check_colon_params(params: ColonParams) -> None:
         need(value >= 8, field_name, "must be >= 8", value)
     need(params.collision_chunks >= 1, "collision_chunks", "must be >= 1",
          params.collision_chunks)
+    m = params.mucosa
+    for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
+        value = getattr(m, field_name)
+        need(len(value) == 3 and all(0.0 <= c <= 1.0 for c in value),
+             f"mucosa.{field_name}", "must be three values in [0, 1]", value)
+    for field_name in ("texels_around", "texels_along"):
+        value = getattr(m, field_name)
+        need(16 <= value <= 8192, f"mucosa.{field_name}", "must be in [16, 8192]", value)
+    for field_name in ("texels_per_metre", "variation_scale", "vessel_width"):
+        value = getattr(m, field_name)
+        need(value > 0, f"mucosa.{field_name}", "must be > 0", value)
+    need(0 <= m.vessel_density <= 0.5, "mucosa.vessel_density", "must be in [0, 0.5]",
+         m.vessel_density)
+    need(0 <= m.deep_fraction <= 1, "mucosa.deep_fraction", "must be in [0, 1]",
+         m.deep_fraction)
