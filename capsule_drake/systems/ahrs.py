@@ -44,11 +44,13 @@ class AhrsConfig:
     """The Mahony filter's settings; YAML-loadable."""
 
     # Proportional gain (rad/s): the tilt correction's bandwidth. Larger follows the
-    # accelerometer faster and lets more of its noise and motion through. Mahony et al. 2008
-    # use gains of this order in their experiments. U.
+    # accelerometer faster and lets more of its noise and of the capsule's own acceleration
+    # through. U.
     kp: float = 1.0
     # Integral gain (rad/s^2) of the gyro-bias estimate; kp^2 / 4 makes the linearised tilt
-    # and bias loop critically damped (time constant 2 / kp = 2 s). U.
+    # and bias loop critically damped (time constant 2 / kp = 2 s) for the bias components
+    # across the vertical. While the capsule turns, the others converge more slowly (about
+    # 20 s at 20 deg/s about an axis 30 deg off the vertical, tests/test_ahrs.py). U.
     ki: float = 0.25
     # The accelerometer correction is skipped while ||a| - g| > accel_rejection * g
     # (capsule accelerating); 0 or less disables the check. U.
