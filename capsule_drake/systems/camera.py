@@ -51,9 +51,12 @@ _FACES = {
 }
 # Face pixels kept beyond the region a face serves, so bilinear samples stay inside it.
 _FACE_MARGIN_PX = 2
-# Depth: where bilinear and nearest samples differ by more than this fraction, the pixel
-# straddles an occluding edge and takes the nearest sample (no "flying" mixed depths).
+# Depth: a face pixel whose inverse depth departs from the affine trend of its neighbours by
+# more than this fraction lies on an occluding edge; output pixels that would blend it take
+# the nearest sample instead (no "flying" depths between foreground and background).
 _DEPTH_EDGE_FRACTION = 0.05
+# Added to the principal point handed to RenderEngineVtk (see LensRenderer._add_view).
+_VTK_PIXEL_OFFSET = 0.5
 
 
 @dataclasses.dataclass
@@ -183,7 +186,11 @@ class LensRenderer:
     # ---- construction ---------------------------------------------------------------------
     def _add_view(self, name, R_CF: RotationMatrix, fx, fy, cx, cy, width, height, row):
         c = self.config
-        core = RenderCameraCore(c.renderer_name, CameraInfo(width, height, fx, fy, cx, cy),
+        # RenderEngineVtk puts the ray through (cx, cy) half a pixel up and left of where
+        # CameraInfo's documentation says (measured: a plane's depth fits u = fx a + cx - 0.5
+        # for every cx), so it gets the principal point of pixel centres at i + 0.5.
+        info = CameraInfo(width, height, fx, fy, cx + _VTK_PIXEL_OFFSET, cy + _VTK_PIXEL_OFFSET)
+        core = RenderCameraCore(c.renderer_name, info,
                                 ClippingRange(c.near, c.far), RigidTransform())
         u, v = np.meshgrid(np.arange(width), np.arange(height))
         a, b = (u - cx) / fx, (v - cy) / fy
@@ -204,6 +211,8 @@ class LensRenderer:
         face_of[~in_field] = -1
         map_u = np.full((H, W), -10.0, dtype=np.float32)  # outside the field: black border
         map_v = np.full((H, W), -10.0, dtype=np.float32)
+        # Range along an output pixel's ray per unit z-depth of the face it samples.
+        range_per_z = np.full((H, W), np.inf, dtype=np.float32)
         row = 0
         for index, (name, (axis, down)) in enumerate(_FACES.items()):
             mine = face_of == index
@@ -236,10 +245,12 @@ class LensRenderer:
             cx, cy = -lo_a * density, -lo_b * density
             self._add_view(name, R_CF, density, density, cx, cy, width, height, row)
             map_u[mine] = a[mine] * density + cx
+            range_per_z[mine] = np.sqrt(1.0 + a[mine] ** 2 + b[mine] ** 2)
             map_v[mine] = b[mine] * density + cy + row
             row += height
         self.atlas_shape = (row, max(view.width for view in self.views))
         self._map_u, self._map_v = map_u, map_v
+        self._range_per_z = range_per_z
         self._fixed_maps = cv2.convertMaps(map_u, map_v, cv2.CV_16SC2)
         self._range_scale = np.zeros(self.atlas_shape, dtype=np.float32)
         for view in self.views:
@@ -285,14 +296,29 @@ class LensRenderer:
                 image = query_object.RenderDepthImage(view.depth_camera, parent_frame,
                                                       X_PC.multiply(view.X_CF))
                 atlas[view.row:view.row + view.height, :view.width] = image.data[..., 0]
-            atlas *= self._range_scale
-            linear = cv2.remap(atlas, self._map_u, self._map_v, cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                # Inverse z-depth is affine in a pinhole image over any plane, so bilinear
+                # interpolation of it is exact on planes at any incidence.
+                inverse = 1.0 / atlas
+                # Occluding edges: where inverse depth is not locally affine (second
+                # differences), or not finite (too near), samples take the nearest pixel
+                # instead of blending foreground and background.
+                edge = np.zeros(self.atlas_shape, dtype=np.float32)
+                d2 = np.abs(inverse[:, :-2] - 2.0 * inverse[:, 1:-1] + inverse[:, 2:])
+                edge[:, 1:-1] += ~(d2 <= _DEPTH_EDGE_FRACTION * inverse[:, 1:-1])
+                d2 = np.abs(inverse[:-2] - 2.0 * inverse[1:-1] + inverse[2:])
+                edge[1:-1] += ~(d2 <= _DEPTH_EDGE_FRACTION * inverse[1:-1])
+                edge += ~np.isfinite(inverse)
+                inverse[~np.isfinite(inverse)] = 0.0
+                linear = self._range_per_z / cv2.remap(
+                    inverse, self._map_u, self._map_v, cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+                atlas *= self._range_scale
+            near_edge = cv2.remap(edge, self._map_u, self._map_v, cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=1.0) > 0.0
             nearest = cv2.remap(atlas, self._map_u, self._map_v, cv2.INTER_NEAREST,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
-            with np.errstate(invalid="ignore"):
-                edge = ~(np.abs(linear - nearest) <= _DEPTH_EDGE_FRACTION * nearest)
-            result = np.where(edge, nearest, linear)
+            result = np.where(near_edge, nearest, linear)
             result[~self.in_field] = np.inf
         if out is None:
             return result.astype(np.float32, copy=False)
