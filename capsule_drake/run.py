@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.geometry import Capsule
+from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
@@ -92,6 +93,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     capsule_radius, capsule_length = _capsule_dimensions(plant, scene_graph)
 
     simulator = Simulator(diagram)
+    diagram.SetRandomContext(simulator.get_mutable_context(),
+                             RandomGenerator(scenario.random_seed))
     simulator.set_target_realtime_rate(realtime_rate)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.visual_period,

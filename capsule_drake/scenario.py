@@ -22,6 +22,9 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from capsule_drake.anatomy import ColonParams, check_colon_params
 from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
+from capsule_drake.systems.ahrs import AhrsConfig
+from capsule_drake.systems.imu import ImuConfig
+from capsule_drake.systems.magnetometer import MagnetometerConfig
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DIAGRAMS_DIR = REPO_ROOT / "diagrams"
@@ -77,6 +80,13 @@ class CapsuleConfig:
     # Its pose in the capsule is the `ipm` frame of models/capsule.sdf (axial magnetisation).
     ipm: MagnetGeometry = field(default_factory=lambda: MagnetGeometry(
         shape="cylinder", dimensions=[0.0111, 0.0111], remanence=1.48))
+    # On-board sensors; null switches one off. The IMU (accelerometer + gyroscope, MEMS
+    # noise, bias drift) and its AHRS, and a magnetometer reading the EPM's field.
+    imu: ImuConfig | None = field(default_factory=ImuConfig)
+    # The Mahony AHRS on the IMU (needs the IMU). An empty initial_q_WB starts it from the
+    # capsule's true start pose.
+    ahrs: AhrsConfig | None = field(default_factory=AhrsConfig)
+    magnetometer: MagnetometerConfig | None = field(default_factory=MagnetometerConfig)
 
 
 @dataclass
@@ -145,6 +155,9 @@ class Scenario:
     epm: EpmConfig = field(default_factory=EpmConfig)
     # Contact between capsule and colon wall.
     contact: ContactConfig = field(default_factory=ContactConfig)
+    # Seed of the sensors' noise (the patient's seed is colon.seed): the same seed gives the
+    # same recording.
+    random_seed: int = 0
     # Discrete time step of the MultibodyPlant (s).
     time_step: float = 1.0e-3
     # Period at which the magnetic force is recomputed (s); 0 = every plant step. Holding it
@@ -251,6 +264,8 @@ def validate(scenario: Scenario) -> None:
     except ValueError as e:
         raise ScenarioError(f"scenario: {e}") from None
     need(scenario.capsule.start_s >= 0, "capsule.start_s must be >= 0")
+    need(scenario.capsule.ahrs is None or scenario.capsule.imu is not None,
+         "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
     path = scenario.epm.path
     if isinstance(path, AlongColon):
         need(path.speed >= 0, "epm.path.speed must be >= 0")

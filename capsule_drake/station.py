@@ -21,6 +21,7 @@ Exported ports, named `<instance>.<signal>`:
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -56,7 +57,10 @@ from pydrake.systems.primitives import TrajectorySource, ZeroOrderHold
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
+from capsule_drake.systems.ahrs import MahonyAhrs
+from capsule_drake.systems.imu import Imu, add_random_sources
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.systems.magnetometer import Magnetometer
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 PACKAGE = "capsule_drake"
@@ -182,6 +186,46 @@ def set_capsule_contact(plant, scene_graph, scenario: Scenario):
         scene_graph.AssignRole(plant.get_source_id(), geometry_id, props, RoleAssign.kReplace)
 
 
+def _add_capsule_sensors(builder, plant, scenario: Scenario, magnets, X_WB0):
+    """IMU (+ AHRS) and magnetometer on the capsule, as the scenario asks; their outputs are
+    exported as capsule.imu.<signal>, capsule.ahrs.<signal>, capsule.magnetometer.<signal>."""
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    config = scenario.capsule
+    if config.imu is not None:
+        imu = builder.AddNamedSystem("capsule.imu", Imu(plant, capsule, config.imu))
+        builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        imu.GetInputPort("body_spatial_velocities"))
+        builder.Connect(plant.get_body_spatial_accelerations_output_port(),
+                        imu.GetInputPort("body_spatial_accelerations"))
+        for i in range(imu.num_output_ports()):
+            name = imu.get_output_port(i).get_name()
+            builder.ExportOutput(imu.get_output_port(i), f"capsule.imu.{name}")
+        if config.ahrs is not None:
+            ahrs_config = config.ahrs
+            if not ahrs_config.initial_q_WB:
+                q = X_WB0.rotation().ToQuaternion()
+                ahrs_config = dataclasses.replace(ahrs_config,
+                                                  initial_q_WB=[q.w(), q.x(), q.y(), q.z()])
+            gravity = float(np.linalg.norm(plant.gravity_field().gravity_vector()))
+            ahrs = builder.AddNamedSystem("capsule.ahrs", MahonyAhrs(
+                config.imu.sample_rate, ahrs_config, R_BS=config.imu.X_BS().rotation(),
+                gravity=gravity))
+            builder.Connect(imu.GetOutputPort("accel"), ahrs.get_accel_input_port())
+            builder.Connect(imu.GetOutputPort("gyro"), ahrs.get_gyro_input_port())
+            builder.ExportOutput(ahrs.get_q_WB_output_port(), "capsule.ahrs.q_WB")
+            builder.ExportOutput(ahrs.get_gyro_bias_output_port(), "capsule.ahrs.gyro_bias")
+    if config.magnetometer is not None:
+        magnetometer = builder.AddNamedSystem("capsule.magnetometer", Magnetometer(
+            plant, capsule, magnets, config.magnetometer))
+        builder.Connect(plant.get_body_poses_output_port(),
+                        magnetometer.get_body_poses_input_port())
+        add_random_sources(builder, magnetometer.get_noise_input_ports(), magnetometer.period())
+        builder.ExportOutput(magnetometer.get_B_S_output_port(), "capsule.magnetometer.B_S")
+        builder.ExportOutput(magnetometer.get_B_S_true_output_port(),
+                             "capsule.magnetometer.B_S_true")
+
+
 def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     """Illustration geometry and contact forces in Meshcat; the view looks at the abdomen
     from the patient's right, above the table."""
@@ -281,6 +325,9 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
             builder.Connect(force_port, hold.get_input_port())
             force_port = hold.get_output_port()
         builder.Connect(force_port, plant.get_applied_spatial_force_input_port())
+
+    _add_capsule_sensors(builder, plant, scenario, magnets,
+                         capsule_start_pose(colon, scenario.capsule.start_s))
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")
