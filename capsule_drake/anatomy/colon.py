@@ -91,16 +91,21 @@ class Colon:
     def visual_mesh(self):
         """Closed wall at visual resolution (trimesh), normals into the lumen."""
         p = self.params
-        return closed_tube(self, ring_stations(self, p.visual_axial_step),
-                           p.visual_points_around)
+        return closed_tube(self, self._visual_stations(), p.visual_points_around)
+
+    def _visual_stations(self):
+        p = self.params
+        return ring_stations(self, p.visual_axial_step,
+                             p.visual_tolerance if p.visual_tolerance > 0 else None,
+                             min(p.visual_min_step, p.visual_axial_step))
 
     def textured_visual_mesh(self):
         """`visual_mesh` with texture coordinates for the mucosa texture (`TexturedMesh`;
         the seam column and the caps' rims are duplicated, so it is not watertight)."""
         p = self.params
         m = p.mucosa
-        return textured_tube(self, ring_stations(self, p.visual_axial_step),
-                             p.visual_points_around, m.texels_per_metre / m.texels_along,
+        return textured_tube(self, self._visual_stations(), p.visual_points_around,
+                             m.texels_per_metre / m.texels_along,
                              m.texels_per_metre / m.texels_around)
 
     def texture_seed(self) -> list[int]:

@@ -215,9 +215,14 @@ class ColonParams:
     collision_min_step: float = 0.001
     # Collision mesh vertices per ring.
     collision_points_around: int = 32
-    # Visual mesh: axial step between rings [m] and vertices per ring.
-    visual_axial_step: float = 0.0015
-    visual_points_around: int = 64
+    # Visual mesh: largest axial step between rings [m]; rings crowd where folds curve the
+    # wall, so that straight edges stay within `visual_tolerance` of it (down to
+    # `visual_min_step`), as for the collision mesh; and vertices per ring. A camera render
+    # costs in proportion to the triangles (the whole colon is drawn for every view).
+    visual_axial_step: float = 0.004
+    visual_tolerance: float = 0.0001
+    visual_min_step: float = 0.00075
+    visual_points_around: int = 48
     # Number of OBJ files the collision tube is split into along its length.
     collision_chunks: int = 15
 
@@ -263,13 +268,15 @@ def check_colon_params(params: ColonParams) -> None:
          params.fold_height_jitter)
     need(params.fold_half_width > 0, "fold_half_width", "must be > 0", params.fold_half_width)
     for field_name in ("centerline_step", "collision_axial_step", "collision_min_step",
-                       "visual_axial_step", "course_smoothing"):
+                       "visual_axial_step", "visual_min_step", "course_smoothing"):
         value = getattr(params, field_name)
         need(value > 0, field_name, "must be > 0", value)
     need(params.collision_min_step <= params.collision_axial_step, "collision_min_step",
          "must be <= collision_axial_step", params.collision_min_step)
     need(params.collision_tolerance >= 0, "collision_tolerance", "must be >= 0",
          params.collision_tolerance)
+    need(params.visual_tolerance >= 0, "visual_tolerance", "must be >= 0",
+         params.visual_tolerance)
     for field_name in ("collision_points_around", "visual_points_around"):
         value = getattr(params, field_name)
         need(value >= 8, field_name, "must be >= 8", value)
