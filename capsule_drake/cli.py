@@ -21,13 +21,7 @@ def _parser() -> argparse.ArgumentParser:
         "run", help="simulate a scenario and write its metrics and Meshcat recording",
         description="Simulate a scenario. Writes metrics.json, scenario.yaml, logs.npz and "
                     "recording.html (a self-contained Meshcat replay) into the output folder.")
-    run.add_argument("scenario_file", nargs="?", type=Path, default=DEFAULT_SCENARIO_FILE,
-                     help="YAML file of named scenarios (default: diagrams/default.yaml)")
-    run.add_argument("--scenario", metavar="NAME",
-                     help="which scenario in the file (default: the only one, or 'Default')")
-    run.add_argument("--scenario-text", metavar="YAML",
-                     help="YAML layered on top of the scenario, e.g. '{colon: {seed: 3}}'")
-    run.add_argument("--duration", type=float, metavar="S", help="simulated seconds")
+    _scenario_arguments(run)
     run.add_argument("--meshcat", action="store_true",
                      help="serve a live Meshcat page, pace the run to real time, and keep "
                           "serving after the run until Ctrl-C")
@@ -37,15 +31,60 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-recording", action="store_true",
                      help="skip the Meshcat recording (a little faster)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    rec = verbs.add_parser(
+        "record", help="simulate a scenario with the capsule camera and write a dataset",
+        description="Simulate a scenario with the capsule's camera (the scenario's, or the "
+                    "default 172-degree fisheye) and sensors, writing RGB and 16-bit depth "
+                    "frames, camera poses, IMU, AHRS, magnetometer and lumen ground truth "
+                    "into a folder laid out like SimCol3D's (see README.txt written there).")
+    _scenario_arguments(rec)
+    rec.add_argument("--out", type=Path, metavar="DIR",
+                     help="dataset folder (default: datasets/<scenario>-<date-time>)")
+    rec.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
-def _run(args) -> int:
+def _scenario_arguments(parser):
+    parser.add_argument("scenario_file", nargs="?", type=Path, default=DEFAULT_SCENARIO_FILE,
+                        help="YAML file of named scenarios (default: diagrams/default.yaml)")
+    parser.add_argument("--scenario", metavar="NAME",
+                        help="which scenario in the file (default: the only one, or 'Default')")
+    parser.add_argument("--scenario-text", metavar="YAML",
+                        help="YAML layered on top of the scenario, e.g. '{colon: {seed: 3}}'")
+    parser.add_argument("--duration", type=float, metavar="S", help="simulated seconds")
+
+
+def _load(args):
     if args.duration is not None and args.duration < 0:
         raise ScenarioError(f"--duration must be >= 0, got {args.duration}")
     scenario = load_scenario(args.scenario_file, args.scenario, args.scenario_text)
     if args.duration is not None:
         scenario = dataclasses.replace(scenario, duration=args.duration)
+    return scenario
+
+
+def _record(args) -> int:
+    scenario = _load(args)
+    from capsule_drake.record import record
+
+    name = args.scenario or "dataset"
+    out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise ScenarioError(f"{out_dir}: output folder exists and is not empty")
+    result = record(scenario, out_dir, progress=not args.quiet)
+    frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
+    m = result.metrics
+    print(f"recorded {frames} frames over {m.get('sim_time_s', 0.0):.2f} s into {out_dir}/ "
+          f"(README.txt there describes the layout)")
+    if m.get("stopped_early"):
+        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
+        return 1 if "error" in m["stopped_early"] else 0
+    return 0
+
+
+def _run(args) -> int:
+    scenario = _load(args)
 
     # Imported here so that `capsule-sim --help` and argument errors answer at once.
     from pydrake.geometry import Meshcat, MeshcatParams
@@ -97,6 +136,8 @@ def main(argv=None) -> int:
     try:
         if args.verb == "run":
             return _run(args)
+        if args.verb == "record":
+            return _record(args)
     except ScenarioError as e:
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 2

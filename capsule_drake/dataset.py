@@ -33,6 +33,11 @@ from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
 README = __doc__
 
+# How long after a camera tick the writer looks for the new frame (s). The discrete plant's
+# state then is the one after its update at the tick: the pose written is at most one plant
+# step (1 ms) newer than the image.
+FRAME_CHECK_DELAY = 1e-6
+
 
 class DatasetWriter(LeafSystem):
     """Writes a capsule dataset (see the module docstring) as the simulation runs.
@@ -90,7 +95,10 @@ class DatasetWriter(LeafSystem):
         self._write("lumen", "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
         self._frames_written = 0
         self._last_frame_time = None
-        self.DeclarePeriodicPublishEvent(frame_check_period, 0.0, self._on_frame_check)
+        # Just after each camera tick: at the tick itself a publish runs before the camera's
+        # update, and would see the previous frame (and pair it with the newer pose).
+        self.DeclarePeriodicPublishEvent(frame_check_period, FRAME_CHECK_DELAY,
+                                         self._on_frame_check)
         self._stream_ports = {}
         for name, columns, period in streams:
             port = self.DeclareVectorInputPort(name, len(columns))

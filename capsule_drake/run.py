@@ -66,7 +66,7 @@ class Progress:
 
 def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
              realtime_rate: float = 0.0, progress: bool = True,
-             live_meshcat: bool = False) -> RunResult:
+             live_meshcat: bool = False, extend=None) -> RunResult:
     """Builds the station for `scenario`, runs it for `scenario.duration` and scores it.
 
     Args:
@@ -76,6 +76,9 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         realtime_rate: 0 runs as fast as possible; 1 paces to wall-clock time.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
+        extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
+            writer, a controller) around the station before the diagram is built; the
+            returned callable, if any, runs after the simulation, however it ended.
     """
     colon = colon_for(scenario)
     builder = DiagramBuilder()
@@ -86,6 +89,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                                   scenario.log_period)
     contact_log = LogVectorOutput(monitor.get_output_port(), builder, scenario.log_period)
     epm_log = LogVectorOutput(station.GetOutputPort("epm.state"), builder, scenario.log_period)
+    finish = extend(builder, station) if extend is not None else None
     diagram = builder.Build()
 
     plant = station.GetSubsystemByName("plant")
@@ -112,11 +116,13 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             bar.update(t)
     except KeyboardInterrupt:
         stopped_early = f"interrupted at t = {simulator.get_context().get_time():.3f} s"
-    except RuntimeError as e:
+    except (RuntimeError, ValueError) as e:
         stopped_early = (f"simulation error at t = {simulator.get_context().get_time():.3f} s: "
                          f"{str(e).splitlines()[0]}")
     finally:
         bar.close()
+        if finish is not None:
+            finish()
     wall_time = time.perf_counter() - wall_start
 
     context = simulator.get_context()

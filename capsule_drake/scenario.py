@@ -23,6 +23,7 @@ from capsule_drake.anatomy import ColonParams, check_colon_params
 from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
 from capsule_drake.systems.ahrs import AhrsConfig
+from capsule_drake.systems.camera import CameraConfig, check_camera_config
 from capsule_drake.systems.imu import ImuConfig
 from capsule_drake.systems.magnetometer import MagnetometerConfig
 
@@ -87,6 +88,12 @@ class CapsuleConfig:
     # capsule's true start pose.
     ahrs: AhrsConfig | None = field(default_factory=AhrsConfig)
     magnetometer: MagnetometerConfig | None = field(default_factory=MagnetometerConfig)
+    # The camera at the front dome (null: none, the default, since rendering costs more
+    # than the physics; `capsule-sim record` switches it on). `camera: {}` gives the
+    # 172-degree fisheye at 256 px and 10 fps with the LED light at the lens.
+    camera: CameraConfig | None = None
+    # Lumen ground truth: the centerline point this far ahead of the camera (m).
+    lumen_lookahead: float = 0.05
 
 
 @dataclass
@@ -264,6 +271,12 @@ def validate(scenario: Scenario) -> None:
     except ValueError as e:
         raise ScenarioError(f"scenario: {e}") from None
     need(scenario.capsule.start_s >= 0, "capsule.start_s must be >= 0")
+    if scenario.capsule.camera is not None:
+        try:
+            check_camera_config(scenario.capsule.camera)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: capsule.camera: {e}") from None
+    need(scenario.capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
     need(scenario.capsule.ahrs is None or scenario.capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
     path = scenario.epm.path

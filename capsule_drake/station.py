@@ -58,7 +58,9 @@ from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
 from capsule_drake.systems.ahrs import MahonyAhrs
+from capsule_drake.systems.camera import add_camera_renderer, capsule_camera_for_frame
 from capsule_drake.systems.imu import Imu, add_random_sources
+from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.systems.magnetometer import Magnetometer
 
@@ -226,6 +228,28 @@ def _add_capsule_sensors(builder, plant, scenario: Scenario, magnets, X_WB0):
                              "capsule.magnetometer.B_S_true")
 
 
+def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_instance):
+    """The capsule camera (its own renderer, light at the lens) and the lumen ground truth;
+    exported as capsule.camera.<signal> and capsule.lumen.<signal>."""
+    config = scenario.capsule.camera
+    add_camera_renderer(scene_graph, config)
+    camera_frame = plant.GetFrameByName("camera", capsule_instance)
+    camera = builder.AddNamedSystem("capsule.camera",
+                                    capsule_camera_for_frame(plant, camera_frame, config))
+    builder.Connect(scene_graph.get_query_output_port(), camera.get_query_object_input_port())
+    builder.ExportOutput(camera.get_rgb_image_output_port(), "capsule.camera.rgb_image")
+    builder.ExportOutput(camera.get_depth_image_output_port(), "capsule.camera.depth_image")
+    builder.ExportOutput(camera.get_frame_info_output_port(), "capsule.camera.frame_info")
+    lumen = builder.AddNamedSystem("capsule.lumen", LumenTruth(
+        colon, camera.lens, camera_frame.GetFixedPoseInBodyFrame(),
+        lookahead=scenario.capsule.lumen_lookahead, depth_is_range=True))
+    builder.Connect(plant.get_state_output_port(capsule_instance),
+                    lumen.GetInputPort("capsule_state"))
+    builder.Connect(camera.get_depth_image_output_port(), lumen.GetInputPort("depth"))
+    for name in ("lumen_pixel", "lumen_visible", "lumen_point_W"):
+        builder.ExportOutput(lumen.GetOutputPort(name), f"capsule.lumen.{name}")
+
+
 def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     """Illustration geometry and contact forces in Meshcat; the view looks at the abdomen
     from the patient's right, above the table."""
@@ -328,6 +352,8 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     _add_capsule_sensors(builder, plant, scenario, magnets,
                          capsule_start_pose(colon, scenario.capsule.start_s))
+    if scenario.capsule.camera is not None:
+        _add_camera(builder, plant, scene_graph, scenario, colon, capsule_instance)
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")

@@ -1,0 +1,97 @@
+"""Camera views along the colon with their lumen ground truth (contact sheets, checks)."""
+
+import dataclasses
+
+import cv2
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from capsule_drake.scenario import Scenario
+from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for, make_station
+from capsule_drake.systems.camera import CameraConfig
+from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
+
+
+@dataclasses.dataclass
+class View:
+    """One rendered view: where it was taken and what the camera saw."""
+
+    s: float                  # arc length of the capsule's centre (m)
+    segment: str
+    rgb: np.ndarray           # (H, W, 3) uint8
+    depth: np.ndarray         # (H, W) float32, range along the ray (m)
+    lumen_pixel: np.ndarray   # (2,) lumen truth (px)
+    lumen_visible: bool
+    mask: np.ndarray          # (H, W) bool, the pixels the lens sees
+
+
+def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float = 8.0):
+    """(u, v) of the darkest spot of a heavily blurred grey image: the simplest lumen cue
+    with a light at the lens (REFERENCE section 5). `mask` marks the pixels the lens sees;
+    the blur is normalised by it, so the black surround of a fisheye's image circle does not
+    darken the rim."""
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    if mask is None:
+        mask = np.ones(grey.shape, dtype=bool)
+    weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), blur_px)
+    grey = cv2.GaussianBlur(grey * mask, (0, 0), blur_px) / np.maximum(weight, 1e-6)
+    grey[~mask] = np.inf
+    v, u = np.unravel_index(np.argmin(grey), grey.shape)
+    return np.array([u, v], dtype=float)
+
+
+def views_along_colon(scenario: Scenario, s_values, tilt_deg: float = 0.0,
+                      offset: float = 0.0) -> list[View]:
+    """Renders the capsule camera at each arc length, looking down the colon (tilted by
+    `tilt_deg` about the camera's x axis, shifted `offset` metres off the centerline)."""
+    if scenario.capsule.camera is None:
+        scenario = dataclasses.replace(
+            scenario, capsule=dataclasses.replace(scenario.capsule, camera=CameraConfig()))
+    colon = colon_for(scenario)
+    diagram = make_station(scenario)
+    context = diagram.CreateDefaultContext()
+    plant = diagram.GetSubsystemByName("plant")
+    scene_graph = diagram.GetSubsystemByName("scene_graph")
+    camera = diagram.GetSubsystemByName("capsule.camera")
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    body = plant.GetBodyByName(CAPSULE_BODY)
+    frame_id = plant.GetBodyFrameIdOrThrow(body.index())
+    X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+    tilt = RigidTransform(RotationMatrix(RollPitchYaw(np.radians(tilt_deg), 0, 0)), [0, 0, 0])
+    _, mask = camera.lens.pixel_rays()
+    views = []
+    for s in s_values:
+        X_WB = capsule_start_pose(colon, s).multiply(tilt)
+        X_WB.set_translation(X_WB.translation() + offset * X_WB.rotation().col(0))
+        plant.SetFreeBodyPose(plant_context, body, X_WB)
+        query = scene_graph.get_query_output_port().Eval(
+            scene_graph.GetMyContextFromRoot(context))
+        rgb = camera.renderer.render_rgba(query, frame_id, X_BC)[:, :, :3].copy()
+        depth = camera.renderer.render_range(query, frame_id, X_BC)
+        X_WC = X_WB.multiply(X_BC)
+        point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
+                                scenario.capsule.lumen_lookahead)
+        pixel, visible = project_lumen(camera.lens, X_WC, point, depth, depth_is_range=True)
+        views.append(View(float(s), colon.centerline.segment_at(float(s)), rgb, depth,
+                          pixel, bool(visible), mask))
+    return views
+
+
+def contact_sheet(views: list[View], columns: int = 4) -> np.ndarray:
+    """The views tiled into one RGB image, each labelled with its segment and arc length,
+    the lumen truth as a green cross and the darkest spot as a blue circle."""
+    tiles = []
+    for view in views:
+        tile = view.rgb.copy()
+        if view.lumen_visible:
+            cv2.drawMarker(tile, tuple(int(round(x)) for x in view.lumen_pixel), (0, 255, 0),
+                           cv2.MARKER_CROSS, 18, 2)
+        u, v = darkest_spot(view.rgb, view.mask)
+        cv2.circle(tile, (int(u), int(v)), 7, (60, 140, 255), 2)
+        cv2.putText(tile, f"{view.segment} s={100 * view.s:.0f} cm", (6, 16),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(tile)
+    while len(tiles) % columns:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
+    return np.vstack(rows)

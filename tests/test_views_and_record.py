@@ -1,0 +1,68 @@
+"""Rendered views along the colon, the lumen cue they carry, and a recorded dataset."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from capsule_drake.cli import main as cli_main
+from capsule_drake.dataset import read_depth_png
+from capsule_drake.scenario import load_scenario
+from capsule_drake.station import colon_for
+from capsule_drake.views import darkest_spot, views_along_colon
+
+
+@pytest.fixture(scope="module")
+def views():
+    scenario = load_scenario()
+    length = colon_for(scenario).centerline.length
+    return views_along_colon(scenario, np.linspace(0.1, length - 0.1, 8))
+
+
+def test_darkest_region_lies_near_the_lumen_truth(views):
+    # With the light at the lens and distance falloff, the darkest spot of the image is the
+    # deepest place: the lumen (REFERENCE section 5). Over views along the whole colon it lies
+    # within a tenth of the image diagonal of the lumen truth (5 cm ahead on the centerline).
+    diagonal = np.hypot(256, 256)
+    gaps = []
+    for view in views:
+        assert view.lumen_visible, view.segment
+        gaps.append(np.linalg.norm(darkest_spot(view.rgb, view.mask) - view.lumen_pixel))
+    gaps = np.array(gaps) / diagonal
+    print("darkest spot to lumen truth / diagonal:", np.round(gaps, 3))
+    assert np.median(gaps) < 0.08 and gaps.max() < 0.15
+
+
+def test_depth_is_deepest_at_the_lumen(views):
+    for view in views:
+        u, v = np.round(view.lumen_pixel).astype(int)
+        near_lumen = view.depth[max(v - 3, 0):v + 4, max(u - 3, 0):u + 4]
+        seen = view.depth[view.mask & np.isfinite(view.depth)]
+        assert np.nanmedian(np.where(np.isfinite(near_lumen), near_lumen, 0.3)) > \
+            np.percentile(seen, 75)
+
+
+def test_record_writes_a_dataset(tmp_path):
+    out = tmp_path / "dataset"
+    code = cli_main(["record", "--duration", "0.55", "--out", str(out), "--quiet"])
+    assert code == 0
+    frames = sorted((out / "Frames").glob("FrameBuffer_*.png"))
+    depths = sorted((out / "Frames").glob("Depth_*.png"))
+    assert len(frames) == len(depths) == 6  # 10 fps from t = 0
+    assert len(np.loadtxt(out / "SavedPosition.txt")) == 6
+    lumen = np.loadtxt(out / "lumen_truth.csv", delimiter=",", skiprows=1)
+    assert lumen.shape == (6, 9) and lumen[:, 4].all()
+    imu = np.loadtxt(out / "imu.csv", delimiter=",", skiprows=1)
+    assert imu.shape[1] == 13 and len(imu) >= 50  # 100 Hz
+    assert (out / "magnetometer.csv").exists() and (out / "ahrs.csv").exists()
+    depth = read_depth_png(depths[0])
+    assert 0.0 < np.median(depth) < 0.2
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["stopped_early"] is None
+
+
+def test_record_refuses_a_non_empty_folder(tmp_path, capsys):
+    (tmp_path / "keep.txt").write_text("data")
+    assert cli_main(["record", "--duration", "0.1", "--out", str(tmp_path)]) == 2
+    assert "exists and is not empty" in capsys.readouterr().err
