@@ -9,7 +9,10 @@ from pydrake.systems.primitives import Demultiplexer, Multiplexer
 from capsule_drake.dataset import DatasetWriter
 from capsule_drake.run import RunResult, simulate
 from capsule_drake.scenario import Scenario
+from capsule_drake.systems.ahrs import AhrsConfig
 from capsule_drake.systems.camera import CameraConfig
+from capsule_drake.systems.imu import ImuConfig
+from capsule_drake.systems.magnetometer import MagnetometerConfig
 
 # Sensor streams written as CSV files: file name -> [(station output, column names)].
 _STREAMS = {
@@ -25,12 +28,17 @@ _STREAMS = {
 }
 
 
-def with_camera(scenario: Scenario) -> Scenario:
-    """The scenario with a camera (the default one if it has none); the original is kept."""
-    if scenario.capsule.camera is not None:
-        return scenario
-    return dataclasses.replace(
-        scenario, capsule=dataclasses.replace(scenario.capsule, camera=CameraConfig()))
+def with_all_sensors(scenario: Scenario) -> Scenario:
+    """The scenario with a camera, IMU, AHRS and magnetometer: its own where it has them,
+    the defaults where it does not. The original is kept."""
+    capsule = scenario.capsule
+    return dataclasses.replace(scenario, capsule=dataclasses.replace(
+        capsule,
+        camera=capsule.camera if capsule.camera is not None else CameraConfig(),
+        imu=capsule.imu if capsule.imu is not None else ImuConfig(),
+        ahrs=capsule.ahrs if capsule.ahrs is not None else AhrsConfig(),
+        magnetometer=(capsule.magnetometer if capsule.magnetometer is not None
+                      else MagnetometerConfig())))
 
 
 def _camera_yaml(camera, lens) -> str:
@@ -49,7 +57,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True) ->
 
     Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`).
     """
-    scenario = with_camera(scenario)
+    scenario = with_all_sensors(scenario)
     out_dir = Path(out_dir)
     camera_config = scenario.capsule.camera
     tick = 1.0 / (camera_config.fps if camera_config.fps_mode == "fixed"

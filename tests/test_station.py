@@ -85,7 +85,7 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
     assert (out / "logs.npz").exists() and (out / "scenario.yaml").exists()
 
 
-@pytest.mark.parametrize("name", ["Default", "OneOfEverything"])
+@pytest.mark.parametrize("name", ["Default", "WithSensors", "OneOfEverything"])
 def test_named_scenarios_simulate(name):
     scenario = load_scenario(name=name)
     scenario = dataclasses.replace(scenario, duration=min(scenario.duration, 0.5))
@@ -123,3 +123,28 @@ def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch)
     assert 0.15 < m["sim_time_s"] < 0.25
     logs = np.load(tmp_path / "logs.npz")
     assert logs["times"][-1] > 0.15 and len(logs["times"]) == len(result.times)
+
+
+def test_sensors_are_wired_and_seeded():
+    scenario = dataclasses.replace(load_scenario(name="WithSensors"), duration=0.3)
+    diagram = make_station(scenario)
+    names = {diagram.get_output_port(i).get_name() for i in range(diagram.num_output_ports())}
+    assert {"capsule.imu.accel", "capsule.imu.gyro", "capsule.ahrs.q_WB",
+            "capsule.magnetometer.B_S", "capsule.camera.rgb_image",
+            "capsule.lumen.lumen_pixel"} <= names
+
+    from pydrake.common import RandomGenerator
+    from pydrake.systems.analysis import Simulator
+
+    def accel_after(seed, port="capsule.imu.accel"):
+        simulator = Simulator(diagram)
+        diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(seed))
+        simulator.AdvanceTo(0.2)
+        return diagram.GetOutputPort(port).Eval(simulator.get_context()).copy()
+
+    # The same seed gives the same noisy sample, another seed another one.
+    np.testing.assert_array_equal(accel_after(3), accel_after(3))
+    assert not np.array_equal(accel_after(3), accel_after(4))
+    # Measured = true + bias (~10 mg) + white noise (~0.03 m/s^2 per sample at 100 Hz).
+    error = accel_after(3) - accel_after(3, "capsule.imu.accel_true")
+    assert 0.0 < np.linalg.norm(error) < 1.0
