@@ -12,7 +12,7 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.geometry import (Box, GeometryInstance, IllustrationProperties, Mesh,
                               PerceptionProperties, Rgba, SceneGraph, Sphere)
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
@@ -21,7 +21,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
 from capsule_drake.station import PACKAGE, capsule_start_pose, configure_parser
-from capsule_drake.systems.camera import (CameraConfig, CapsuleCamera, LensRenderer,
+from capsule_drake.systems.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
 from capsule_drake.vision import LensConfig

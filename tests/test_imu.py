@@ -16,7 +16,6 @@ from pydrake.systems.primitives import LogVectorOutput
 from capsule_drake.allan import allan_deviation, log_log_slope, white_noise_coefficient
 from capsule_drake.systems.imu import (
     STANDARD_GRAVITY,
-    ChannelNoise,
     Imu,
     ImuConfig,
     ImuNoise,

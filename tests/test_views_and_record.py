@@ -1,6 +1,5 @@
 """Rendered views along the colon, the lumen cue they carry, and a recorded dataset."""
 
-import dataclasses
 import json
 
 import numpy as np
