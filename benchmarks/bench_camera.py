@@ -17,15 +17,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydrake.geometry import (GeometryInstance, IllustrationProperties, Mesh,
-                              PerceptionProperties)
-from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
-from capsule_drake.station import PACKAGE, capsule_start_pose, configure_parser
+from capsule_drake.anatomy import ColonParams, build_colon
+from capsule_drake.scenario import Scenario
+from capsule_drake.station import (PACKAGE, add_colon_visuals, capsule_start_pose,
+                                   configure_parser)
 from capsule_drake.systems.camera import CameraConfig, LensRenderer, add_camera_renderer
 from capsule_drake.vision import LensConfig
 
@@ -48,11 +47,7 @@ def colon_scene(start_s: float = 0.30, config: CameraConfig | None = None):
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
     configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    mucosa = GeometryInstance(RigidTransform(), Mesh(str(colon_assets(params).visual_obj)),
-                              "colon_mucosa")
-    mucosa.set_illustration_properties(IllustrationProperties())
-    mucosa.set_perception_properties(PerceptionProperties())
-    plant.RegisterVisualGeometry(plant.world_body(), mucosa)
+    add_colon_visuals(plant, Scenario(colon=params))  # mucosa and torso, as the station does
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("capsule"),
                                          capsule_start_pose(colon, start_s))

@@ -158,7 +158,7 @@ def add_colon_wall(plant, scenario: Scenario, colon) -> int:
     return len(chunks)
 
 
-def _add_colon_visuals(plant, scenario: Scenario):
+def add_colon_visuals(plant, scenario: Scenario):
     """The mucosa (its look from the mesh's own material) and the torso; returns the torso's
     geometry id."""
     assets = colon_assets(scenario.colon)
@@ -290,7 +290,7 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
     parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
     add_colon_wall(plant, scenario, colon)
-    torso_id = _add_colon_visuals(plant, scenario)
+    torso_id = add_colon_visuals(plant, scenario)
     set_capsule_contact(plant, scene_graph, scenario)
 
     # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);

@@ -10,8 +10,7 @@ import cv2
 import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
-from pydrake.geometry import (Box, GeometryInstance, IllustrationProperties, Mesh,
-                              PerceptionProperties, Rgba, SceneGraph, Sphere)
+from pydrake.geometry import (Box, GeometryInstance, PerceptionProperties, Rgba, SceneGraph, Sphere)
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.parsing import Parser
@@ -19,8 +18,10 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
-from capsule_drake.station import PACKAGE, capsule_start_pose, configure_parser
+from capsule_drake.anatomy import ColonParams, build_colon
+from capsule_drake.scenario import Scenario
+from capsule_drake.station import (PACKAGE, add_colon_visuals, capsule_start_pose,
+                                   configure_parser)
 from capsule_drake.systems.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
@@ -136,11 +137,7 @@ def _colon_scene(start_s):
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
     configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    mucosa = GeometryInstance(RigidTransform(), Mesh(str(colon_assets(params).visual_obj)),
-                              "colon_mucosa")
-    mucosa.set_illustration_properties(IllustrationProperties())
-    mucosa.set_perception_properties(PerceptionProperties())
-    plant.RegisterVisualGeometry(plant.world_body(), mucosa)
+    add_colon_visuals(plant, Scenario(colon=params))  # mucosa and torso, as the station does
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("capsule"),
                                          capsule_start_pose(colon, start_s))
