@@ -33,10 +33,10 @@ from pydrake.geometry import (
     Convex,
     GeometryInstance,
     IllustrationProperties,
+    MakePhongIllustrationProperties,
     Mesh,
     PerceptionProperties,
     ProximityProperties,
-    Role,
     RoleAssign,
 )
 from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
@@ -159,16 +159,17 @@ def add_colon_wall(plant, scenario: Scenario, colon) -> int:
 
 
 def add_colon_visuals(plant, scenario: Scenario):
-    """The mucosa (its look from the mesh's own material) and the torso; returns the torso's
-    geometry id."""
+    """The mucosa (its look from the mesh's own material, seen by cameras) and the torso
+    (drawn for orientation only: no perception role, so cameras never see it)."""
     assets = colon_assets(scenario.colon)
     world = plant.world_body()
     mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
     mucosa.set_illustration_properties(IllustrationProperties())
     mucosa.set_perception_properties(PerceptionProperties())
     plant.RegisterVisualGeometry(world, mucosa)
-    return plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(assets.torso_obj)),
-                                        "torso", TORSO_RGBA)
+    torso = GeometryInstance(RigidTransform(), Mesh(str(assets.torso_obj)), "torso")
+    torso.set_illustration_properties(MakePhongIllustrationProperties(TORSO_RGBA))
+    plant.RegisterVisualGeometry(world, torso)
 
 
 def set_capsule_contact(plant, scene_graph, scenario: Scenario):
@@ -290,7 +291,7 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
     parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
     add_colon_wall(plant, scenario, colon)
-    torso_id = add_colon_visuals(plant, scenario)
+    add_colon_visuals(plant, scenario)
     set_capsule_contact(plant, scene_graph, scenario)
 
     # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
@@ -302,8 +303,6 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
         plant.GetJointActuatorByName(name, epm_instance).set_controller_gains(
             PdControllerGains(p=gains.p, d=gains.d))
     plant.Finalize()
-    # The torso is drawn for orientation only: cameras must not see it.
-    scene_graph.RemoveRole(plant.get_source_id(), torso_id, Role.kPerception)
 
     actuated = [plant.get_joint_actuator(i).joint().name()
                 for i in plant.GetJointActuatorIndices(epm_instance)]
