@@ -4,6 +4,7 @@ fall-off in the colon, and the fixed and adaptive frame rates."""
 import dataclasses
 import math
 import os
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -28,7 +29,8 @@ from capsule_drake.systems.camera import (CameraConfig, LensRenderer,
 from capsule_drake.vision import LensConfig
 
 # Images of the test scenes go here, to be looked at.
-IMAGE_DIR = Path(os.environ.get("CAPSULE_CAMERA_TEST_IMAGES", "/tmp/capsule_camera_tests"))
+IMAGE_DIR = Path(os.environ.get("CAPSULE_CAMERA_TEST_IMAGES",
+                               Path(tempfile.gettempdir()) / "capsule_camera_tests"))
 
 FISHEYE = LensConfig(model="equidistant", fov_deg=172.0)
 KB_FISHEYE = LensConfig(model="kannala_brandt", fov_deg=160.0, width=320, height=320,
