@@ -84,7 +84,8 @@ class CapsuleConfig:
     # On-board sensors, off (null) unless the scenario asks for them (`imu: {}` gives the
     # MPU-6050-like defaults); `capsule-sim record` switches every one on. The IMU
     # (accelerometer + gyroscope, MEMS noise, bias drift), its AHRS, and a magnetometer
-    # reading the EPM's field. They cost ~0.1 ms per 1 ms step together (the physics ~0.35).
+    # reading the EPM's field. Together they add ~0.08 ms to a ~0.36 ms physics step
+    # (measured: IMU 0.037, magnetometer 0.030, AHRS 0.012), though they sample at 100 Hz.
     imu: ImuConfig | None = None
     # The Mahony AHRS on the IMU (needs the IMU). An empty initial_q_WB starts it from the
     # capsule's true start pose.
