@@ -93,7 +93,11 @@ def _run(args) -> int:
 
     meshcat = None
     if args.meshcat:
-        meshcat = Meshcat(MeshcatParams(port=args.port))
+        try:
+            meshcat = Meshcat(MeshcatParams(port=args.port))
+        except RuntimeError as e:
+            raise ScenarioError(f"--port {args.port}: cannot start Meshcat "
+                                f"({str(e).splitlines()[0]})") from None
         print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
     elif not args.no_recording:
         # Only for the recording: its server's address would be noise.
