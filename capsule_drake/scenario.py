@@ -280,6 +280,11 @@ def validate(scenario: Scenario) -> None:
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
     need(scenario.capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
+    for name in ("imu", "magnetometer"):
+        sensor = getattr(scenario.capsule, name)
+        need(sensor is None or sensor.sample_rate > 0,
+             f"capsule.{name}.sample_rate must be > 0, got "
+             f"{getattr(sensor, 'sample_rate', None)}")
     need(scenario.capsule.ahrs is None or scenario.capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
     path = scenario.epm.path

@@ -349,10 +349,18 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
             force_port = hold.get_output_port()
         builder.Connect(force_port, plant.get_applied_spatial_force_input_port())
 
-    _add_capsule_sensors(builder, plant, scenario, magnets,
-                         capsule_start_pose(colon, scenario.capsule.start_s))
+    # A sensor's configuration is checked by the system it configures: a bad value is the
+    # user's mistake, reported as such.
+    try:
+        _add_capsule_sensors(builder, plant, scenario, magnets,
+                             capsule_start_pose(colon, scenario.capsule.start_s))
+    except ValueError as e:
+        raise ScenarioError(f"scenario: capsule sensors: {e}") from None
     if scenario.capsule.camera is not None:
-        _add_camera(builder, plant, scene_graph, scenario, colon, capsule_instance)
+        try:
+            _add_camera(builder, plant, scene_graph, scenario, colon, capsule_instance)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: capsule.camera: {e}") from None
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")

@@ -67,6 +67,8 @@ def test_dump_round_trips(tmp_path):
     ("A:\n  colon: {ascending: {fold_height: 0.05}}\n", "colon.ascending.fold_height"),
     ("A:\n  colon: {collision_chunks: 0}\n", "colon.collision_chunks must be >= 1"),
     ("A:\n  contact: {model: mujoco}\n", "contact.model must be one of"),
+    ("A:\n  capsule: {magnetometer: {sample_rate: 0}}\n",
+     "capsule.magnetometer.sample_rate must be > 0"),
 ])
 def test_bad_scenarios_name_the_key(tmp_path, text, expected):
     path = write(tmp_path, text)

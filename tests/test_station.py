@@ -26,6 +26,22 @@ def test_capsule_outside_the_colon_is_a_scenario_error():
         make_station(scenario)
 
 
+def test_bad_sensor_settings_are_scenario_errors():
+    # Checked by the systems they configure (load_scenario checks some earlier still).
+    from capsule_drake.systems.camera import CameraConfig
+    from capsule_drake.systems.imu import ImuConfig
+    from capsule_drake.vision import LensConfig
+
+    scenario = Scenario()
+    scenario.capsule.camera = CameraConfig(lens=LensConfig(model="fancy"))
+    with pytest.raises(ScenarioError, match="capsule.camera: lens model 'fancy'"):
+        make_station(scenario)
+    scenario = Scenario()
+    scenario.capsule.imu = ImuConfig(sample_rate=-5.0)
+    with pytest.raises(ScenarioError, match="capsule sensors: sample_rate must be positive"):
+        make_station(scenario)
+
+
 def test_magnet_field_at_capsule_points_down_the_colon():
     # At t = 0 the EPM hovers over the capsule with its moment chosen so the field at the
     # capsule lies along the colon's tangent; the capsule starts aligned with that tangent,
