@@ -5,8 +5,12 @@
 Blocks (each a named subsystem) and their wiring:
 
     epm_path (TrajectorySource) --> plant.epm_stage desired state (PD servos)
-    plant.body_poses --> magnet_force --> plant.applied_spatial_force
-    scene_graph <--> plant (capsule, colon wall chunks, EPM stage, table)
+    plant.body_poses --> magnet_force [--> magnet_force_hold] --> plant.applied_spatial_force
+    scene_graph <--> plant (capsule, colon wall chunks or pieces, EPM stage, table)
+    and, when the scenario switches them on:
+    plant body poses, velocities, accelerations --> capsule.imu --> capsule.ahrs
+    plant.body_poses --> capsule.magnetometer
+    scene_graph.query_object --> capsule.camera --> capsule.lumen (with the capsule state)
 
 Exported ports, named `<instance>.<signal>`:
     capsule.state          [q (quaternion wxyz, p_WC); v (w_WC, v_WC)] of the capsule body
@@ -17,6 +21,8 @@ Exported ports, named `<instance>.<signal>`:
     body_poses             every body's pose (list[RigidTransform])
     contact_results        the plant's ContactResults
     query_object           SceneGraph's query object (for cameras and distance queries)
+    capsule.imu.*, capsule.ahrs.*, capsule.magnetometer.*, capsule.camera.*, capsule.lumen.*
+                           the sensors' outputs, when the scenario has them (see README)
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+from pydrake.common.value import AbstractValue
 from pydrake.common.yaml import yaml_dump_typed
 from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
@@ -35,19 +42,19 @@ from pydrake.geometry import (
     IllustrationProperties,
     MakePhongIllustrationProperties,
     Mesh,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
     PerceptionProperties,
     ProximityProperties,
     RoleAssign,
 )
-from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
-from pydrake.common.value import AbstractValue
+from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
-    ExternallyAppliedSpatialForce,
     CoulombFriction,
+    ExternallyAppliedSpatialForce,
     MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import PdControllerGains
@@ -310,7 +317,7 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     # Initial state: capsule on the centerline at its start, stage where its path begins.
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
-                                 capsule_start_pose(colon, scenario.capsule.start_s))
+                                         capsule_start_pose(colon, scenario.capsule.start_s))
     trajectory, _ = _epm_trajectory(scenario, colon)
     q0 = trajectory.value(trajectory.start_time()).ravel()
     for name, value in zip(STAGE_JOINTS, q0):
