@@ -68,7 +68,7 @@ def _record(args) -> int:
     scenario = _load(args)
     from capsule_drake.record import record
 
-    name = args.scenario or "dataset"
+    name = args.scenario or "Default"
     out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     if out_dir.exists() and any(out_dir.iterdir()):
         raise ScenarioError(f"{out_dir}: output folder exists and is not empty")
@@ -106,7 +106,7 @@ def _run(args) -> int:
         drake_log.setLevel(logging.WARNING)
         meshcat = Meshcat(MeshcatParams(port=0))
         drake_log.setLevel(level)
-    name = args.scenario or "run"
+    name = args.scenario or "Default"
     out_dir = args.out or Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       realtime_rate=1.0 if args.meshcat else 0.0,
