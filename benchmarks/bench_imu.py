@@ -37,19 +37,9 @@ from capsule_drake.systems.magnetometer import (
     MagnetometerConfig,
     field_in_sensor_frame,
 )
+from timing import median_us  # benchmarks/timing.py
 
 VARIANTS = ("plant only", "+ Imu", "+ Imu + MahonyAhrs", "+ Magnetometer")
-
-
-def median_us(fn, repeats=7, number=2000):
-    fn()
-    samples = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(number):
-            fn()
-        samples.append((time.perf_counter() - start) / number * 1e6)
-    return statistics.median(samples)
 
 
 def pure_function_costs():

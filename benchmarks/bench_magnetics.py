@@ -40,21 +40,10 @@ from capsule_drake.magnetics import (
     dipole_torque,
 )
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+from timing import median_us  # benchmarks/timing.py
 
 # Only for --station (imports the colon builder).
 STATION_VARIANTS = ("as built", "zero moments", "no MagneticForce")
-
-
-def median_us(fn, repeats, number):
-    """Median over ``repeats`` batches of the time per call, in microseconds."""
-    fn()  # warm up
-    samples = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(number):
-            fn()
-        samples.append((time.perf_counter() - start) / number * 1e6)
-    return statistics.median(samples)
 
 
 def build_diagram(with_magnets):
