@@ -17,15 +17,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.anatomy import ColonParams, build_colon
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import (PACKAGE, add_colon_visuals, capsule_start_pose,
-                                   configure_parser)
-from capsule_drake.systems.camera import CameraConfig, LensRenderer, add_camera_renderer
+from capsule_drake.systems.camera import CameraConfig, LensRenderer
+from capsule_drake.views import camera_scene
 from capsule_drake.vision import LensConfig
 
 # name: (lens, face_resolution_scale)
@@ -37,23 +31,6 @@ LENSES = {
     "fisheye 172 deg": (LensConfig(model="equidistant", fov_deg=172.0), 1.0),
     "fisheye 172 deg, faces x0.7": (LensConfig(model="equidistant", fov_deg=172.0), 0.7),
 }
-
-
-def colon_scene(start_s: float = 0.30, config: CameraConfig | None = None):
-    """(diagram, context, plant, scene_graph) with the capsule at `start_s` in the default
-    colon and the camera renderer added."""
-    params = ColonParams()
-    colon = build_colon(params)
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_colon_visuals(plant, Scenario(colon=params))  # mucosa and torso, as the station does
-    plant.Finalize()
-    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("capsule"),
-                                         capsule_start_pose(colon, start_s))
-    add_camera_renderer(scene_graph, config or CameraConfig())
-    diagram = builder.Build()
-    return diagram, diagram.CreateDefaultContext(), plant, scene_graph
 
 
 def time_frames(function, frames: int) -> float:
@@ -75,7 +52,7 @@ def main():
     args = parser.parse_args()
 
     config = CameraConfig()
-    diagram, context, plant, scene_graph = colon_scene(config=config)
+    diagram, context, plant, scene_graph = camera_scene(config=config)
     query_object = scene_graph.get_query_output_port().Eval(
         scene_graph.GetMyContextFromRoot(context))
     body_frame = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName("capsule").index())

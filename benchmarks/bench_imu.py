@@ -77,11 +77,7 @@ def build(variant, imu_config, mag_config):
     updates_per_second = 0.0
     if variant in ("+ Imu", "+ Imu + MahonyAhrs"):
         imu = builder.AddNamedSystem("capsule.imu", Imu(plant, capsule, imu_config))
-        builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
-        builder.Connect(plant.get_body_spatial_velocities_output_port(),
-                        imu.GetInputPort("body_spatial_velocities"))
-        builder.Connect(plant.get_body_spatial_accelerations_output_port(),
-                        imu.GetInputPort("body_spatial_accelerations"))
+        imu.connect_to_plant(builder, plant)
         updates_per_second = imu_config.sample_rate
         if variant == "+ Imu + MahonyAhrs":
             ahrs = builder.AddNamedSystem(

@@ -203,11 +203,7 @@ def _add_capsule_sensors(builder, plant, scenario: Scenario, magnets, X_WB0):
     config = scenario.capsule
     if config.imu is not None:
         imu = builder.AddNamedSystem("capsule.imu", Imu(plant, capsule, config.imu))
-        builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
-        builder.Connect(plant.get_body_spatial_velocities_output_port(),
-                        imu.GetInputPort("body_spatial_velocities"))
-        builder.Connect(plant.get_body_spatial_accelerations_output_port(),
-                        imu.GetInputPort("body_spatial_accelerations"))
+        imu.connect_to_plant(builder, plant)
         for i in range(imu.num_output_ports()):
             name = imu.get_output_port(i).get_name()
             builder.ExportOutput(imu.get_output_port(i), f"capsule.imu.{name}")

@@ -5,10 +5,14 @@ import dataclasses
 import cv2
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for, make_station
-from capsule_drake.systems.camera import CameraConfig
+from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_colon_visuals, capsule_start_pose,
+                                   colon_for, configure_parser, make_station)
+from capsule_drake.systems.camera import CameraConfig, add_camera_renderer
 from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
 
 
@@ -23,6 +27,24 @@ class View:
     lumen_pixel: np.ndarray   # (2,) lumen truth (px)
     lumen_visible: bool
     mask: np.ndarray          # (H, W) bool, the pixels the lens sees
+
+
+def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None):
+    """A minimal scene for camera checks and benchmarks: the capsule at `start_s` in the
+    default colon (drawn as the station draws it), with the camera renderer added and no EPM,
+    sensors or magnet. Returns (diagram, context, plant, scene_graph)."""
+    scenario = Scenario()
+    colon = colon_for(scenario)
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
+    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+    add_colon_visuals(plant, scenario)
+    plant.Finalize()
+    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
+                                         capsule_start_pose(colon, start_s))
+    add_camera_renderer(scene_graph, config or CameraConfig())
+    diagram = builder.Build()
+    return diagram, diagram.CreateDefaultContext(), plant, scene_graph
 
 
 def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float = 8.0):

@@ -216,11 +216,7 @@ def test_imu_and_ahrs_on_a_spinning_plant_body():
     builder = DiagramBuilder()
     builder.AddSystem(plant)
     imu = builder.AddNamedSystem("capsule.imu", Imu(plant, body, imu_config))
-    builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
-    builder.Connect(plant.get_body_spatial_velocities_output_port(),
-                    imu.GetInputPort("body_spatial_velocities"))
-    builder.Connect(plant.get_body_spatial_accelerations_output_port(),
-                    imu.GetInputPort("body_spatial_accelerations"))
+    imu.connect_to_plant(builder, plant)
     ahrs = builder.AddNamedSystem("capsule.ahrs", MahonyAhrs(
         imu_config.sample_rate, AhrsConfig(), R_BS=imu_config.X_BS().rotation(),
         gravity=float(np.linalg.norm(plant.gravity_field().gravity_vector()))))

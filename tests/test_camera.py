@@ -19,13 +19,11 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.anatomy import ColonParams, build_colon
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import (PACKAGE, add_colon_visuals, capsule_start_pose,
-                                   configure_parser)
+from capsule_drake.station import (PACKAGE, configure_parser)
 from capsule_drake.systems.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
+from capsule_drake.views import camera_scene
 from capsule_drake.vision import LensConfig
 
 # Images of the test scenes go here, to be looked at.
@@ -133,24 +131,10 @@ def test_markers_land_where_the_lens_projects_them(lens, directions):
         assert np.linalg.norm(centroid - pixel) < 1.0, (pixel, centroid)
 
 
-def _colon_scene(start_s):
-    params = ColonParams()
-    colon = build_colon(params)
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_colon_visuals(plant, Scenario(colon=params))  # mucosa and torso, as the station does
-    plant.Finalize()
-    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("capsule"),
-                                         capsule_start_pose(colon, start_s))
-    add_camera_renderer(scene_graph, CameraConfig())
-    diagram = builder.Build()
-    return diagram, plant, scene_graph
-
-
 @pytest.fixture(scope="module")
 def colon_scene():
-    return _colon_scene(start_s=0.30)
+    diagram, _, plant, scene_graph = camera_scene(start_s=0.30)
+    return diagram, plant, scene_graph
 
 
 @pytest.mark.parametrize("lens", [FISHEYE, PINHOLE], ids=["fisheye", "pinhole"])

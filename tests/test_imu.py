@@ -203,11 +203,7 @@ def _static_imu_diagram(config):
     builder = DiagramBuilder()
     builder.AddSystem(plant)
     imu = builder.AddNamedSystem("capsule.imu", Imu(plant, body, config))
-    builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
-    builder.Connect(plant.get_body_spatial_velocities_output_port(),
-                    imu.GetInputPort("body_spatial_velocities"))
-    builder.Connect(plant.get_body_spatial_accelerations_output_port(),
-                    imu.GetInputPort("body_spatial_accelerations"))
+    imu.connect_to_plant(builder, plant)
     period = 1.0 / config.sample_rate
     logs = {name: LogVectorOutput(imu.GetOutputPort(name), builder, period)
             for name in ("accel", "gyro", "accel_true", "gyro_true", "accel_bias", "gyro_bias")}

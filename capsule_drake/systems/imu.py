@@ -368,3 +368,11 @@ class Imu(Diagram):
     def noise_system(self) -> ImuNoise:
         return self._noise
 
+    def connect_to_plant(self, builder, plant) -> None:
+        """Connects the plant's body poses, velocities and accelerations to this IMU."""
+        builder.Connect(plant.get_body_poses_output_port(), self.GetInputPort("body_poses"))
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        self.GetInputPort("body_spatial_velocities"))
+        builder.Connect(plant.get_body_spatial_accelerations_output_port(),
+                        self.GetInputPort("body_spatial_accelerations"))
+
