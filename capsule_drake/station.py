@@ -46,6 +46,7 @@ from pydrake.geometry import (
     MeshcatVisualizerParams,
     PerceptionProperties,
     ProximityProperties,
+    Role,
     RoleAssign,
 )
 from pydrake.math import RigidTransform, RotationMatrix
@@ -62,10 +63,12 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource, ZeroOrderHold
 
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
+from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
 from capsule_drake.systems.ahrs import MahonyAhrs
-from capsule_drake.systems.camera import add_camera_renderer, capsule_camera_for_frame
+from capsule_drake.systems.camera import (CameraConfig, add_camera_renderer,
+                                          capsule_camera_for_frame, check_camera_config)
 from capsule_drake.systems.imu import Imu, add_random_sources
 from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
@@ -165,18 +168,70 @@ def add_colon_wall(plant, scenario: Scenario, colon) -> int:
     return len(chunks)
 
 
-def add_colon_visuals(plant, scenario: Scenario):
-    """The mucosa (its look from the mesh's own material, seen by cameras) and the torso
-    (drawn for orientation only: no perception role, so cameras never see it)."""
+def add_colon_visuals(plant, scenario: Scenario, perception: bool = True):
+    """The mucosa (its look from the mesh's own material; seen by every renderer if
+    `perception`) and the torso (drawn for orientation only: cameras never see it).
+    With a capsule camera the cameras see the wall of `add_camera_walls` instead."""
     assets = colon_assets(scenario.colon)
     world = plant.world_body()
     mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
     mucosa.set_illustration_properties(IllustrationProperties())
-    mucosa.set_perception_properties(PerceptionProperties())
+    if perception:
+        mucosa.set_perception_properties(PerceptionProperties())
     plant.RegisterVisualGeometry(world, mucosa)
     torso = GeometryInstance(RigidTransform(), Mesh(str(assets.torso_obj)), "torso")
     torso.set_illustration_properties(MakePhongIllustrationProperties(TORSO_RGBA))
     plant.RegisterVisualGeometry(world, torso)
+
+
+def add_camera_walls(plant, scene_graph, scenario: Scenario, colon, config: CameraConfig):
+    """The colon wall as capsule cameras see it, and their renderers. Call before Finalize.
+
+    The camera mesh is cut into windows along the colon (anatomy/windows.py), each accepted
+    by a renderer of its own (`<config.renderer_name>.<k>`, added here), so a frame draws
+    only the stretch the camera is in. Returns renderer_for(p_WC) -> the renderer for a
+    camera at p_WC (a `CameraWalls`); another camera in the colon sees the wall through it.
+    """
+    assets = colon_assets(scenario.colon)
+    windows = camera_windows(colon, assets.visual_obj.parent, config.far,
+                             config.window_spacing)
+    if len(windows.objs) == 1:
+        names = [config.renderer_name]
+    else:
+        names = [f"{config.renderer_name}.{k:02d}" for k in range(len(windows.objs))]
+    for name in names:
+        add_camera_renderer(scene_graph, config, name)
+    visuals = [(f"window_{k:02d}", obj, name)
+               for k, (obj, name) in enumerate(zip(windows.objs, names))]
+    # pydrake cannot set the ("renderer", "accepting") property (a set of names), so the
+    # walls come as an SDF model with <drake:accepting_renderer> tags.
+    body = "".join(
+        f"<visual name='{name}'><geometry><mesh><uri>{Path(obj).resolve().as_uri()}</uri>"
+        f"</mesh></geometry><drake:accepting_renderer>{renderer}</drake:accepting_renderer>"
+        "</visual>" for name, obj, renderer in visuals)
+    sdf = ("<?xml version='1.0'?><sdf version='1.9' xmlns:drake='http://drake.mit.edu'>"
+           f"<model name='camera_walls_{config.renderer_name}'><static>true</static>"
+           f"<link name='walls'>{body}"
+           "</link></model></sdf>")
+    instance, = Parser(plant).AddModelsFromString(sdf, "sdf")
+    for index in plant.GetBodyIndices(instance):
+        for geometry_id in plant.GetVisualGeometriesForBody(plant.get_body(index)):
+            scene_graph.RemoveRole(plant.get_source_id(), geometry_id, Role.kIllustration)
+    return CameraWalls(windows, names, colon.centerline)
+
+
+@dataclasses.dataclass
+class CameraWalls:
+    """The camera windows and their renderers; called with a camera's world position, it
+    names the renderer to draw with (the window of the centreline foot's arc length)."""
+
+    windows: CameraWindows
+    renderer_names: list[str]
+    centerline: object
+
+    def __call__(self, p_WC) -> str:
+        s = self.centerline.closest(np.asarray(p_WC, dtype=float))[0]
+        return self.renderer_names[self.windows.index_at(s)]
 
 
 def set_capsule_contact(plant, scene_graph, scenario: Scenario):
@@ -232,14 +287,14 @@ def _add_capsule_sensors(builder, plant, scenario: Scenario, magnets, X_WB0):
                              "capsule.magnetometer.B_S_true")
 
 
-def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_instance):
+def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_instance,
+                renderer_for):
     """The capsule camera (its own renderer, light at the lens) and the lumen ground truth;
     exported as capsule.camera.<signal> and capsule.lumen.<signal>."""
     config = scenario.capsule.camera
-    add_camera_renderer(scene_graph, config)
     camera_frame = plant.GetFrameByName("camera", capsule_instance)
-    camera = builder.AddNamedSystem("capsule.camera",
-                                    capsule_camera_for_frame(plant, camera_frame, config))
+    camera = builder.AddNamedSystem("capsule.camera", capsule_camera_for_frame(
+        plant, camera_frame, config, renderer_for))
     builder.Connect(scene_graph.get_query_output_port(), camera.get_query_object_input_port())
     builder.ExportOutput(camera.get_rgb_image_output_port(), "capsule.camera.rgb_image")
     builder.ExportOutput(camera.get_depth_image_output_port(), "capsule.camera.depth_image")
@@ -294,7 +349,15 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
     parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
     add_colon_wall(plant, scenario, colon)
-    add_colon_visuals(plant, scenario)
+    camera_config = scenario.capsule.camera
+    add_colon_visuals(plant, scenario, perception=camera_config is None)
+    renderer_for = None
+    if camera_config is not None:
+        try:
+            check_camera_config(camera_config)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: capsule.camera: {e}") from None
+        renderer_for = add_camera_walls(plant, scene_graph, scenario, colon, camera_config)
     set_capsule_contact(plant, scene_graph, scenario)
 
     # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
@@ -361,7 +424,8 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
         raise ScenarioError(f"scenario: capsule sensors: {e}") from None
     if scenario.capsule.camera is not None:
         try:
-            _add_camera(builder, plant, scene_graph, scenario, colon, capsule_instance)
+            _add_camera(builder, plant, scene_graph, scenario, colon, capsule_instance,
+                        renderer_for)
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
 

@@ -10,9 +10,10 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_colon_visuals, capsule_start_pose,
-                                   colon_for, configure_parser, make_station)
-from capsule_drake.systems.camera import CameraConfig, add_camera_renderer
+from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_camera_walls, add_colon_visuals,
+                                   capsule_start_pose, colon_for, configure_parser,
+                                   make_station)
+from capsule_drake.systems.camera import CameraConfig
 from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
 
 
@@ -31,20 +32,25 @@ class View:
 
 def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None):
     """A minimal scene for camera checks and benchmarks: the capsule at `start_s` in the
-    default colon (drawn as the station draws it), with the camera renderer added and no EPM,
-    sensors or magnet. Returns (diagram, context, plant, scene_graph)."""
+    default colon, whose wall the camera sees as in the station (windows and their
+    renderers, from `config`), with no EPM, sensors or magnet.
+
+    Returns (diagram, context, plant, scene_graph, renderer_for), renderer_for(p_WC) naming
+    the renderer for a camera at p_WC.
+    """
     scenario = Scenario()
     colon = colon_for(scenario)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
     configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_colon_visuals(plant, scenario)
+    add_colon_visuals(plant, scenario, perception=False)
+    renderer_for = add_camera_walls(plant, scene_graph, scenario, colon,
+                                    config or CameraConfig())
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
                                          capsule_start_pose(colon, start_s))
-    add_camera_renderer(scene_graph, config or CameraConfig())
     diagram = builder.Build()
-    return diagram, diagram.CreateDefaultContext(), plant, scene_graph
+    return diagram, diagram.CreateDefaultContext(), plant, scene_graph, renderer_for
 
 
 def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float = 8.0):
@@ -88,8 +94,10 @@ def views_along_colon(scenario: Scenario, s_values, tilt_deg: float = 0.0,
         plant.SetFreeBodyPose(plant_context, body, X_WB)
         query = scene_graph.get_query_output_port().Eval(
             scene_graph.GetMyContextFromRoot(context))
-        rgb = camera.renderer.render_rgba(query, frame_id, X_BC)[:, :, :3].copy()
-        depth = camera.renderer.render_range(query, frame_id, X_BC)
+        renderer = camera.renderer_name(query)
+        rgb = camera.renderer.render_rgba(query, frame_id, X_BC,
+                                          renderer=renderer)[:, :, :3].copy()
+        depth = camera.renderer.render_range(query, frame_id, X_BC, renderer=renderer)
         X_WC = X_WB.multiply(X_BC)
         point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
                                 scenario.capsule.lumen_lookahead)

@@ -133,21 +133,22 @@ def test_markers_land_where_the_lens_projects_them(lens, directions):
 
 @pytest.fixture(scope="module")
 def colon_scene():
-    diagram, _, plant, scene_graph = camera_scene(start_s=0.30)
-    return diagram, plant, scene_graph
+    diagram, _, plant, scene_graph, renderer_for = camera_scene(start_s=0.30)
+    return diagram, plant, scene_graph, renderer_for
 
 
 @pytest.mark.parametrize("lens", [FISHEYE, PINHOLE], ids=["fisheye", "pinhole"])
 def test_lumen_is_dark_with_the_camera_light(colon_scene, lens):
-    diagram, plant, scene_graph = colon_scene
+    diagram, plant, scene_graph, renderer_for = colon_scene
     camera = capsule_camera_for_frame(plant, plant.GetFrameByName("camera"),
-                                      CameraConfig(lens=lens))
+                                      CameraConfig(lens=lens), renderer_for)
     query_object = scene_graph.get_query_output_port().Eval(
         scene_graph.GetMyContextFromRoot(diagram.CreateDefaultContext()))
     renderer = camera.renderer
     parent, X_PC = camera._parent_frame, camera._X_PC
-    rgba = renderer.render_rgba(query_object, parent, X_PC)
-    range_m = renderer.render_range(query_object, parent, X_PC)
+    name = camera.renderer_name(query_object)
+    rgba = renderer.render_rgba(query_object, parent, X_PC, renderer=name)
+    range_m = renderer.render_range(query_object, parent, X_PC, renderer=name)
     _save(f"colon_{lens.model}", rgba, range_m)
     gray = rgba[..., :3].astype(float).mean(axis=2)
     seen = renderer.in_field & (range_m > 0.0)
@@ -216,11 +217,16 @@ def test_camera_system_outputs_after_initialisation():
     depth = camera.get_depth_image_output_port().Eval(camera_context).data[..., 0]
     rays, in_field = camera.lens.pixel_rays()
     # The plate's near face is at z = 0.055 m; the camera at the dome apex, z = 0.01575 m.
-    # Within 80 degrees of the axis the plate is nearer than the far plane (0.3 m).
-    within = in_field & (rays[..., 2] > math.cos(math.radians(80.0)))
+    # Within 75 degrees of the axis the plate is nearer than `far` (0.2 m of range); beyond
+    # ~80 degrees it is farther, and reads +inf (a margin: at grazing incidence the pixels
+    # next to the cut take their nearest rendered sample, whose range differs by ~5 %).
+    z_plate = 0.055 - 0.01575
+    within = in_field & (rays[..., 2] > math.cos(math.radians(75.0)))
     z = depth[within] * rays[within][:, 2]
     assert np.isfinite(z).all()
-    np.testing.assert_allclose(z, 0.055 - 0.01575, atol=1e-3)
+    np.testing.assert_allclose(z, z_plate, atol=1e-3)
+    beyond = in_field & (rays[..., 2] < 0.9 * z_plate / config.far)
+    assert beyond.any() and np.all(np.isinf(depth[beyond]))
     info = camera.get_frame_info_output_port().Eval(camera_context)
     np.testing.assert_array_equal(info, [0.0, 1.0, 1.0, 5.0])
 

@@ -57,7 +57,8 @@ class Colon:
         """How far each world point lies beyond the wall [m] (> 0: inside the tissue).
 
         Distance to the wall along its normal (to first order) at the closest centreline
-        station; beyond the end caps the axial distance past the cap counts too. Args: points_W (K, 3) or (3,). Returns (K,).
+        station; beyond the end caps the axial distance past the cap counts too.
+        Args: points_W (K, 3) or (3,). Returns (K,).
         """
         p = np.atleast_2d(np.asarray(points_W, dtype=float))
         cl = self.centerline
@@ -107,6 +108,24 @@ class Colon:
         return textured_tube(self, self._visual_stations(), p.visual_points_around,
                              m.texels_per_metre / m.texels_along,
                              m.texels_per_metre / m.texels_around)
+
+    def camera_mesh(self):
+        """The textured wall at camera resolution (`TexturedMesh`), what capsule cameras
+        render; same texture mapping as `textured_visual_mesh`."""
+        p = self.params
+        m = p.mucosa
+        stations = ring_stations(self, p.camera_axial_step,
+                                 p.camera_tolerance if p.camera_tolerance > 0 else None,
+                                 min(p.camera_min_step, p.camera_axial_step))
+        return textured_tube(self, stations, p.camera_points_around,
+                             m.texels_per_metre / m.texels_along,
+                             m.texels_per_metre / m.texels_around)
+
+    def max_wall_radius(self, s) -> np.ndarray:
+        """Largest distance [m] from the centreline to the mucosa around arc length(s) s."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        theta = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+        return np.max(self.wall_radius(s[:, None], theta[None, :]), axis=1)
 
     def texture_seed(self) -> list[int]:
         """Seed of the mucosa texture: the patient seed's own stream (the wall uses [seed, 1])."""

@@ -125,12 +125,21 @@ class TexturedMesh:
         normals: (V, 3) unit vertex normals.
         uv: (V, 2) texture coordinates (u around the lumen, v along it).
         faces: (F, 3) vertex indices, wound so normals face the centreline.
+        s: (V,) arc length [m] of each vertex's ring (0 and L on the end caps).
     """
 
     vertices: np.ndarray
     normals: np.ndarray
     uv: np.ndarray
     faces: np.ndarray
+    s: np.ndarray
+
+    def subset(self, keep_faces: np.ndarray) -> "TexturedMesh":
+        """The faces where `keep_faces` (F,) is true, with only the vertices they use."""
+        faces = self.faces[np.asarray(keep_faces, dtype=bool)]
+        used, inverse = np.unique(faces, return_inverse=True)
+        return TexturedMesh(self.vertices[used], self.normals[used], self.uv[used],
+                            inverse.reshape(-1, 3), self.s[used])
 
 
 def textured_tube(colon, stations: np.ndarray, points_around: int, v_per_metre: float,
@@ -175,6 +184,7 @@ def textured_tube(colon, stations: np.ndarray, points_around: int, v_per_metre: 
     seam = np.r_[np.arange(m), 0]
     vertices = [rings[ring_of_row][:, seam].reshape(-1, 3)]
     vertex_normals = [normals[ring_of_row][:, seam].reshape(-1, 3)]
+    vertex_s = [np.repeat(s[ring_of_row], m + 1)]
     u = np.arange(m + 1) / m
     uv = [np.stack(np.broadcast_arrays(u[None, :], v_row[:, None]), axis=-1).reshape(-1, 2)]
     # Quads between consecutive rows of different rings, same winding as `tube_faces`.
@@ -197,9 +207,10 @@ def textured_tube(colon, stations: np.ndarray, points_around: int, v_per_metre: 
         uv.append(np.column_stack([0.5 + cap_u_per_metre * (local @ n),
                                    0.5 + v_per_metre * (local @ bn)]))
         faces.append(cap_faces(count, m, count + m, at_start))
+        vertex_s.append(np.full(m + 1, s[ring]))
         count += m + 1
     return TexturedMesh(np.concatenate(vertices), np.concatenate(vertex_normals),
-                        np.concatenate(uv), np.concatenate(faces))
+                        np.concatenate(uv), np.concatenate(faces), np.concatenate(vertex_s))
 
 
 def tube_chunks(colon, stations: np.ndarray, points_around: int, chunks: int):

@@ -217,12 +217,20 @@ class ColonParams:
     collision_points_around: int = 32
     # Visual mesh: largest axial step between rings [m]; rings crowd where folds curve the
     # wall, so that straight edges stay within `visual_tolerance` of it (down to
-    # `visual_min_step`), as for the collision mesh; and vertices per ring. A camera render
-    # costs in proportion to the triangles (the whole colon is drawn for every view).
+    # `visual_min_step`), as for the collision mesh; and vertices per ring. Meshcat and
+    # recordings draw it.
     visual_axial_step: float = 0.004
     visual_tolerance: float = 0.0001
     visual_min_step: float = 0.00075
     visual_points_around: int = 48
+    # Camera mesh: the textured wall the capsule camera renders, with the same meaning of
+    # the fields. A software render costs in proportion to the triangles it is given, so
+    # by default it has the collision mesh's resolution: the camera sees the surface the
+    # capsule touches, and the texture carries the fine detail.
+    camera_axial_step: float = 0.004
+    camera_tolerance: float = 0.0003
+    camera_min_step: float = 0.001
+    camera_points_around: int = 32
     # Number of OBJ files the collision tube is split into along its length.
     collision_chunks: int = 15
 
@@ -268,7 +276,8 @@ def check_colon_params(params: ColonParams) -> None:
          params.fold_height_jitter)
     need(params.fold_half_width > 0, "fold_half_width", "must be > 0", params.fold_half_width)
     for field_name in ("centerline_step", "collision_axial_step", "collision_min_step",
-                       "visual_axial_step", "visual_min_step", "course_smoothing"):
+                       "visual_axial_step", "visual_min_step", "camera_axial_step",
+                       "camera_min_step", "course_smoothing"):
         value = getattr(params, field_name)
         need(value > 0, field_name, "must be > 0", value)
     need(params.collision_min_step <= params.collision_axial_step, "collision_min_step",
@@ -277,7 +286,10 @@ def check_colon_params(params: ColonParams) -> None:
          params.collision_tolerance)
     need(params.visual_tolerance >= 0, "visual_tolerance", "must be >= 0",
          params.visual_tolerance)
-    for field_name in ("collision_points_around", "visual_points_around"):
+    need(params.camera_tolerance >= 0, "camera_tolerance", "must be >= 0",
+         params.camera_tolerance)
+    for field_name in ("collision_points_around", "visual_points_around",
+                       "camera_points_around"):
         value = getattr(params, field_name)
         need(value >= 8, field_name, "must be >= 8", value)
     need(params.collision_chunks >= 1, "collision_chunks", "must be >= 1",

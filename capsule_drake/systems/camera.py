@@ -7,9 +7,10 @@ computed once, at construction, from `Lens.unproject`. A pinhole lens renders on
 applies its radial-tangential distortion the same way.
 
 Cost model (measured, Drake 1.58 RenderEngineVtk on Mesa llvmpipe, 2 cores): a render call
-costs ~0.4 ms plus the vertex work of every mesh in the view's frustum (~5 ms colour and
-~4 ms depth for the 125k-triangle default colon), plus ~2.5 ms per 65k pixels. So the
-number of views, not their resolution, sets the price of a frame.
+costs the vertex work of every triangle its renderer holds, in view or not (RenderEngineVtk
+culls nothing: ~0.3 ms colour per 10k triangles), plus ~1 ms per 10k pixels. So in a colon
+the camera draws with the renderer of the window it is in (`renderer_for`, see
+anatomy/windows.py and station.add_camera_walls): ~15k triangles instead of the whole wall.
 """
 
 import dataclasses
@@ -79,10 +80,11 @@ class CameraConfig:
     # the angular speed of tissue `viewing_distance` ahead (m) as the camera moves.
     motion_for_fps_max: float = 0.5
     viewing_distance: float = 0.02
-    # Clipping planes (m). Nothing nearer than `near` or farther than `far` is drawn; depth
-    # reads 0 (too near) or +inf (too far) there.
+    # Clipping (m): nothing nearer than `near` is drawn, and tissue farther than `far`
+    # (range along the ray) may not be: depth reads 0 (too near) or +inf (too far) there.
+    # The light leaves under 4 % of its intensity at 0.2 m, so the colour barely changes.
     near: float = 0.001
-    far: float = 0.3
+    far: float = 0.2
     # Whether the depth image is rendered (it costs about as much again as colour).
     render_depth: bool = True
     # The LED ring, modelled as a white point light at the camera: intensity (relative,
@@ -91,8 +93,14 @@ class CameraConfig:
     # at 3.2 cm and leaves 9 % at 10 cm, so the lumen is the dark region (REFERENCE sec. 5).
     light_intensity: float = 1.6
     light_attenuation: float = 1000.0
-    # Name of the SceneGraph renderer the camera uses (added by `add_camera_renderer`).
+    # Name of the SceneGraph renderer the camera uses (added by `add_camera_renderer`);
+    # with windows, the prefix of its renderers' names.
     renderer_name: str = DEFAULT_RENDERER
+    # In a colon, the wall is cut into windows this far apart along the centreline (m),
+    # each in a renderer of its own, and a frame renders only the window the camera is in:
+    # a software render costs in proportion to the triangles its renderer holds (see
+    # anatomy/windows.py). 0: the whole wall in one renderer.
+    window_spacing: float = 0.1
     # Face resolution relative to what the lens needs where it is sharpest (1 = no finer
     # than one output pixel; lower is faster and blurrier).
     face_resolution_scale: float = 1.0
@@ -114,6 +122,8 @@ def check_camera_config(config: CameraConfig) -> None:
         raise ValueError("camera motion_for_fps_max and viewing_distance must be positive")
     if config.light_attenuation < 0.0 or config.light_intensity < 0.0:
         raise ValueError("camera light_intensity and light_attenuation must be >= 0")
+    if not config.window_spacing >= 0.0:
+        raise ValueError("camera window_spacing must be >= 0 (0: no windows)")
     if config.face_resolution_scale <= 0.0:
         raise ValueError("camera face_resolution_scale must be positive")
 
@@ -133,13 +143,16 @@ def make_render_engine_params(light_intensity: float = 1.6,
     return RenderEngineVtkParams(default_clear_color=[0.0, 0.0, 0.0], lights=[light])
 
 
-def add_camera_renderer(scene_graph, config: CameraConfig | None = None) -> str:
-    """Adds the camera's VTK renderer to `scene_graph` (once); returns its name."""
+def add_camera_renderer(scene_graph, config: CameraConfig | None = None,
+                        name: str | None = None) -> str:
+    """Adds a VTK renderer for the camera to `scene_graph` (once), named `name` (default
+    `config.renderer_name`); returns its name."""
     config = config or CameraConfig()
-    if not scene_graph.HasRenderer(config.renderer_name):
-        scene_graph.AddRenderer(config.renderer_name, MakeRenderEngineVtk(
+    name = name or config.renderer_name
+    if not scene_graph.HasRenderer(name):
+        scene_graph.AddRenderer(name, MakeRenderEngineVtk(
             make_render_engine_params(config.light_intensity, config.light_attenuation)))
-    return config.renderer_name
+    return name
 
 
 @dataclasses.dataclass
@@ -147,8 +160,7 @@ class _View:
     """One pinhole render: its cameras, pose in the lens frame and place in the atlas."""
 
     name: str
-    color_camera: ColorRenderCamera
-    depth_camera: DepthRenderCamera
+    info: CameraInfo
     X_CF: RigidTransform
     width: int
     height: int
@@ -173,6 +185,7 @@ class LensRenderer:
         rays, in_field = self.lens.pixel_rays()
         self.in_field = in_field
         self.views: list[_View] = []
+        self._cameras: dict[str, list] = {}
         self._identity = (not self.lens.is_fisheye
                           and not np.any(config.lens.radtan_coefficients))
         if self._identity:
@@ -185,18 +198,14 @@ class LensRenderer:
 
     # ---- construction ---------------------------------------------------------------------
     def _add_view(self, name, R_CF: RotationMatrix, fx, fy, cx, cy, width, height, row):
-        c = self.config
         # RenderEngineVtk puts the ray through (cx, cy) half a pixel up and left of where
         # CameraInfo's documentation says (measured: a plane's depth fits u = fx a + cx - 0.5
         # for every cx), so it gets the principal point of pixel centres at i + 0.5.
         info = CameraInfo(width, height, fx, fy, cx + _VTK_PIXEL_OFFSET, cy + _VTK_PIXEL_OFFSET)
-        core = RenderCameraCore(c.renderer_name, info,
-                                ClippingRange(c.near, c.far), RigidTransform())
         u, v = np.meshgrid(np.arange(width), np.arange(height))
         a, b = (u - cx) / fx, (v - cy) / fy
         self.views.append(_View(
-            name=name, color_camera=ColorRenderCamera(core, False),
-            depth_camera=DepthRenderCamera(core, DepthRange(c.near, c.far)),
+            name=name, info=info,
             X_CF=RigidTransform(R_CF, np.zeros(3)), width=width, height=height, row=row,
             range_scale=np.sqrt(1.0 + a * a + b * b).astype(np.float32)))
 
@@ -257,19 +266,36 @@ class LensRenderer:
             self._range_scale[view.row:view.row + view.height, :view.width] = view.range_scale
 
     # ---- rendering ------------------------------------------------------------------------
+    def cameras(self, renderer: str | None = None):
+        """[(ColorRenderCamera, DepthRenderCamera)] of the views, for a renderer (default:
+        the configured one); made once per renderer."""
+        c = self.config
+        name = renderer or c.renderer_name
+        if name not in self._cameras:
+            pairs = []
+            for view in self.views:
+                core = RenderCameraCore(name, view.info, ClippingRange(c.near, c.far),
+                                        RigidTransform())
+                pairs.append((ColorRenderCamera(core, False),
+                              DepthRenderCamera(core, DepthRange(c.near, c.far))))
+            self._cameras[name] = pairs
+        return self._cameras[name]
+
     def render_rgba(self, query_object: QueryObject, parent_frame: FrameId,
-                    X_PC: RigidTransform, out: np.ndarray | None = None) -> np.ndarray:
-        """(H, W, 4) uint8 RGBA image through the lens; black outside its field."""
+                    X_PC: RigidTransform, out: np.ndarray | None = None,
+                    renderer: str | None = None) -> np.ndarray:
+        """(H, W, 4) uint8 RGBA image through the lens; black outside its field.
+        `renderer`: the SceneGraph renderer to use (default: the configured one)."""
+        cameras = self.cameras(renderer)
         if self._identity:
-            view = self.views[0]
-            image = query_object.RenderColorImage(view.color_camera, parent_frame, X_PC)
+            image = query_object.RenderColorImage(cameras[0][0], parent_frame, X_PC)
             if out is None:
                 return image.data.copy()
             out[...] = image.data
             return out
         atlas = np.zeros(self.atlas_shape + (4,), dtype=np.uint8)
-        for view in self.views:
-            image = query_object.RenderColorImage(view.color_camera, parent_frame,
+        for view, (color_camera, _) in zip(self.views, cameras):
+            image = query_object.RenderColorImage(color_camera, parent_frame,
                                                   X_PC.multiply(view.X_CF))
             atlas[view.row:view.row + view.height, :view.width] = image.data
         if out is None:
@@ -280,20 +306,22 @@ class LensRenderer:
         return out
 
     def render_range(self, query_object: QueryObject, parent_frame: FrameId,
-                     X_PC: RigidTransform, out: np.ndarray | None = None) -> np.ndarray:
+                     X_PC: RigidTransform, out: np.ndarray | None = None,
+                     renderer: str | None = None) -> np.ndarray:
         """(H, W) float32 range (m) along each pixel's ray from the camera centre.
 
-        +inf where nothing is within `far` (and outside the lens's field), 0 where the first
-        surface is nearer than `near`.
+        +inf where nothing is within range `far` (and outside the lens's field), 0 where the
+        first surface is nearer than `near`. `renderer` as for `render_rgba`.
         """
+        cameras = self.cameras(renderer)
         if self._identity:
             view = self.views[0]
-            image = query_object.RenderDepthImage(view.depth_camera, parent_frame, X_PC)
+            image = query_object.RenderDepthImage(cameras[0][1], parent_frame, X_PC)
             result = image.data[..., 0] * view.range_scale
         else:
             atlas = np.full(self.atlas_shape, np.inf, dtype=np.float32)
-            for view in self.views:
-                image = query_object.RenderDepthImage(view.depth_camera, parent_frame,
+            for view, (_, depth_camera) in zip(self.views, cameras):
+                image = query_object.RenderDepthImage(depth_camera, parent_frame,
                                                       X_PC.multiply(view.X_CF))
                 atlas[view.row:view.row + view.height, :view.width] = image.data[..., 0]
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -320,6 +348,8 @@ class LensRenderer:
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
             result = np.where(near_edge, nearest, linear)
             result[~self.in_field] = np.inf
+        # Views clip at z-depth `far`, which reaches farther along oblique rays.
+        result[result > self.config.far] = np.inf
         if out is None:
             return result.astype(np.float32, copy=False)
         out[...] = result
@@ -360,14 +390,19 @@ class CapsuleCamera(LeafSystem):
         parent_frame: SceneGraph frame the camera is fixed to (e.g. the capsule body's,
             `plant.GetBodyFrameIdOrThrow(body.index())`).
         X_PC: camera pose in that frame (e.g. the capsule's `camera` frame in its body).
+        renderer_for: optional function of the camera's world position (3,) returning the
+            name of the renderer to draw with (the colon window it is in; see
+            `station.add_camera_walls`). None: always `config.renderer_name`.
     """
 
-    def __init__(self, config: CameraConfig, parent_frame: FrameId, X_PC: RigidTransform):
+    def __init__(self, config: CameraConfig, parent_frame: FrameId, X_PC: RigidTransform,
+                 renderer_for=None):
         super().__init__()
         self._config = dataclasses.replace(config)
         self._renderer = LensRenderer(self._config)
         self._parent_frame = parent_frame
         self._X_PC = RigidTransform(X_PC)
+        self._renderer_for = renderer_for
         W, H = self._renderer.width, self._renderer.height
         c = self._config
         self._adaptive = c.fps_mode == "adaptive"
@@ -412,14 +447,22 @@ class CapsuleCamera(LeafSystem):
         return self._frame_info_port
 
     # ---- events ---------------------------------------------------------------------------
+    def renderer_name(self, query_object) -> str:
+        """The renderer this frame draws with (the window the camera is in)."""
+        if self._renderer_for is None:
+            return self._config.renderer_name
+        X_WP = query_object.GetPoseInWorld(self._parent_frame)
+        return self._renderer_for(X_WP.multiply(self._X_PC.translation()))
+
     def _capture(self, query_object, state):
+        renderer = self.renderer_name(query_object)
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         self._renderer.render_rgba(query_object, self._parent_frame, self._X_PC,
-                                   out=rgb.mutable_data)
+                                   out=rgb.mutable_data, renderer=renderer)
         if self._config.render_depth:
             depth = state.get_mutable_abstract_state(self._depth_index).get_mutable_value()
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
-                                        out=depth.mutable_data[..., 0])
+                                        out=depth.mutable_data[..., 0], renderer=renderer)
 
     def _camera_pose_vector(self, query_object) -> np.ndarray:
         X_WC = query_object.GetPoseInWorld(self._parent_frame).multiply(self._X_PC)
@@ -469,9 +512,10 @@ class CapsuleCamera(LeafSystem):
         return EventStatus.Succeeded()
 
 
-def capsule_camera_for_frame(plant, frame, config: CameraConfig) -> CapsuleCamera:
+def capsule_camera_for_frame(plant, frame, config: CameraConfig,
+                             renderer_for=None) -> CapsuleCamera:
     """A CapsuleCamera fixed to a plant frame (e.g. the capsule model's `camera` frame):
     resolves the frame's body to its SceneGraph frame and the frame's pose in that body."""
     body = frame.body()
     return CapsuleCamera(config, plant.GetBodyFrameIdOrThrow(body.index()),
-                         frame.GetFixedPoseInBodyFrame())
+                         frame.GetFixedPoseInBodyFrame(), renderer_for)
