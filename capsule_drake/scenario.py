@@ -25,7 +25,9 @@ from capsule_drake.schema import SchemaError, check, parse_yaml
 from capsule_drake.systems.ahrs import AhrsConfig
 from capsule_drake.systems.camera import CameraConfig, check_camera_config
 from capsule_drake.systems.imu import ImuConfig
+from capsule_drake.systems.lumen_tracker import LumenTrackerConfig
 from capsule_drake.systems.magnetometer import MagnetometerConfig
+from capsule_drake.vision.lumen import check_lumen_params, load_detector
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DIAGRAMS_DIR = REPO_ROOT / "diagrams"
@@ -97,6 +99,9 @@ class CapsuleConfig:
     camera: CameraConfig | None = None
     # Lumen ground truth: the centerline point this far ahead of the camera (m).
     lumen_lookahead: float = 0.05
+    # The lumen tracker on the camera's frames (needs the camera): `lumen_tracker: {}` runs
+    # the seed's detector; `detector: my_package.module:function` plugs in a user's.
+    lumen_tracker: LumenTrackerConfig | None = None
 
 
 @dataclass
@@ -280,6 +285,15 @@ def validate(scenario: Scenario) -> None:
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
     need(scenario.capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
+    tracker = scenario.capsule.lumen_tracker
+    if tracker is not None:
+        need(scenario.capsule.camera is not None,
+             "capsule.lumen_tracker needs capsule.camera (give a camera, e.g. camera: {})")
+        try:
+            check_lumen_params(tracker.params)
+            load_detector(tracker.detector, tracker.params)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: capsule.lumen_tracker: {e}") from None
     for name in ("imu", "magnetometer"):
         sensor = getattr(scenario.capsule, name)
         need(sensor is None or sensor.sample_rate > 0,

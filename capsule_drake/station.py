@@ -11,6 +11,7 @@ Blocks (each a named subsystem) and their wiring:
     plant body poses, velocities, accelerations --> capsule.imu --> capsule.ahrs
     plant.body_poses --> capsule.magnetometer
     scene_graph.query_object --> capsule.camera --> capsule.lumen (with the capsule state)
+    capsule.camera --> capsule.lumen_tracker
 
 Exported ports, named `<instance>.<signal>`:
     capsule.state          [q (quaternion wxyz, p_WC); v (w_WC, v_WC)] of the capsule body
@@ -70,6 +71,7 @@ from capsule_drake.systems.ahrs import MahonyAhrs
 from capsule_drake.systems.camera import (CameraConfig, add_camera_renderer,
                                           capsule_camera_for_frame, check_camera_config)
 from capsule_drake.systems.imu import Imu, add_random_sources
+from capsule_drake.systems.lumen_tracker import LumenTracker
 from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.systems.magnetometer import Magnetometer
@@ -307,6 +309,14 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
     builder.Connect(camera.get_depth_image_output_port(), lumen.GetInputPort("depth"))
     for name in ("lumen_pixel", "lumen_visible", "lumen_point_W"):
         builder.ExportOutput(lumen.GetOutputPort(name), f"capsule.lumen.{name}")
+    if scenario.capsule.lumen_tracker is not None:
+        tracker = builder.AddNamedSystem("capsule.lumen_tracker", LumenTracker(
+            camera.lens, scenario.capsule.lumen_tracker, period=camera.tick()))
+        builder.Connect(camera.get_rgb_image_output_port(), tracker.GetInputPort("rgb_image"))
+        builder.Connect(camera.get_frame_info_output_port(), tracker.GetInputPort("frame_info"))
+        for i in range(tracker.num_output_ports()):
+            port = tracker.get_output_port(i)
+            builder.ExportOutput(port, f"capsule.lumen_tracker.{port.get_name()}")
 
 
 def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):

@@ -30,15 +30,16 @@ class View:
     mask: np.ndarray          # (H, W) bool, the pixels the lens sees
 
 
-def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None):
+def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None,
+                 scenario: Scenario | None = None):
     """A minimal scene for camera checks and benchmarks: the capsule at `start_s` in the
-    default colon, whose wall the camera sees as in the station (windows and their
-    renderers, from `config`), with no EPM, sensors or magnet.
+    scenario's colon (default: the default colon), whose wall the camera sees as in the
+    station (windows and their renderers, from `config`), with no EPM, sensors or magnet.
 
     Returns (diagram, context, plant, scene_graph, renderer_for), renderer_for(p_WC) naming
     the renderer for a camera at p_WC.
     """
-    scenario = Scenario()
+    scenario = scenario or Scenario()
     colon = colon_for(scenario)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)

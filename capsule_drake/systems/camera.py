@@ -430,6 +430,10 @@ class CapsuleCamera(LeafSystem):
     def lens(self) -> Lens:
         return self._renderer.lens
 
+    def tick(self) -> float:
+        """Period (s) at which the camera checks whether to take a frame."""
+        return self._tick
+
     @property
     def renderer(self) -> LensRenderer:
         return self._renderer

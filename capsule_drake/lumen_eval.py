@@ -1,0 +1,218 @@
+"""Scoring a lumen detector against the lumen ground truth on rendered frames.
+
+    frames = sample_frames(count=200, colons=5, seed=0)
+    result = evaluate(frames, load_detector("gaussian"))
+    print(result.table())
+
+Frames come from seeded random colons (ColonParams seeds `seed`, `seed + 1`, ...) at seeded
+random poses of two kinds: looking along the lumen (toward the cecum or the rectum, tilted
+up to `max_tilt_deg`, off the centreline by up to half the radius) and facing the wall
+(the optical axis within 15 degrees of the wall's normal, the camera 40-80 % of the
+radius toward that wall).
+The truth is the station's: the centreline point `lookahead` ahead, through the lens,
+visible unless outside the field or hidden behind nearer tissue.
+"""
+
+import dataclasses
+import time
+
+import cv2
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+
+from capsule_drake.anatomy import ColonParams
+from capsule_drake.scenario import Scenario
+from capsule_drake.station import CAPSULE_BODY, colon_for
+from capsule_drake.systems.camera import CameraConfig, LensRenderer
+from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
+from capsule_drake.views import camera_scene
+
+KINDS = ("lumen", "wall")
+
+
+@dataclasses.dataclass
+class Frame:
+    """One rendered frame and its truth."""
+
+    colon_seed: int
+    s: float                  # arc length of the camera's centreline foot (m)
+    kind: str                 # "lumen" or "wall"
+    rgb: np.ndarray           # (H, W, 3) uint8
+    field: np.ndarray         # (H, W) bool, pixels the lens sees
+    truth_pixel: np.ndarray   # (2,)
+    truth_visible: bool
+
+
+def _rotation_with_z(z: np.ndarray, rng) -> RotationMatrix:
+    """A rotation whose z axis is `z`, turned about it at random."""
+    z = z / np.linalg.norm(z)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    x = np.cos(angle) * x + np.sin(angle) * np.cross(z, x)
+    return RotationMatrix(np.column_stack([x, np.cross(z, x), z]))
+
+
+def _camera_pose(colon, kind: str, rng, max_tilt_deg: float):
+    """A random camera pose X_WC of the given kind, at least 4 mm inside the wall."""
+    cl = colon.centerline
+    while True:
+        s = rng.uniform(0.08, cl.length - 0.08)
+        t, n, b = (v[0] for v in cl.frame_at(np.array([s])))
+        phi = rng.uniform(0.0, 2.0 * np.pi)
+        radial = np.cos(phi) * n + np.sin(phi) * b
+        radius = float(colon.wall_radius(s, phi))
+        if kind == "lumen":
+            forward = t if rng.uniform() < 0.5 else -t
+            tilt = np.radians(rng.uniform(0.0, max_tilt_deg))
+            z = np.cos(tilt) * forward + np.sin(tilt) * radial
+            offset = rng.uniform(0.0, 0.5) * radius * (np.cos(phi + 1.0) * n
+                                                        + np.sin(phi + 1.0) * b)
+        else:
+            lean = np.radians(rng.uniform(-15.0, 15.0))
+            z = np.cos(lean) * radial + np.sin(lean) * t
+            offset = rng.uniform(0.4, 0.8) * radius * radial
+        p = cl.point_at(s) + offset
+        if colon.excursion(p)[0] < -0.004:
+            return RigidTransform(_rotation_with_z(z, rng), p), s
+
+
+def sample_frames(count: int, colons: int = 5, seed: int = 0, wall_fraction: float = 0.25,
+                  config: CameraConfig | None = None, lookahead: float = 0.05,
+                  max_tilt_deg: float = 30.0, progress=None) -> list[Frame]:
+    """`count` frames spread evenly over `colons` random colons (seeds seed, seed + 1, ...),
+    a `wall_fraction` of them facing the wall. Deterministic in `seed`. `progress`, if
+    given, is called with the number of frames done."""
+    config = config or CameraConfig()
+    rng = np.random.default_rng(seed)
+    frames = []
+    for k in range(colons):
+        share = count // colons + (1 if k < count % colons else 0)
+        if share == 0:
+            continue
+        scenario = Scenario(colon=ColonParams(seed=seed + k))
+        colon = colon_for(scenario)
+        diagram, context, plant, scene_graph, walls = camera_scene(
+            0.1, config, scenario)
+        body = plant.GetBodyByName(CAPSULE_BODY)
+        frame_id = plant.GetBodyFrameIdOrThrow(body.index())
+        X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+        plant_context = plant.GetMyMutableContextFromRoot(context)
+        renderer = LensRenderer(config)
+        _, field = renderer.lens.pixel_rays()
+        for i in range(share):
+            kind = "wall" if rng.uniform() < wall_fraction else "lumen"
+            X_WC, s = _camera_pose(colon, kind, rng, max_tilt_deg)
+            plant.SetFreeBodyPose(plant_context, body, X_WC.multiply(X_BC.inverse()))
+            query = scene_graph.get_query_output_port().Eval(
+                scene_graph.GetMyContextFromRoot(context))
+            window = walls(X_WC.translation())
+            rgb = renderer.render_rgba(query, frame_id, X_BC, renderer=window)[..., :3].copy()
+            depth = renderer.render_range(query, frame_id, X_BC, renderer=window)
+            point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
+                                    lookahead)
+            pixel, visible = project_lumen(renderer.lens, X_WC, point, depth)
+            frames.append(Frame(seed + k, float(s), kind, rgb, field, pixel, bool(visible)))
+            if progress is not None:
+                progress(len(frames))
+    return frames
+
+
+@dataclasses.dataclass
+class EvalResult:
+    """Per-frame outcomes and their summary."""
+
+    frames: list[Frame]
+    detections: list
+    milliseconds: np.ndarray     # (N,) detector time per frame
+    errors: np.ndarray           # (N,) px where both visible, else NaN
+    diagonal: float
+
+    @property
+    def truth_visible(self) -> np.ndarray:
+        return np.array([f.truth_visible for f in self.frames])
+
+    @property
+    def detected(self) -> np.ndarray:
+        return np.array([bool(d.visible) for d in self.detections])
+
+    def summary(self) -> dict:
+        visible = self.truth_visible
+        detected = self.detected
+        fraction = self.errors[np.isfinite(self.errors)] / self.diagonal
+        return {
+            "frames": len(self.frames),
+            "lumen_visible": int(visible.sum()),
+            "lumen_hidden": int((~visible).sum()),
+            "median_error": float(np.median(fraction)) if len(fraction) else float("nan"),
+            "p90_error": float(np.percentile(fraction, 90)) if len(fraction) else float("nan"),
+            "detection_rate": float(detected[visible].mean()) if visible.any() else float("nan"),
+            "false_positive_rate": (float(detected[~visible].mean()) if (~visible).any()
+                                    else float("nan")),
+            "ms_per_frame": float(np.median(self.milliseconds)),
+        }
+
+    def table(self, name: str = "detector") -> str:
+        s = self.summary()
+        return "\n".join([
+            f"{'detector':14s} {'frames':>6s} {'median err':>10s} {'p90 err':>8s} "
+            f"{'detected':>8s} {'false pos':>9s} {'ms/frame':>8s}",
+            f"{name:14s} {s['frames']:6d} {100 * s['median_error']:9.1f}% "
+            f"{100 * s['p90_error']:7.1f}% {100 * s['detection_rate']:7.1f}% "
+            f"{100 * s['false_positive_rate']:8.1f}% {s['ms_per_frame']:8.2f}",
+            f"(errors as % of the image diagonal, {self.diagonal:.0f} px, over the "
+            f"{s['lumen_visible']} frames with the lumen in view; detected: of those; "
+            f"false pos: of the {s['lumen_hidden']} frames without it)"])
+
+
+def evaluate(frames: list[Frame], detector) -> EvalResult:
+    """Runs `detector(rgb, field_mask)` on every frame and scores it against the truth."""
+    detections, milliseconds, errors = [], [], []
+    for frame in frames:
+        start = time.perf_counter()
+        detection = detector(frame.rgb, frame.field)
+        milliseconds.append(1e3 * (time.perf_counter() - start))
+        detections.append(detection)
+        pixel = np.asarray(getattr(detection, "pixel", [np.nan, np.nan]), dtype=float)
+        if frame.truth_visible and detection.visible and np.all(np.isfinite(pixel)):
+            errors.append(float(np.linalg.norm(pixel - frame.truth_pixel)))
+        else:
+            errors.append(float("nan"))
+    h, w = frames[0].rgb.shape[:2] if frames else (1, 1)
+    return EvalResult(frames, detections, np.array(milliseconds), np.array(errors),
+                      float(np.hypot(w, h)))
+
+
+def annotated_sheet(result: EvalResult, count: int = 16, columns: int = 4) -> np.ndarray:
+    """Up to `count` frames tiled (RGB): detected region outlined in blue, detected centre
+    as a blue circle, truth as a green cross (visible) and the frame's kind and error."""
+    tiles = []
+    for frame, detection, error in list(zip(result.frames, result.detections,
+                                            result.errors))[:count]:
+        tile = np.ascontiguousarray(frame.rgb.copy())
+        region = getattr(detection, "region", None)
+        if region is not None and np.any(region):
+            contours, _ = cv2.findContours((np.asarray(region) > 0).astype(np.uint8),
+                                           cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(tile, contours, -1, (80, 160, 255), 1)
+        if frame.truth_visible:
+            cv2.drawMarker(tile, tuple(int(round(x)) for x in frame.truth_pixel), (0, 255, 0),
+                           cv2.MARKER_CROSS, 18, 2)
+        if detection.visible:
+            cv2.circle(tile, tuple(int(round(x)) for x in detection.pixel), 7,
+                       (60, 120, 255), 2)
+        label = f"{frame.kind} s={100 * frame.s:.0f}cm"
+        label += f" err {error:.0f}px" if np.isfinite(error) else (
+            " no lumen" if not detection.visible else " FP" if not frame.truth_visible
+            else "")
+        cv2.putText(tile, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+        tiles.append(tile)
+    if not tiles:
+        return np.zeros((8, 8, 3), dtype=np.uint8)
+    h, w = tiles[0].shape[:2]
+    while len(tiles) % columns:
+        tiles.append(np.zeros((h, w, 3), dtype=np.uint8))
+    rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
+    return np.vstack(rows)

@@ -1,0 +1,130 @@
+"""LumenTracker: the lumen detector run on each new camera frame."""
+
+import dataclasses
+import logging
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.sensors import ImageGrey8U, ImageRgba8U
+
+from capsule_drake.vision.lumen import LumenParams, check_lumen_params, load_detector
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class LumenTrackerConfig:
+    """Which detector the tracker runs. YAML-loadable; all fields default."""
+
+    # "gaussian" (the seed's pre-filter), "median" (the STORM implementation's), or
+    # "package.module:function": a user's detector with the signature
+    # (rgb (H, W, 3|4) uint8, field_mask (H, W) bool) -> an object with `visible`, `pixel`
+    # (u, v), `confidence` and, optionally, `region` (H, W) (see vision/lumen.py).
+    detector: str = "gaussian"
+    # Settings of the built-in detectors (ignored by a user's).
+    params: LumenParams = dataclasses.field(default_factory=LumenParams)
+
+
+class LumenTracker(LeafSystem):
+    """Runs a lumen detector on every new frame of the capsule camera and holds the result.
+
+    .. pydrake_system::
+
+        name: LumenTracker
+        input_ports:
+        - rgb_image
+        - frame_info
+        output_ports:
+        - lumen_pixel
+        - lumen_ray
+        - lumen_confidence
+        - lumen_visible
+        - region
+        - stats
+
+    rgb_image, frame_info: the CapsuleCamera's outputs; a frame is new when the frame count
+    (frame_info[1]) changes. The tracker checks at `period` (the camera's tick), `delay`
+    after the camera's ticks, so it sees the frame taken at that tick.
+    lumen_pixel: (u, v) px, NaN when not visible. lumen_ray: unit ray through that pixel in
+    the camera frame (x right, y down, z forward), through the lens model; [0, 0, 0] when
+    not visible. lumen_confidence: [0, 1]. lumen_visible: 1.0 or 0.0. region: ImageGrey8U,
+    255 on the detected dark region (for overlays). stats: [frames processed, detector
+    failures]; a detector that raises or returns garbage counts as a failure and reports
+    "not visible" for that frame: the simulation goes on.
+
+    Args:
+        lens: the camera's lens model (`unproject`, `pixel_rays`).
+        config: LumenTrackerConfig.
+        period: how often to look for a new frame (s).
+        detector: optional detector function overriding `config.detector`.
+        delay: offset of the checks after the camera's ticks (s).
+    """
+
+    def __init__(self, lens, config: LumenTrackerConfig | None = None, period: float = 0.01,
+                 detector=None, delay: float = 1e-6):
+        super().__init__()
+        self._config = config or LumenTrackerConfig()
+        check_lumen_params(self._config.params)
+        self._detector = detector or load_detector(self._config.detector, self._config.params)
+        self._lens = lens
+        _, self._field = lens.pixel_rays()
+        W, H = lens.width, lens.height
+        self._rgb_port = self.DeclareAbstractInputPort("rgb_image",
+                                                       AbstractValue.Make(ImageRgba8U(W, H)))
+        self._frame_info_port = self.DeclareVectorInputPort("frame_info", 4)
+        # [u, v, ray (3), confidence, visible, last frame count, processed, failures]
+        initial = [np.nan, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0]
+        self._state = self.DeclareDiscreteState(BasicVector(initial))
+        self._region = self.DeclareAbstractState(AbstractValue.Make(ImageGrey8U(W, H)))
+        for name, start, size in (("lumen_pixel", 0, 2), ("lumen_ray", 2, 3),
+                                  ("lumen_confidence", 5, 1), ("lumen_visible", 6, 1),
+                                  ("stats", 8, 2)):
+            self.DeclareVectorOutputPort(
+                name, size, lambda context, output, start=start, size=size: output.SetFromVector(
+                    context.get_discrete_state(self._state).value()[start:start + size]),
+                {self.xd_ticket()})
+        self.DeclareStateOutputPort("region", self._region)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, delay, self._update)
+
+    def detect(self, rgb: np.ndarray):
+        """Runs the detector on one image; returns (pixel (2,), ray (3,), confidence,
+        visible, region (H, W) uint8 or None, failed)."""
+        nothing = (np.full(2, np.nan), np.zeros(3), 0.0, False, None)
+        try:
+            result = self._detector(rgb, self._field)
+            visible = bool(result.visible)
+            pixel = np.asarray(result.pixel, dtype=float).reshape(2)
+            confidence = float(result.confidence)
+            region = getattr(result, "region", None)
+        except Exception as e:  # a user's detector must not stop the simulation
+            log.warning("lumen detector failed on a frame: %s: %s", type(e).__name__, e)
+            return nothing + (True,)
+        if not np.isfinite(confidence):
+            return nothing + (True,)
+        if not visible:
+            return nothing[:2] + (float(np.clip(confidence, 0.0, 1.0)), False, region, False)
+        if not np.all(np.isfinite(pixel)):
+            return nothing + (True,)
+        ray = self._lens.unproject(pixel[None, :])[0]
+        return pixel, ray, float(np.clip(confidence, 0.0, 1.0)), True, region, False
+
+    def _update(self, context, state):
+        info = self._frame_info_port.Eval(context)
+        values = context.get_discrete_state(self._state).value().copy()
+        if info[1] == values[7]:
+            return EventStatus.DidNothing()
+        rgba = self._rgb_port.Eval(context).data
+        pixel, ray, confidence, visible, region, failed = self.detect(rgba[..., :3])
+        values[0:2], values[2:5] = pixel, ray
+        values[5], values[6], values[7] = confidence, 1.0 if visible else 0.0, info[1]
+        values[8] += 1.0
+        values[9] += 1.0 if failed else 0.0
+        state.get_mutable_discrete_state(self._state).set_value(values)
+        image = state.get_mutable_abstract_state(self._region).get_mutable_value()
+        grey = image.mutable_data[..., 0]
+        if region is not None and np.shape(region) == grey.shape:
+            grey[...] = np.where(np.asarray(region) > 0, 255, 0)
+        else:
+            grey[...] = 0
+        return EventStatus.Succeeded()
