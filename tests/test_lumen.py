@@ -204,3 +204,22 @@ def test_detector_on_rendered_frames_against_the_lumen_truth(rendered_frames, de
     assert summary["median_error"] < 0.05
     assert summary["detection_rate"] >= 0.9
     assert summary["false_positive_rate"] < 0.2
+
+
+def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, capsys):
+    from capsule_drake.cli import main
+
+    out = tmp_path / "eval"
+    code = main(["eval-lumen", "--frames", "6", "--colons", "1", "--seed", "20", "--quiet",
+                 "--detector", "gaussian", "--detector", "test_lumen:offset_detector",
+                 "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "gaussian" in printed and "test_lumen:offset_detector" in printed
+    import json
+    results = json.loads((out / "results.json").read_text())
+    assert results["gaussian"]["frames"] == 6
+    assert (out / "gaussian_sheet.png").stat().st_size > 10_000
+    assert (out / "test_lumen_offset_detector_sheet.png").exists()
+    assert main(["eval-lumen", "--detector", "nope:nothing", "--frames", "1"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
