@@ -95,10 +95,11 @@ class PseudoForceConfig:
     # = stylus away from the operator.
     device_from_camera_rpy_deg: list[float] = dataclasses.field(
         default_factory=lambda: [180.0, 0.0, 0.0])
-    # Sample-and-hold period (s) of the force: the device's 1 kHz servo loop. A sample costs
-    # ~1.5 ms of Python (the wall query), so 1 kHz costs ~1.5 s per simulated second; 0.01 s
-    # is ten times cheaper and still faster than the camera's 4-35 frames per second.
-    update_period: float = 0.001
+    # Sample-and-hold period (s) of the force. A sample costs ~1.5 ms of Python (the wall
+    # query), so the device's 1 kHz servo rate would cost ~1.5 s per simulated second; at
+    # 100 Hz it is faster than the camera's 4-35 frames per second and the device's servo
+    # loop holds it between samples.
+    update_period: float = 0.01
 
 
 def check_pseudo_force_config(config: PseudoForceConfig) -> None:

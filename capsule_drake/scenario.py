@@ -20,6 +20,7 @@ from pathlib import Path
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from capsule_drake.anatomy import ColonParams, check_colon_params
+from capsule_drake.guidance import PseudoForceConfig, check_pseudo_force_config
 from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
 from capsule_drake.systems.ahrs import AhrsConfig
@@ -170,6 +171,10 @@ class Scenario:
     epm: EpmConfig = field(default_factory=EpmConfig)
     # Contact between capsule and colon wall.
     contact: ContactConfig = field(default_factory=ContactConfig)
+    # The pseudo-force for the operator's haptic hand (lumen attraction from the lumen
+    # tracker, wall avoidance, potential along the colon), in the device frame, saturated
+    # to the device's limit. Null: none.
+    pseudo_force: PseudoForceConfig | None = None
     # Seed of the sensors' noise (the patient's seed is colon.seed): the same seed gives the
     # same recording.
     random_seed: int = 0
@@ -285,6 +290,14 @@ def validate(scenario: Scenario) -> None:
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
     need(scenario.capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
+    if scenario.pseudo_force is not None:
+        try:
+            check_pseudo_force_config(scenario.pseudo_force)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: pseudo_force: {e}") from None
+        need(scenario.pseudo_force.lumen_weight == 0 or scenario.capsule.lumen_tracker is not None,
+             "pseudo_force.lumen_weight needs capsule.lumen_tracker (and a camera), or set "
+             "lumen_weight: 0")
     tracker = scenario.capsule.lumen_tracker
     if tracker is not None:
         need(scenario.capsule.camera is not None,

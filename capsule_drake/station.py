@@ -11,7 +11,7 @@ Blocks (each a named subsystem) and their wiring:
     plant body poses, velocities, accelerations --> capsule.imu --> capsule.ahrs
     plant.body_poses --> capsule.magnetometer
     scene_graph.query_object --> capsule.camera --> capsule.lumen (with the capsule state)
-    capsule.camera --> capsule.lumen_tracker
+    capsule.camera --> capsule.lumen_tracker --> pseudo_force (with the capsule state)
 
 Exported ports, named `<instance>.<signal>`:
     capsule.state          [q (quaternion wxyz, p_WC); v (w_WC, v_WC)] of the capsule body
@@ -75,6 +75,7 @@ from capsule_drake.systems.lumen_tracker import LumenTracker
 from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.systems.magnetometer import Magnetometer
+from capsule_drake.systems.pseudo_force import PseudoForceField
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 PACKAGE = "capsule_drake"
@@ -319,6 +320,23 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
             builder.ExportOutput(port, f"capsule.lumen_tracker.{port.get_name()}")
 
 
+def _add_pseudo_force(builder, plant, scenario: Scenario, colon, capsule_instance):
+    """The operator's pseudo-force from the lumen tracker (when there is one) and the
+    capsule's state; exported as pseudo_force.<signal>."""
+    X_BC = plant.GetFrameByName("camera", capsule_instance).GetFixedPoseInBodyFrame()
+    force = builder.AddNamedSystem("pseudo_force", PseudoForceField(
+        colon, scenario.pseudo_force, X_BC))
+    builder.Connect(plant.get_state_output_port(capsule_instance),
+                    force.GetInputPort("capsule_state"))
+    if scenario.capsule.lumen_tracker is not None:
+        tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+        for name in ("lumen_ray", "lumen_visible", "lumen_confidence"):
+            builder.Connect(tracker.GetOutputPort(name), force.GetInputPort(name))
+    for i in range(force.num_output_ports()):
+        port = force.get_output_port(i)
+        builder.ExportOutput(port, f"pseudo_force.{port.get_name()}")
+
+
 def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     """Illustration geometry and contact forces in Meshcat; the view looks at the abdomen
     from the patient's right, above the table."""
@@ -438,6 +456,9 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
                         renderer_for)
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
+
+    if scenario.pseudo_force is not None:
+        _add_pseudo_force(builder, plant, scenario, colon, capsule_instance)
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")

@@ -223,3 +223,25 @@ def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, ca
     assert (out / "test_lumen_offset_detector_sheet.png").exists()
     assert main(["eval-lumen", "--detector", "nope:nothing", "--frames", "1"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_station_tracks_the_lumen_and_feeds_the_pseudo_force():
+    """WithSensors: camera -> lumen tracker -> pseudo-force, in the running station."""
+    from capsule_drake.station import make_station
+
+    scenario = load_scenario(name="WithSensors", override="duration: 0.6")
+    diagram = make_station(scenario)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.6)
+    context = simulator.get_context()
+    port = lambda name: diagram.GetOutputPort(name).Eval(context)  # noqa: E731
+    assert port("capsule.lumen_tracker.stats")[0] >= 6  # a frame every 0.1 s, from t = 0
+    assert port("capsule.lumen_tracker.lumen_visible")[0] == 1.0
+    assert port("capsule.lumen.lumen_visible")[0] == 1.0
+    error = np.linalg.norm(port("capsule.lumen_tracker.lumen_pixel")
+                           - port("capsule.lumen.lumen_pixel"))
+    assert error < 0.05 * np.hypot(256, 256)
+    force = port("pseudo_force.F_D")
+    assert np.all(np.isfinite(force)) and np.linalg.norm(force) <= 3.3 + 1e-9
+    # Looking down the lumen, the lumen term pulls the stylus away from the operator (-z_D).
+    assert port("pseudo_force.terms_D")[2] < -0.3

@@ -345,7 +345,8 @@ def expected_terms_D(colon, config, X_BC, X_WB, r, confidence, state):
 def test_system_samples_and_holds_the_pure_functions(colon, capsule_model):
     X_BC, _ = capsule_model
     X_WB, r, state = busy_inputs(colon)
-    config = PseudoForceConfig(lumen_weight=1.5, wall_weight=2.0, potential_weight=0.5)
+    config = PseudoForceConfig(lumen_weight=1.5, wall_weight=2.0, potential_weight=0.5,
+                               update_period=0.001)
     builder = DiagramBuilder()
     dut = builder.AddNamedSystem("pseudo_force", PseudoForceField(colon, config, X_BC))
     for port, value in ((dut.get_lumen_ray_input_port(), r),
@@ -387,7 +388,8 @@ def run_fixed(dut, values, duration=0.0025):
 
 def test_non_finite_inputs_give_a_finite_force_and_are_counted(colon, capsule_model):
     X_BC, _ = capsule_model
-    dut = PseudoForceField(colon, PseudoForceConfig(potential_weight=1.0), X_BC)
+    dut = PseudoForceField(colon, PseudoForceConfig(potential_weight=1.0, update_period=0.001),
+                           X_BC)
     X_WB, r, state = busy_inputs(colon)
     nan_velocity = state.copy()
     nan_velocity[10] = np.nan
