@@ -131,3 +131,21 @@ def hold_above_trajectory(colon, start_s: float, path, clearance: float,
     q = stage_joint_positions(p_WE, m_hat)
     trajectory = PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.column_stack([q, q]))
     return trajectory, (lambda t: np.full_like(np.asarray(t, dtype=float), start_s))
+
+
+def stage_to_pose(q) -> np.ndarray:
+    """[p_WE (3), m_hat_W (3)] of the stage's joint positions [x, y, z, yaw, pitch]."""
+    x, y, z, yaw, pitch = np.asarray(q, dtype=float)[:5]
+    return np.array([x, y, z, np.cos(yaw) * np.sin(pitch), np.sin(yaw) * np.sin(pitch),
+                     np.cos(pitch)])
+
+
+def pose_trajectory(stage_trajectory, sample_period: float = 0.05):
+    """The EPM pose [p_WE, m_hat_W] along a stage trajectory, as a trajectory (linear
+    between samples `sample_period` apart; consumers renormalise the moment direction)."""
+    start, end = stage_trajectory.start_time(), stage_trajectory.end_time()
+    times = np.arange(start, end + 0.5 * sample_period, sample_period)
+    if len(times) < 2:
+        times = np.array([start, start + 1.0])
+    poses = np.column_stack([stage_to_pose(stage_trajectory.value(t).ravel()) for t in times])
+    return PiecewisePolynomial.FirstOrderHold(times, poses)

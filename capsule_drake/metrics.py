@@ -48,7 +48,7 @@ def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarr
     return excursion.max(axis=1)
 
 
-def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule_radius,
+def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_radius,
                 capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None):
     """Metrics of one run as a JSON-ready dict.
 
@@ -57,7 +57,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule
         times: (K,) log times (s).
         capsule_state: (13, K) capsule state log [quaternion wxyz, p_WC, w, v].
         contact_load: (K,) summed contact force magnitudes (N).
-        epm_state: (10, K) stage state log [x y z yaw pitch, rates].
+        epm_pose: (6, K) EPM log [p_WE, m_hat_W] (centre and moment direction).
         capsule_radius, capsule_length: capsule collision shape (m).
         epm_geometry: MagnetGeometry of the EPM (for its clearance to the skin).
         start_s: the scenario's start arc length (m).
@@ -71,11 +71,9 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_state, *, capsule
                                                                            capsule_length))
     final_s = float(s[-1])
 
-    x, y, z, yaw, pitch = epm_state[:5]
-    m_hat = np.stack([np.cos(yaw) * np.sin(pitch), np.sin(yaw) * np.sin(pitch), np.cos(pitch)])
-    gaps = [skin_gap(colon, (x[k], y[k], z[k]), m_hat[:, k], epm_geometry)
+    gaps = [skin_gap(colon, epm_pose[:3, k], epm_pose[3:6, k], epm_geometry)
             for k in range(0, len(times), max(1, len(times) // 400))]
-    distance = np.linalg.norm(epm_state[:3].T - p_WC, axis=1)
+    distance = np.linalg.norm(epm_pose[:3].T - p_WC, axis=1)
     return {
         "start_s_m": float(s[0]),
         "scenario_start_s_m": float(start_s),

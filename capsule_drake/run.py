@@ -29,7 +29,7 @@ class RunResult:
     times: np.ndarray          # (K,) s
     capsule_state: np.ndarray  # (13, K)
     contact_load: np.ndarray   # (K,) N
-    epm_state: np.ndarray      # (10, K)
+    epm_pose: np.ndarray       # (6, K) EPM centre and moment direction
     out_dir: Path | None
 
 
@@ -88,7 +88,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder,
                                   scenario.log_period)
     contact_log = LogVectorOutput(monitor.get_output_port(), builder, scenario.log_period)
-    epm_log = LogVectorOutput(station.GetOutputPort("epm.state"), builder, scenario.log_period)
+    epm_log = LogVectorOutput(station.GetOutputPort("epm.pose"), builder, scenario.log_period)
     finish = extend(builder, station) if extend is not None else None
     diagram = builder.Build()
 
@@ -131,11 +131,11 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     k = min(log.num_samples() for log in logs)
     times = logs[0].sample_times()[:k]
     result = RunResult(metrics={}, times=times, capsule_state=logs[0].data()[:, :k],
-                       contact_load=logs[1].data()[0, :k], epm_state=logs[2].data()[:, :k],
+                       contact_load=logs[1].data()[0, :k], epm_pose=logs[2].data()[:, :k],
                        out_dir=Path(out_dir) if out_dir is not None else None)
     if k > 0:
         result.metrics = run_metrics(
-            colon, times, result.capsule_state, result.contact_load, result.epm_state,
+            colon, times, result.capsule_state, result.contact_load, result.epm_pose,
             capsule_radius=capsule_radius, capsule_length=capsule_length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
             sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early)
@@ -164,7 +164,7 @@ def _write_outputs(result: RunResult, scenario: Scenario, meshcat):
     out = result.out_dir
     out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out / "logs.npz", times=result.times, capsule_state=result.capsule_state,
-                        contact_load=result.contact_load, epm_state=result.epm_state)
+                        contact_load=result.contact_load, epm_pose=result.epm_pose)
     (out / "scenario.yaml").write_text(dump_scenario(scenario))
     (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
     if meshcat is not None:

@@ -25,6 +25,7 @@ from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
 from capsule_drake.systems.ahrs import AhrsConfig
 from capsule_drake.systems.camera import CameraConfig, check_camera_config
+from capsule_drake.systems.epm_arm import ArmConfig, check_arm_config
 from capsule_drake.systems.imu import ImuConfig
 from capsule_drake.systems.lumen_tracker import LumenTrackerConfig
 from capsule_drake.systems.magnetometer import MagnetometerConfig
@@ -36,6 +37,7 @@ DEFAULT_SCENARIO_FILE = DIAGRAMS_DIR / "default.yaml"
 
 
 CONTACT_MODELS = ("hydroelastic", "convex_pieces")
+EPM_MOUNTS = ("stage", "arm")
 
 
 class ScenarioError(ValueError):
@@ -157,6 +159,11 @@ class EpmConfig:
     translation_gains: Gains = field(default_factory=Gains)
     # Servo gains of the yaw and pitch axes.
     rotation_gains: Gains = field(default_factory=lambda: Gains(p=400.0, d=4.0))
+    # What carries the magnet: "stage" (a commanded five-axis body, light and fast) or
+    # "arm" (the 7-DoF arm of models/epm_arm.sdf with its controller; `arm` configures it).
+    # The gains above are the stage's.
+    mount: str = "stage"
+    arm: ArmConfig = field(default_factory=ArmConfig)
 
 
 @dataclass
@@ -274,6 +281,12 @@ def validate(scenario: Scenario) -> None:
          f"got {scenario.contact.model!r}")
     need(scenario.contact.friction >= 0, "contact.friction must be >= 0")
     need(scenario.epm.clearance >= 0, "epm.clearance must be >= 0")
+    need(scenario.epm.mount in EPM_MOUNTS,
+         f"epm.mount must be one of {', '.join(EPM_MOUNTS)}, got {scenario.epm.mount!r}")
+    try:
+        check_arm_config(scenario.epm.arm)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {e}") from None
     for where, magnet in (("capsule.ipm", scenario.capsule.ipm), ("epm.magnet", scenario.epm.magnet)):
         try:
             magnet.moment()

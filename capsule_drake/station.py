@@ -4,7 +4,8 @@
 
 Blocks (each a named subsystem) and their wiring:
 
-    epm_path (TrajectorySource) --> plant.epm_stage desired state (PD servos)
+    epm_path (TrajectorySource) --> plant.epm_stage desired state (PD servos), or
+    epm_path (poses) --> epm_arm_controller (guard, diff IK) --> plant.epm_arm desired state
     plant.body_poses --> magnet_force [--> magnet_force_hold] --> plant.applied_spatial_force
     scene_graph <--> plant (capsule, colon wall chunks or pieces, EPM stage, table)
     and, when the scenario switches them on:
@@ -16,8 +17,12 @@ Blocks (each a named subsystem) and their wiring:
 Exported ports, named `<instance>.<signal>`:
     capsule.state          [q (quaternion wxyz, p_WC); v (w_WC, v_WC)] of the capsule body
     capsule.B_C            field at the IPM in the capsule frame (T): a magnetometer's truth
-    epm.state              stage joint positions and velocities [x y z yaw pitch, ...dot]
-    epm.desired_state      the commanded stage state
+    epm.pose               the EPM's centre and moment direction [p_WE, m_hat_W]
+    epm.state              the carrier's joint state: stage [x y z yaw pitch, rates], or
+                           the arm's [q (7), v (7)]
+    epm.desired_state      the carrier's commanded joint state
+    epm.command, epm.status  with the arm: the pose command [p_WE, m_hat_W] and the
+                           controller's report (see EpmArmController)
     epm.F_W                spatial force on the EPM at its centre, world frame [torque; force]
     body_poses             every body's pose (list[RigidTransform])
     contact_results        the plant's ContactResults
@@ -56,6 +61,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
     CoulombFriction,
+    MultibodyPlant,
     ExternallyAppliedSpatialForce,
     MultibodyPlantConfig,
 )
@@ -65,11 +71,15 @@ from pydrake.systems.primitives import TrajectorySource, ZeroOrderHold
 
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
-from capsule_drake.epm_path import along_colon_trajectory, hold_above_trajectory
+from capsule_drake.epm_path import (along_colon_trajectory, hold_above_trajectory,
+                                    pose_trajectory)
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
 from capsule_drake.systems.ahrs import MahonyAhrs
 from capsule_drake.systems.camera import (CameraConfig, add_camera_renderer,
                                           capsule_camera_for_frame, check_camera_config)
+from capsule_drake.systems.epm_arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT,
+                                           CommandMarker, EpmArmController, EpmGuard,
+                                           MagnetPose, arm_base_pose, solve_posture)
 from capsule_drake.systems.imu import Imu, add_random_sources
 from capsule_drake.systems.lumen_tracker import LumenTracker
 from capsule_drake.systems.lumen_truth import LumenTruth
@@ -83,6 +93,8 @@ PACKAGE = "capsule_drake"
 CAPSULE_BODY = "capsule"
 EPM_BODY = "epm"
 STAGE_JOINTS = ("x", "y", "z", "yaw", "pitch")
+# Where the arm's start-posture solve begins (rad): shoulder forward, elbow bent, flange down.
+ARM_START_GUESS = (0.0, 0.6, 0.0, -1.2, 0.0, 1.2, 0.0)
 TORSO_RGBA = np.array([0.93, 0.78, 0.68, 0.18])
 
 
@@ -348,6 +360,121 @@ def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     meshcat.SetCameraPose(camera_in_world=[-0.55, -0.35, 0.65], target_in_world=[0.0, 0.0, 0.1])
 
 
+class StageMount:
+    """The EPM on the five-axis stage (models/epm_stage.sdf), its joints' PD servos driven
+    straight from the path's stage trajectory."""
+
+    model_name = "epm_stage"
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+
+    def add_models(self, plant, parser):
+        """Before Finalize: the stage, its servo gains; returns its model instance."""
+        self.instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
+        # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm
+        # would); its weight is the stage's business, not the simulation's.
+        plant.set_gravity_enabled(self.instance, False)
+        epm = self.scenario.epm
+        for name in STAGE_JOINTS:
+            gains = epm.translation_gains if name in ("x", "y", "z") else epm.rotation_gains
+            plant.GetJointActuatorByName(name, self.instance).set_controller_gains(
+                PdControllerGains(p=gains.p, d=gains.d))
+        return self.instance
+
+    def connect(self, builder, plant, colon, trajectory):
+        """After Finalize: start where the path begins, follow it; exports epm.state (stage
+        joints [x y z yaw pitch, rates]) and epm.desired_state."""
+        actuated = [plant.get_joint_actuator(i).joint().name()
+                    for i in plant.GetJointActuatorIndices(self.instance)]
+        assert tuple(actuated) == STAGE_JOINTS, actuated
+        q0 = trajectory.value(trajectory.start_time()).ravel()
+        for name, value in zip(STAGE_JOINTS, q0):
+            joint = plant.GetJointByName(name, self.instance)
+            if name in ("x", "y", "z"):
+                joint.set_default_translation(value)
+            else:
+                joint.set_default_angle(value)
+        epm_path = builder.AddNamedSystem(
+            "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
+        builder.Connect(epm_path.get_output_port(),
+                        plant.get_desired_state_input_port(self.instance))
+        builder.ExportOutput(plant.get_state_output_port(self.instance), "epm.state")
+        builder.ExportOutput(epm_path.get_output_port(), "epm.desired_state")
+
+
+class ArmMount:
+    """The EPM on the 7-DoF arm (models/epm_arm.sdf): the path's poses go through the
+    EpmArmController (guard, differential IK) to the joints' PD servos."""
+
+    model_name = "epm_arm"
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.config = scenario.epm.arm
+
+    def add_models(self, plant, parser):
+        """Before Finalize: the arm welded at its base pose, its servo gains."""
+        self.instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_arm.sdf")
+        plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(ARM_BASE, self.instance),
+                         arm_base_pose(self.config))
+        # A torque-controlled arm compensates its own weight; the magnet's pull it must bear.
+        plant.set_gravity_enabled(self.instance, False)
+        for name, p, d in zip(ARM_JOINTS, self.config.joint_stiffness,
+                              self.config.joint_damping):
+            plant.GetJointActuatorByName(name, self.instance).set_controller_gains(
+                PdControllerGains(p=p, d=d))
+        return self.instance
+
+    def controller_plant(self):
+        """The controller's own model: the arm alone, welded at the same pose."""
+        arm = MultibodyPlant(0.0)
+        instance, = configure_parser(Parser(arm)).AddModels(
+            url=f"package://{PACKAGE}/epm_arm.sdf")
+        arm.WeldFrames(arm.world_frame(), arm.GetFrameByName(ARM_BASE, instance),
+                       arm_base_pose(self.config))
+        arm.Finalize()
+        return arm
+
+    def connect(self, builder, plant, colon, trajectory):
+        """After Finalize: the controller, the arm's start posture (solved to reach the
+        path's first pose); exports epm.state (arm [q, v]), epm.desired_state, epm.command
+        and epm.status (see EpmArmController)."""
+        scenario = self.scenario
+        poses = pose_trajectory(trajectory)
+        first = poses.value(poses.start_time()).ravel()
+        shoulder = arm_base_pose(self.config).multiply([0.0, 0.0, SHOULDER_HEIGHT])
+        guard = EpmGuard(colon.abdomen, scenario.epm.magnet, scenario.epm.clearance,
+                         shoulder, self.config.reach)
+        arm = self.controller_plant()
+        guess = (np.radians(self.config.posture_deg) if self.config.posture_deg
+                 else np.array(ARM_START_GUESS))
+        probe = EpmArmController(arm, self.config, guard, guess)
+        q0, position_error, axis_error = solve_posture(probe, guess, first[:3], first[3:])
+        if position_error > 1e-3 or axis_error > 1e-2:
+            raise ScenarioError(
+                f"scenario: epm.arm cannot reach the path's first pose (misses by "
+                f"{position_error * 1000:.1f} mm, {np.degrees(axis_error):.1f} deg): move "
+                "epm.arm.base_xyz closer or give epm.arm.posture_deg")
+        posture = np.radians(self.config.posture_deg) if self.config.posture_deg else q0
+        controller = builder.AddNamedSystem("epm_arm_controller", EpmArmController(
+            arm, dataclasses.replace(self.config, posture_deg=list(np.degrees(posture))),
+            guard, q0))
+        for name, value in zip(ARM_JOINTS, q0):
+            plant.GetJointByName(name, self.instance).set_default_angle(value)
+        epm_path = builder.AddNamedSystem("epm_path", TrajectorySource(poses))
+        builder.Connect(epm_path.get_output_port(), controller.GetInputPort("epm_command"))
+        builder.Connect(plant.get_state_output_port(self.instance),
+                        controller.GetInputPort("arm_state"))
+        builder.Connect(controller.GetOutputPort("arm_desired_state"),
+                        plant.get_desired_state_input_port(self.instance))
+        builder.ExportOutput(plant.get_state_output_port(self.instance), "epm.state")
+        builder.ExportOutput(controller.GetOutputPort("arm_desired_state"),
+                             "epm.desired_state")
+        builder.ExportOutput(epm_path.get_output_port(), "epm.command")
+        builder.ExportOutput(controller.GetOutputPort("status"), "epm.status")
+
+
 def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool = True):
     """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is given.
 
@@ -374,7 +501,8 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     plant.set_name("plant")
     parser = configure_parser(Parser(plant))
     capsule_instance, = parser.AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    epm_instance, = parser.AddModels(url=f"package://{PACKAGE}/epm_stage.sdf")
+    mount = ArmMount(scenario) if scenario.epm.mount == "arm" else StageMount(scenario)
+    epm_instance = mount.add_models(plant, parser)
     parser.AddModels(url=f"package://{PACKAGE}/table.sdf")
     add_colon_wall(plant, scenario, colon)
     camera_config = scenario.capsule.camera
@@ -388,35 +516,13 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
         renderer_for = add_camera_walls(plant, scene_graph, scenario, colon, camera_config)
     set_capsule_contact(plant, scene_graph, scenario)
 
-    # The stage is a servo that holds the EPM wherever it is sent (a stiff robot arm would);
-    # its weight is the stage's business, not the simulation's.
-    plant.set_gravity_enabled(epm_instance, False)
-    for name in STAGE_JOINTS:
-        gains = (scenario.epm.translation_gains if name in ("x", "y", "z")
-                 else scenario.epm.rotation_gains)
-        plant.GetJointActuatorByName(name, epm_instance).set_controller_gains(
-            PdControllerGains(p=gains.p, d=gains.d))
     plant.Finalize()
 
-    actuated = [plant.get_joint_actuator(i).joint().name()
-                for i in plant.GetJointActuatorIndices(epm_instance)]
-    assert tuple(actuated) == STAGE_JOINTS, actuated
-
-    # Initial state: capsule on the centerline at its start, stage where its path begins.
+    # Initial state: capsule on the centerline at its start, the EPM where its path begins.
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
                                          capsule_start_pose(colon, scenario.capsule.start_s))
     trajectory, _ = _epm_trajectory(scenario, colon)
-    q0 = trajectory.value(trajectory.start_time()).ravel()
-    for name, value in zip(STAGE_JOINTS, q0):
-        joint = plant.GetJointByName(name, epm_instance)
-        if name in ("x", "y", "z"):
-            joint.set_default_translation(value)
-        else:
-            joint.set_default_angle(value)
-
-    epm_path = builder.AddNamedSystem(
-        "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
-    builder.Connect(epm_path.get_output_port(), plant.get_desired_state_input_port(epm_instance))
+    mount.connect(builder, plant, colon, trajectory)
 
     X_C_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
     magnets = [
@@ -424,7 +530,7 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
                    p_BM=list(X_C_ipm.translation()),
                    axis_B=list(X_C_ipm.rotation().col(2)),
                    moment=scenario.capsule.ipm.moment()),
-        MagnetSpec(name="epm", body=EPM_BODY, model_instance="epm_stage",
+        MagnetSpec(name="epm", body=EPM_BODY, model_instance=mount.model_name,
                    p_BM=[0.0, 0.0, 0.0], axis_B=[0.0, 0.0, 1.0],
                    moment=scenario.epm.magnet.moment()),
     ]
@@ -462,8 +568,10 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")
-    builder.ExportOutput(plant.get_state_output_port(epm_instance), "epm.state")
-    builder.ExportOutput(epm_path.get_output_port(), "epm.desired_state")
+    epm_pose = builder.AddNamedSystem("epm_pose", MagnetPose(
+        plant, plant.GetBodyByName(EPM_BODY, epm_instance)))
+    builder.Connect(plant.get_body_poses_output_port(), epm_pose.GetInputPort("body_poses"))
+    builder.ExportOutput(epm_pose.GetOutputPort("pose"), "epm.pose")
     builder.ExportOutput(magnet_force.get_F_W_output_port("epm"), "epm.F_W")
     builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
     builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
@@ -471,6 +579,11 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     if meshcat is not None:
         _add_meshcat(builder, plant, scene_graph, meshcat, scenario.visual_period)
+        if scenario.epm.mount == "arm":
+            marker = builder.AddNamedSystem("epm_command_marker", CommandMarker(
+                meshcat, scenario.epm.magnet, scenario.visual_period))
+            builder.Connect(builder.GetSubsystemByName("epm_path").get_output_port(),
+                            marker.GetInputPort("epm_command"))
 
     diagram = builder.Build()
     diagram.set_name("capsule_station")

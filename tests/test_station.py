@@ -70,6 +70,17 @@ def test_default_drag_advances_30cm_inside_the_lumen(drag_run):
     assert np.all(np.isfinite(drag_run.capsule_state))
 
 
+def test_default_drag_with_the_arm_advances_as_with_the_stage(drag_run):
+    scenario = load_scenario(name="WithArm", override="duration: 40.0")
+    arm = simulate(scenario, progress=False).metrics
+    stage = drag_run.metrics
+    print(f"advance in 40 s: arm {arm['advance_m']:.3f} m, stage {stage['advance_m']:.3f} m")
+    assert arm["stopped_early"] is None
+    assert abs(arm["advance_m"] - stage["advance_m"]) <= 0.2 * stage["advance_m"]
+    assert arm["max_wall_excursion_m"] < 1e-3
+    assert arm["min_epm_skin_gap_m"] >= 0.02 - 1e-3
+
+
 def settled_positions(scenario):
     """Capsule positions from its first second on (it first drops onto the wall)."""
     result = simulate(scenario, progress=False)
