@@ -1,0 +1,1 @@
+"""Teleoperation: bridges between the simulator and real input devices (udp: a haptic stylus)."""
