@@ -9,7 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario
+from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
+                                    validate)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -42,6 +43,27 @@ def _parser() -> argparse.ArgumentParser:
     rec.add_argument("--out", type=Path, metavar="DIR",
                      help="dataset folder (default: datasets/<scenario>-<date-time>)")
     rec.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    tel = verbs.add_parser(
+        "teleop", help="haptic teleoperation: a simulated operator, the browser, or a device",
+        description="Teleoperate the capsule (scenario 'Teleop' unless --scenario says "
+                    "otherwise): the operator moves the stylus, the EPM follows, the operator "
+                    "feels the pseudo-force and the capsule's contact. --operator simulated "
+                    "runs a model of a hand (as fast as it computes); browser serves a Meshcat "
+                    "page with keyboard, gamepad and sliders, paced in real time; udp listens "
+                    "for a real device (docs/udp_protocol.md), paced in real time.")
+    _scenario_arguments(tel)
+    tel.add_argument("--operator", choices=("simulated", "browser", "udp"),
+                     help="who holds the stylus (default: the scenario's)")
+    tel.add_argument("--guidance", choices=("on", "off"), default="on",
+                     help="the pseudo-force on the operator's hand (default on)")
+    tel.add_argument("--delay", type=float, metavar="S",
+                     help="one-way delay of the channel, both ways (s)")
+    tel.add_argument("--port", type=int, default=7000,
+                     help="Meshcat port (browser) or UDP port (udp; 0 = any free one)")
+    tel.add_argument("--out", type=Path, metavar="DIR",
+                     help="output folder (default: runs/teleop-<operator>-<date-time>)")
+    tel.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = verbs.add_parser(
         "eval-lumen", help="score a lumen detector against the ground truth on rendered frames",
@@ -102,6 +124,74 @@ def _record(args) -> int:
         print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
         return 1 if "error" in m["stopped_early"] else 0
     return 0
+
+
+def _teleop(args) -> int:
+    if args.scenario is None and args.scenario_file == DEFAULT_SCENARIO_FILE:
+        args.scenario = "Teleop"
+    scenario = _load(args)
+    if scenario.teleop is None:
+        raise ScenarioError(f"scenario {args.scenario or 'Default'} has no teleop section "
+                            "(use --scenario Teleop or add `teleop: {}`)")
+    teleop = scenario.teleop
+    if args.operator is not None:
+        teleop = dataclasses.replace(teleop, operator=args.operator)
+    if args.delay is not None:
+        if not args.delay >= 0:
+            raise ScenarioError(f"--delay must be >= 0, got {args.delay}")
+        channel = dataclasses.replace(
+            teleop.channel,
+            forward=dataclasses.replace(teleop.channel.forward, delay=args.delay),
+            backward=dataclasses.replace(teleop.channel.backward, delay=args.delay))
+        teleop = dataclasses.replace(teleop, channel=channel)
+    if teleop.operator == "udp":
+        teleop = dataclasses.replace(teleop, udp=dataclasses.replace(teleop.udp,
+                                                                     port=args.port))
+    scenario = dataclasses.replace(scenario, teleop=teleop)
+    if args.guidance == "off":
+        scenario = dataclasses.replace(scenario, pseudo_force=None)
+    validate(scenario)
+
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from capsule_drake.run import simulate
+
+    live = teleop.operator in ("browser", "udp")
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    if not live:
+        drake_log.setLevel(logging.WARNING)
+    try:
+        meshcat = Meshcat(MeshcatParams(port=args.port if teleop.operator == "browser" else 0))
+    except RuntimeError as e:
+        raise ScenarioError(f"--port {args.port}: cannot start Meshcat "
+                            f"({str(e).splitlines()[0]})") from None
+    drake_log.setLevel(level)
+    if live:
+        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
+    out_dir = args.out or Path("runs") / (f"teleop-{teleop.operator}-"
+                                          f"{time.strftime('%Y%m%d-%H%M%S')}")
+
+    def announce(builder, station):
+        if teleop.operator == "udp":
+            device = station.GetSubsystemByName("teleop.device")
+            print(f"listening for the haptic device on udp://{device.address()[0]}:"
+                  f"{device.port()} (docs/udp_protocol.md)", file=sys.stderr)
+        return None
+
+    result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
+                      realtime_rate=1.0 if live else 0.0, progress=not args.quiet,
+                      live_meshcat=live, extend=announce)
+    m = result.metrics
+    if "advance_m" in m:
+        print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline in "
+              f"{m['sim_time_s']:.1f} s (x{m['real_time_factor']:.2f} real time); peak "
+              f"contact force {m['peak_contact_force_N']:.2f} N; closest EPM to skin "
+              f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    if m.get("stopped_early"):
+        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
+    print(f"outputs in {out_dir}/ (metrics.json, recording.html)")
+    return 1 if m.get("stopped_early") and "error" in m["stopped_early"] else 0
 
 
 def _eval_lumen(args) -> int:
@@ -196,6 +286,8 @@ def main(argv=None) -> int:
             return _record(args)
         if args.verb == "eval-lumen":
             return _eval_lumen(args)
+        if args.verb == "teleop":
+            return _teleop(args)
     except ScenarioError as e:
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 2

@@ -87,7 +87,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
     capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder,
                                   scenario.log_period)
-    contact_log = LogVectorOutput(monitor.get_output_port(), builder, scenario.log_period)
+    contact_log = LogVectorOutput(monitor.GetOutputPort("contact_load"), builder,
+                                  scenario.log_period)
     epm_log = LogVectorOutput(station.GetOutputPort("epm.pose"), builder, scenario.log_period)
     finish = extend(builder, station) if extend is not None else None
     diagram = builder.Build()

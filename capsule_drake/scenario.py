@@ -25,10 +25,16 @@ from capsule_drake.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
 from capsule_drake.systems.ahrs import AhrsConfig
 from capsule_drake.systems.camera import CameraConfig, check_camera_config
+from capsule_drake.systems.channel import (TeleopChannelConfig, check_channel_config,
+                                           check_passivity_config)
+from capsule_drake.systems.haptic_master import HapticDeviceConfig, check_haptic_device_config
 from capsule_drake.systems.epm_arm import ArmConfig, check_arm_config
 from capsule_drake.systems.imu import ImuConfig
 from capsule_drake.systems.lumen_tracker import LumenTrackerConfig
 from capsule_drake.systems.magnetometer import MagnetometerConfig
+from capsule_drake.teleop.mapping import MappingConfig, check_mapping_config
+from capsule_drake.teleop.operator import OperatorConfig, check_operator_config
+from capsule_drake.teleop.udp import UdpBridgeConfig, check_udp_bridge_config
 from capsule_drake.vision.lumen import check_lumen_params, load_detector
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -166,6 +172,40 @@ class EpmConfig:
     arm: ArmConfig = field(default_factory=ArmConfig)
 
 
+OPERATORS = ("simulated", "browser", "udp")
+LUMEN_SOURCES = ("tracker", "truth")
+
+
+@dataclass
+class TeleopConfig:
+    """Haptic teleoperation: the operator moves a stylus, the EPM follows the mapping, and
+    the operator feels the pseudo-force (scenario's `pseudo_force`; null: no guidance) plus
+    the capsule's contact with the wall. Replaces the EPM's path."""
+
+    # Who holds the stylus: "simulated" (a model of a hand), "browser" (keyboard, gamepad
+    # and sliders in Meshcat, paced in real time) or "udp" (a real device over the
+    # network bridge).
+    operator: str = "simulated"
+    # The haptic device (Geomagic Touch figures).
+    device: HapticDeviceConfig = field(default_factory=HapticDeviceConfig)
+    # Stylus to EPM mapping (position or rate mode, scales, clutch).
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    # The simulated operator's hand and intent.
+    simulated: OperatorConfig = field(default_factory=OperatorConfig)
+    # What the simulated operator sees of the lumen: the lumen tracker's detection (needs
+    # capsule.lumen_tracker) or the truth (needs capsule.camera).
+    lumen_source: str = "tracker"
+    # Delay, jitter and loss both ways, and the passivity scheme at the device. The scheme
+    # (time-domain passivity) acts only when the link has delay, jitter or loss: with an
+    # ideal link there is nothing to stabilise, and strict passivity would also mute the
+    # guidance, which puts energy into the hand by design.
+    channel: TeleopChannelConfig = field(default_factory=TeleopChannelConfig)
+    # Device newtons per newton of the capsule's contact force with the wall.
+    contact_gain: float = 1.0
+    # The network bridge for a real device (operator "udp"): loopback by default.
+    udp: UdpBridgeConfig = field(default_factory=UdpBridgeConfig)
+
+
 @dataclass
 class Scenario:
     """One simulation: patient, capsule, magnet, contact model and timing."""
@@ -178,6 +218,8 @@ class Scenario:
     epm: EpmConfig = field(default_factory=EpmConfig)
     # Contact between capsule and colon wall.
     contact: ContactConfig = field(default_factory=ContactConfig)
+    # Haptic teleoperation (null: none; the EPM follows its path).
+    teleop: TeleopConfig | None = None
     # The pseudo-force for the operator's haptic hand (lumen attraction from the lumen
     # tracker, wall avoidance, potential along the colon), in the device frame, saturated
     # to the device's limit. Null: none.
@@ -303,6 +345,29 @@ def validate(scenario: Scenario) -> None:
         except ValueError as e:
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
     need(scenario.capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
+    teleop = scenario.teleop
+    if teleop is not None:
+        need(teleop.operator in OPERATORS,
+             f"teleop.operator must be one of {', '.join(OPERATORS)}, got {teleop.operator!r}")
+        need(teleop.lumen_source in LUMEN_SOURCES,
+             f"teleop.lumen_source must be one of {', '.join(LUMEN_SOURCES)}, got "
+             f"{teleop.lumen_source!r}")
+        need(teleop.contact_gain >= 0, "teleop.contact_gain must be >= 0")
+        try:
+            check_haptic_device_config(teleop.device)
+            check_mapping_config(teleop.mapping)
+            check_operator_config(teleop.simulated)
+            check_channel_config(teleop.channel.forward)
+            check_channel_config(teleop.channel.backward)
+            check_passivity_config(teleop.channel.passivity)
+            check_udp_bridge_config(teleop.udp)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: teleop: {e}") from None
+        if teleop.operator == "simulated":
+            need(scenario.capsule.camera is not None,
+                 "teleop.operator simulated needs capsule.camera (it watches the image)")
+            need(teleop.lumen_source == "truth" or scenario.capsule.lumen_tracker is not None,
+                 "teleop.lumen_source tracker needs capsule.lumen_tracker")
     if scenario.pseudo_force is not None:
         try:
             check_pseudo_force_config(scenario.pseudo_force)

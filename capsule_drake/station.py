@@ -33,6 +33,7 @@ Exported ports, named `<instance>.<signal>`:
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -67,7 +68,7 @@ from pydrake.multibody.plant import (
 )
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import TrajectorySource, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, TrajectorySource, ZeroOrderHold
 
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
@@ -77,15 +78,24 @@ from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioErro
 from capsule_drake.systems.ahrs import MahonyAhrs
 from capsule_drake.systems.camera import (CameraConfig, add_camera_renderer,
                                           capsule_camera_for_frame, check_camera_config)
+from capsule_drake.systems.channel import TeleopChannel
+from capsule_drake.systems.contact_monitor import ContactMonitor
 from capsule_drake.systems.epm_arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT,
                                            CommandMarker, EpmArmController, EpmGuard,
                                            MagnetPose, arm_base_pose, solve_posture)
+from capsule_drake.systems.force_feedback import ForceFeedback
+from capsule_drake.systems.haptic_master import STYLUS_SIZE, HapticMaster
 from capsule_drake.systems.imu import Imu, add_random_sources
 from capsule_drake.systems.lumen_tracker import LumenTracker
 from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.systems.magnetometer import Magnetometer
 from capsule_drake.systems.pseudo_force import PseudoForceField
+from capsule_drake.systems.stage_command import PoseToStage
+from capsule_drake.teleop.mapping import TeleopMapping
+from capsule_drake.teleop.browser import BrowserOperator
+from capsule_drake.teleop.operator import LumenRayFromTruth, SimulatedOperator
+from capsule_drake.teleop.udp import UdpHapticDevice
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 PACKAGE = "capsule_drake"
@@ -349,6 +359,112 @@ def _add_pseudo_force(builder, plant, scenario: Scenario, colon, capsule_instanc
         builder.ExportOutput(port, f"pseudo_force.{port.get_name()}")
 
 
+def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_instance,
+                trajectory, meshcat):
+    """The haptic loop (scenario.teleop): operator -> device -> channel -> mapping -> EPM
+    command (returned, for the mount), and force feedback (pseudo-force + the capsule's
+    contact, saturated) -> channel -> passivity -> device. Exports teleop.<signal>."""
+    teleop = scenario.teleop
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    X_BC = plant.GetFrameByName("camera", capsule_instance).GetFixedPoseInBodyFrame()
+    X_B_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
+    floor_guard = EpmGuard(colon.abdomen, scenario.epm.magnet, scenario.epm.clearance,
+                           np.zeros(3), np.inf)
+    first = pose_trajectory(trajectory).value(trajectory.start_time()).ravel()
+    start = capsule_start_pose(colon, scenario.capsule.start_s)
+    mapping = builder.AddNamedSystem("teleop.mapping", TeleopMapping(
+        teleop.mapping, X_BC, X_B_ipm.translation(), floor_guard.lowest_centre_height,
+        first, start.rotation().col(2)))
+    builder.Connect(plant.get_state_output_port(capsule_instance),
+                    mapping.GetInputPort("capsule_state"))
+
+    channel_config = copy.deepcopy(teleop.channel)
+    if all(c.delay == 0 and c.jitter == 0 and c.loss == 0
+           for c in (channel_config.forward, channel_config.backward)):
+        channel_config.passivity.enabled = False  # an ideal link: nothing to stabilise
+    channel = builder.AddNamedSystem("teleop.channel",
+                                     TeleopChannel(STYLUS_SIZE, channel_config))
+    builder.Connect(channel.GetOutputPort("stylus_out"), mapping.GetInputPort("stylus"))
+    builder.Connect(channel.GetOutputPort("stylus_age"), mapping.GetInputPort("stylus_age"))
+
+    # What the operator feels: the pseudo-force (if any) and the capsule's contact.
+    monitor = builder.AddNamedSystem("teleop.contact", ContactMonitor(
+        plant.GetCollisionGeometriesForBody(capsule)))
+    builder.Connect(plant.get_contact_results_output_port(),
+                    monitor.GetInputPort("contact_results"))
+    rpy = (scenario.pseudo_force.device_from_camera_rpy_deg
+           if scenario.pseudo_force is not None else (180.0, 0.0, 0.0))
+    feedback = builder.AddNamedSystem("teleop.feedback", ForceFeedback(
+        X_BC, teleop.contact_gain, teleop.device.force_limit, rpy))
+    builder.Connect(monitor.GetOutputPort("capsule_force_W"),
+                    feedback.GetInputPort("capsule_force_W"))
+    builder.Connect(plant.get_state_output_port(capsule_instance),
+                    feedback.GetInputPort("capsule_state"))
+    if scenario.pseudo_force is not None:
+        builder.Connect(builder.GetSubsystemByName("pseudo_force").GetOutputPort("F_D"),
+                        feedback.GetInputPort("pseudo_force_D"))
+    builder.Connect(feedback.GetOutputPort("F_D"), channel.GetInputPort("force_in"))
+
+    if teleop.operator == "simulated":
+        device = builder.AddNamedSystem("teleop.device", HapticMaster(teleop.device))
+        hand = builder.AddNamedSystem("teleop.operator", SimulatedOperator(
+            teleop.simulated, teleop.device.workspace_half_extents))
+        builder.Connect(device.GetOutputPort("stylus"), hand.GetInputPort("stylus"))
+        builder.Connect(device.GetOutputPort("stylus_velocity"),
+                        hand.GetInputPort("stylus_velocity"))
+        builder.Connect(hand.GetOutputPort("hand_force"), device.GetInputPort("hand_force"))
+        builder.Connect(hand.GetOutputPort("buttons"), device.GetInputPort("buttons"))
+        if teleop.lumen_source == "tracker":
+            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+            builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                            hand.GetInputPort("lumen_visible"))
+            builder.Connect(tracker.GetOutputPort("lumen_ray"), hand.GetInputPort("lumen_ray"))
+        else:
+            truth = builder.AddNamedSystem("teleop.lumen_seen", LumenRayFromTruth(
+                builder.GetSubsystemByName("capsule.camera").lens))
+            lumen = builder.GetSubsystemByName("capsule.lumen")
+            builder.Connect(lumen.GetOutputPort("lumen_pixel"), truth.GetInputPort("pixel"))
+            builder.Connect(lumen.GetOutputPort("lumen_visible"),
+                            truth.GetInputPort("visible"))
+            builder.Connect(truth.GetOutputPort("visible"), hand.GetInputPort("lumen_visible"))
+            builder.Connect(truth.GetOutputPort("ray"), hand.GetInputPort("lumen_ray"))
+        builder.ExportOutput(hand.GetOutputPort("intent"), "teleop.intent")
+        builder.Connect(channel.GetOutputPort("force_out"),
+                        device.GetInputPort("feedback_force"))
+        builder.Connect(device.GetOutputPort("stylus_velocity"),
+                        channel.GetInputPort("stylus_velocity"))
+        builder.ExportOutput(device.GetOutputPort("motor_force"), "teleop.motor_force")
+    elif teleop.operator == "udp":
+        device = builder.AddNamedSystem("teleop.device", UdpHapticDevice(teleop.udp))
+        builder.Connect(channel.GetOutputPort("force_out"), device.GetInputPort("force_D"))
+        builder.Connect(device.GetOutputPort("link_ok"), mapping.GetInputPort("link_ok"))
+        builder.ExportOutput(device.GetOutputPort("link_ok"), "teleop.link_ok")
+        builder.ExportOutput(device.GetOutputPort("stats"), "teleop.udp_stats")
+    else:  # browser
+        device = builder.AddNamedSystem("teleop.device", BrowserOperator(
+            meshcat, teleop.device, scenario.capsule.camera))
+        builder.Connect(channel.GetOutputPort("force_out"),
+                        device.GetInputPort("feedback_force"))
+        for name in ("rgb_image", "frame_info"):
+            builder.Connect(builder.GetSubsystemByName("capsule.camera").GetOutputPort(name),
+                            device.GetInputPort(name))
+        if scenario.capsule.lumen_tracker is not None:
+            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+            for name in ("lumen_pixel", "lumen_visible"):
+                builder.Connect(tracker.GetOutputPort(name), device.GetInputPort(name))
+    split = builder.AddNamedSystem("teleop.stylus_position",
+                                   Demultiplexer([3, STYLUS_SIZE - 3]))
+    builder.Connect(device.GetOutputPort("stylus"), split.get_input_port())
+    builder.Connect(device.GetOutputPort("stylus"), channel.GetInputPort("stylus_in"))
+    builder.Connect(split.get_output_port(0), channel.GetInputPort("stylus_position"))
+    builder.ExportOutput(device.GetOutputPort("stylus"), "teleop.stylus")
+    builder.ExportOutput(feedback.GetOutputPort("F_D"), "teleop.feedback_D")
+    builder.ExportOutput(channel.GetOutputPort("energy"), "teleop.channel_energy")
+    builder.ExportOutput(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
+    builder.ExportOutput(mapping.GetOutputPort("heading"), "teleop.heading")
+    return mapping.GetOutputPort("epm_command")
+
+
 def _add_meshcat(builder, plant, scene_graph, meshcat, period: float):
     """Illustration geometry and contact forces in Meshcat; the view looks at the abdomen
     from the patient's right, above the table."""
@@ -382,9 +498,10 @@ class StageMount:
                 PdControllerGains(p=gains.p, d=gains.d))
         return self.instance
 
-    def connect(self, builder, plant, colon, trajectory):
-        """After Finalize: start where the path begins, follow it; exports epm.state (stage
-        joints [x y z yaw pitch, rates]) and epm.desired_state."""
+    def connect(self, builder, plant, colon, trajectory, external_command: bool = False):
+        """After Finalize: start where the path begins, follow it (or, with
+        `external_command`, a pose command: returns the input port to connect it to);
+        exports epm.state (stage joints [x y z yaw pitch, rates]) and epm.desired_state."""
         actuated = [plant.get_joint_actuator(i).joint().name()
                     for i in plant.GetJointActuatorIndices(self.instance)]
         assert tuple(actuated) == STAGE_JOINTS, actuated
@@ -395,12 +512,19 @@ class StageMount:
                 joint.set_default_translation(value)
             else:
                 joint.set_default_angle(value)
+        builder.ExportOutput(plant.get_state_output_port(self.instance), "epm.state")
+        if external_command:
+            stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(q0))
+            builder.Connect(stage.get_output_port(),
+                            plant.get_desired_state_input_port(self.instance))
+            builder.ExportOutput(stage.get_output_port(), "epm.desired_state")
+            return stage.GetInputPort("epm_command")
         epm_path = builder.AddNamedSystem(
             "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
         builder.Connect(epm_path.get_output_port(),
                         plant.get_desired_state_input_port(self.instance))
-        builder.ExportOutput(plant.get_state_output_port(self.instance), "epm.state")
         builder.ExportOutput(epm_path.get_output_port(), "epm.desired_state")
+        return None
 
 
 class ArmMount:
@@ -436,10 +560,11 @@ class ArmMount:
         arm.Finalize()
         return arm
 
-    def connect(self, builder, plant, colon, trajectory):
+    def connect(self, builder, plant, colon, trajectory, external_command: bool = False):
         """After Finalize: the controller, the arm's start posture (solved to reach the
-        path's first pose); exports epm.state (arm [q, v]), epm.desired_state, epm.command
-        and epm.status (see EpmArmController)."""
+        path's first pose), the path as its command (or, with `external_command`, returns
+        the controller's command input to connect); exports epm.state (arm [q, v]),
+        epm.desired_state, epm.command (the path's) and epm.status (see EpmArmController)."""
         scenario = self.scenario
         poses = pose_trajectory(trajectory)
         first = poses.value(poses.start_time()).ravel()
@@ -462,8 +587,6 @@ class ArmMount:
             guard, q0))
         for name, value in zip(ARM_JOINTS, q0):
             plant.GetJointByName(name, self.instance).set_default_angle(value)
-        epm_path = builder.AddNamedSystem("epm_path", TrajectorySource(poses))
-        builder.Connect(epm_path.get_output_port(), controller.GetInputPort("epm_command"))
         builder.Connect(plant.get_state_output_port(self.instance),
                         controller.GetInputPort("arm_state"))
         builder.Connect(controller.GetOutputPort("arm_desired_state"),
@@ -471,8 +594,13 @@ class ArmMount:
         builder.ExportOutput(plant.get_state_output_port(self.instance), "epm.state")
         builder.ExportOutput(controller.GetOutputPort("arm_desired_state"),
                              "epm.desired_state")
-        builder.ExportOutput(epm_path.get_output_port(), "epm.command")
         builder.ExportOutput(controller.GetOutputPort("status"), "epm.status")
+        if external_command:
+            return controller.GetInputPort("epm_command")
+        epm_path = builder.AddNamedSystem("epm_path", TrajectorySource(poses))
+        builder.Connect(epm_path.get_output_port(), controller.GetInputPort("epm_command"))
+        builder.ExportOutput(epm_path.get_output_port(), "epm.command")
+        return None
 
 
 def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool = True):
@@ -522,7 +650,8 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
                                          capsule_start_pose(colon, scenario.capsule.start_s))
     trajectory, _ = _epm_trajectory(scenario, colon)
-    mount.connect(builder, plant, colon, trajectory)
+    command_input = mount.connect(builder, plant, colon, trajectory,
+                                  external_command=scenario.teleop is not None)
 
     X_C_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
     magnets = [
@@ -565,6 +694,11 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     if scenario.pseudo_force is not None:
         _add_pseudo_force(builder, plant, scenario, colon, capsule_instance)
+    if scenario.teleop is not None:
+        command_output = _add_teleop(builder, plant, scene_graph, scenario, colon,
+                                     capsule_instance, trajectory, meshcat)
+        builder.Connect(command_output, command_input)
+        builder.ExportOutput(command_output, "epm.command")
 
     builder.ExportOutput(plant.get_state_output_port(capsule_instance), "capsule.state")
     builder.ExportOutput(magnet_force.get_B_B_output_port("ipm"), "capsule.B_C")
@@ -579,11 +713,13 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
 
     if meshcat is not None:
         _add_meshcat(builder, plant, scene_graph, meshcat, scenario.visual_period)
-        if scenario.epm.mount == "arm":
+        if scenario.epm.mount == "arm" or scenario.teleop is not None:
             marker = builder.AddNamedSystem("epm_command_marker", CommandMarker(
                 meshcat, scenario.epm.magnet, scenario.visual_period))
-            builder.Connect(builder.GetSubsystemByName("epm_path").get_output_port(),
-                            marker.GetInputPort("epm_command"))
+            source = (builder.GetSubsystemByName("teleop.mapping").GetOutputPort("epm_command")
+                      if scenario.teleop is not None
+                      else builder.GetSubsystemByName("epm_path").get_output_port())
+            builder.Connect(source, marker.GetInputPort("epm_command"))
 
     diagram = builder.Build()
     diagram.set_name("capsule_station")

@@ -24,14 +24,41 @@ class ContactMonitor(LeafSystem):
 
     contact_load is a 1-vector in newtons: the sum over hydroelastic contact surfaces and
     point contacts of the magnitude of each one's resultant force.
+    capsule_force_W: the net contact force on the capsule (N, world frame), when the
+    capsule's collision geometries were given; zero otherwise.
+
+    Args:
+        capsule_geometries: the capsule's collision GeometryIds (optional).
     """
 
-    def __init__(self):
+    def __init__(self, capsule_geometries=()):
         super().__init__()
+        self._capsule = set(capsule_geometries)
         self._contact_results_port = self.DeclareAbstractInputPort(
             "contact_results", AbstractValue.Make(ContactResults()))
         self._contact_load_port = self.DeclareVectorOutputPort(
             "contact_load", 1, self._calc_contact_load)
+        self.DeclareVectorOutputPort("capsule_force_W", 3, self._calc_capsule_force)
+
+    def _calc_capsule_force(self, context, output):
+        results = self._contact_results_port.Eval(context)
+        total = np.zeros(3)
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            surface = info.contact_surface()
+            force = info.F_Ac_W().translational()  # on the body of geometry M
+            if surface.id_M() in self._capsule:
+                total += force
+            elif surface.id_N() in self._capsule:
+                total -= force
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            pair = info.point_pair()
+            if pair.id_B in self._capsule:  # contact_force() acts on body B
+                total += info.contact_force()
+            elif pair.id_A in self._capsule:
+                total -= info.contact_force()
+        output.SetFromVector(total)
 
     def _calc_contact_load(self, context, output):
         results = self._contact_results_port.Eval(context)

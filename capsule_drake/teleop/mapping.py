@@ -1,0 +1,207 @@
+"""Master-to-slave mapping: stylus motion to an EPM pose command.
+
+The capsule's three motions of the seed paper, as the operator sees them in the camera
+image: forward and backward (push the stylus away from you / pull it back), yaw (stylus
+right / left) and pitch (stylus up / down). The EPM moves over the patient along the
+capsule's heading; its moment is turned so that its field at the capsule points along the
+commanded heading (REFERENCE section 1: m ~ (3/2 u u^T - I) h), which turns the capsule's
+magnet, and with it the capsule. The EPM rides at its clearance above the skin (the arm's
+guard would raise it anyway), plus a height the operator does not control.
+
+Position mode (default): displacements of the stylus since the clutch was last released,
+scaled. Rate mode: the stylus's offset from the workspace centre sets speeds (a joystick).
+The clutch button (held) decouples the stylus for indexing. A lost or stale link, or a
+non-finite stylus, holds the command; the next valid sample re-references (no jump).
+"""
+
+import dataclasses
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from capsule_drake.epm_path import field_aligning_moment_direction
+
+MODES = ("position", "rate")
+
+
+@dataclasses.dataclass
+class MappingConfig:
+    """How the stylus drives the EPM. YAML-loadable; all fields default."""
+
+    # "position" or "rate" (see the module docstring).
+    mode: str = "position"
+    # Position mode: EPM travel per stylus travel along the heading (m/m), and heading turn
+    # per stylus travel sideways (yaw) and up/down (pitch) (rad/m).
+    translation_scale: float = 2.0
+    yaw_gain: float = 12.0
+    pitch_gain: float = 12.0
+    # Rate mode: EPM speed per stylus offset (m/s per m), turn rates per offset (rad/s per
+    # m), and a dead band around the centre (m).
+    rate_translation: float = 0.5
+    rate_yaw: float = 10.0
+    rate_pitch: float = 10.0
+    dead_band: float = 0.005
+    # The commanded heading stays within this angle of the horizontal (deg).
+    max_pitch_deg: float = 45.0
+    # Update period (s).
+    period: float = 0.005
+    # A stylus sample older than this (s; from the channel's `age`) counts as a lost link.
+    stale_after: float = 0.1
+
+
+def check_mapping_config(config: MappingConfig) -> None:
+    """Raises ValueError naming the first impossible field."""
+    if config.mode not in MODES:
+        raise ValueError(f"teleop mapping mode {config.mode!r} is not one of {MODES}")
+    for name in ("translation_scale", "yaw_gain", "pitch_gain", "rate_translation",
+                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg"):
+        if not getattr(config, name) >= 0.0:
+            raise ValueError(f"teleop mapping {name} must be >= 0")
+    if not config.period > 0.0 or not config.stale_after > 0.0:
+        raise ValueError("teleop mapping period and stale_after must be > 0")
+
+
+def turn(h, axis, angle):
+    """h rotated by `angle` about the unit `axis` (Rodrigues)."""
+    axis = np.asarray(axis, dtype=float)
+    return (h * np.cos(angle) + np.cross(axis, h) * np.sin(angle)
+            + axis * (axis @ h) * (1.0 - np.cos(angle)))
+
+
+def limit_pitch(h, max_pitch: float):
+    """h with its elevation above the horizontal clipped to +-max_pitch (rad)."""
+    horizontal = np.hypot(h[0], h[1])
+    elevation = np.arctan2(h[2], horizontal)
+    if abs(elevation) <= max_pitch or horizontal < 1e-9:
+        return h / np.linalg.norm(h)
+    e = np.clip(elevation, -max_pitch, max_pitch)
+    return np.array([h[0] / horizontal * np.cos(e), h[1] / horizontal * np.cos(e), np.sin(e)])
+
+
+def horizontal(h):
+    """The horizontal unit vector nearest h (x if h is vertical)."""
+    flat = np.array([h[0], h[1], 0.0])
+    norm = np.linalg.norm(flat)
+    return flat / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
+
+
+class TeleopMapping(LeafSystem):
+    """Stylus -> EPM pose command [p_WE, m_hat_W] (module docstring).
+
+    .. pydrake_system::
+
+        name: TeleopMapping
+        input_ports:
+        - stylus
+        - stylus_age (optional)
+        - link_ok (optional)
+        - capsule_state
+        output_ports:
+        - epm_command
+        - heading
+
+    stylus: [p_D (3), quaternion (4), clutch, mode] from the device (through the channel).
+    stylus_age: how old that sample is (s); unconnected: fresh. link_ok: the device's link
+    (0: lost, hold the command); unconnected: up. capsule_state: [q wxyz,
+    p_WB, w, v] of the capsule (the pose the operator's camera image shows; the capsule's
+    position locates the field). epm_command: the EPM's centre and moment direction.
+    heading: the commanded heading h_W (unit) of the capsule.
+
+    Args:
+        config: MappingConfig.
+        X_BC: camera pose in the capsule body (its axes define right, down, forward).
+        p_BM: the capsule magnet's position in the body (where the field is aimed).
+        floor: function (x, y, m_hat) -> lowest allowed EPM centre height (e.g.
+            `EpmGuard.lowest_centre_height`).
+        initial_command: [p_WE, m_hat_W] to start from (the EPM's start pose).
+        initial_heading: the capsule's starting heading h_W.
+    """
+
+    def __init__(self, config: MappingConfig, X_BC, p_BM, floor, initial_command,
+                 initial_heading):
+        super().__init__()
+        check_mapping_config(config)
+        self._config = config
+        self._R_BC = np.asarray(X_BC.rotation().matrix())
+        self._p_BM = np.asarray(p_BM, dtype=float)
+        self._floor = floor
+        self._stylus = self.DeclareVectorInputPort("stylus", 9)
+        self._age = self.DeclareVectorInputPort("stylus_age", 1)
+        self._link = self.DeclareVectorInputPort("link_ok", 1)
+        self._capsule = self.DeclareVectorInputPort("capsule_state", 13)
+        command = np.asarray(initial_command, dtype=float)
+        h0 = np.asarray(initial_heading, dtype=float)
+        height = command[2] - floor(command[0], command[1], command[3:])
+        # [engaged, stylus ref (3), EPM ref p (3), heading ref (3), command (6), heading (3),
+        #  height above floor, right axis (3), up axis (3)]
+        initial = np.concatenate([[0.0], np.zeros(3), command[:3], h0, command, h0,
+                                  [max(height, 0.0)], np.zeros(6)])
+        self._state = self.DeclareDiscreteState(BasicVector(initial))
+        self.DeclareVectorOutputPort(
+            "epm_command", 6,
+            lambda c, out: out.SetFromVector(c.get_discrete_state(self._state).value()[10:16]),
+            {self.xd_ticket()})
+        self.DeclareVectorOutputPort(
+            "heading", 3,
+            lambda c, out: out.SetFromVector(c.get_discrete_state(self._state).value()[16:19]),
+            {self.xd_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
+
+    def _camera_axes(self, state):
+        q = np.asarray(state[:4], dtype=float)
+        R_WB = Quaternion(q / np.linalg.norm(q)).rotation()
+        R_WC = R_WB @ self._R_BC
+        p_WM = np.asarray(state[4:7]) + R_WB @ self._p_BM
+        return R_WC[:, 0], -R_WC[:, 1], p_WM  # right, up, magnet position
+
+    def command_for(self, p_WE_xy, heading, p_WM, height):
+        """[p_WE, m_hat_W]: the EPM over (x, y) at `height` above its floor, its moment
+        aligning the field at the capsule's magnet with `heading`."""
+        p = np.array([p_WE_xy[0], p_WE_xy[1], 0.0])
+        m = np.array([0.0, 0.0, 1.0])
+        for _ in range(2):  # the floor depends a little on the moment's tilt
+            p[2] = self._floor(p[0], p[1], m) + height
+            u = p_WM - p
+            m = field_aligning_moment_direction(u / np.linalg.norm(u), heading)
+        return np.concatenate([p, m])
+
+    def _update(self, context, discrete_state):
+        c = self._config
+        x = context.get_discrete_state(self._state).value().copy()
+        stylus = np.asarray(self._stylus.Eval(context), dtype=float)
+        age = float(self._age.Eval(context)[0]) if self._age.HasValue(context) else 0.0
+        state = np.asarray(self._capsule.Eval(context), dtype=float)
+        link_ok = (float(self._link.Eval(context)[0]) > 0.5 if self._link.HasValue(context)
+                   else True)
+        lost = (not link_ok or not np.all(np.isfinite(stylus)) or not np.isfinite(age)
+                or age > c.stale_after or not np.all(np.isfinite(state)))
+        clutch = stylus[7] > 0.5 if not lost else True
+        if lost or clutch:
+            x[0] = 0.0  # hold the command; re-reference on the next engaged sample
+            discrete_state.set_value(self._state, x)
+            return
+        right, up, p_WM = self._camera_axes(state)
+        p = stylus[:3]
+        if x[0] < 0.5:  # engage: references from here
+            x[0] = 1.0
+            x[1:4] = p
+            x[4:7] = x[10:13]
+            x[7:10] = x[16:19]
+            x[20:23], x[23:26] = right, up
+        ref_right, ref_up = x[20:23], x[23:26]
+        if c.mode == "position":
+            delta = p - x[1:4]
+            forward = -delta[2] * c.translation_scale
+            yaw, pitch = delta[0] * c.yaw_gain, delta[1] * c.pitch_gain
+            h = turn(turn(x[7:10], ref_up, -yaw), ref_right, pitch)
+            xy = x[4:6] + forward * horizontal(x[7:10])[:2]
+        else:
+            offset = np.where(np.abs(p) > c.dead_band, p - np.sign(p) * c.dead_band, 0.0)
+            h = turn(turn(x[16:19], up, -offset[0] * c.rate_yaw * c.period), right,
+                     offset[1] * c.rate_pitch * c.period)
+            xy = x[10:12] - offset[2] * c.rate_translation * c.period * horizontal(h)[:2]
+        h = limit_pitch(h, np.radians(c.max_pitch_deg))
+        x[16:19] = h
+        x[10:16] = self.command_for(xy, h, p_WM, x[19])
+        discrete_state.set_value(self._state, x)

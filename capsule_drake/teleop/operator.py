@@ -1,0 +1,198 @@
+"""A simulated operator: a hand on the stylus that pursues the lumen and yields to the
+feedback force, so teleoperation runs in scripts, tests and benchmarks.
+
+The hand holds the stylus through an impedance (stiffness, damping) toward a hand target
+that the operator's intent moves:
+- advancing: while the lumen is in view and near the image centre, push the target away
+  (-z_D) at `advance_speed`; at the front of the workspace, press the clutch, bring the
+  stylus back to the rear, release (indexing), and go on;
+- steering: turn toward where the lumen appears, after a reaction delay: the target moves
+  right / up at `steer_gain` times the lumen's offset (the ray's x and -y in the camera
+  frame); while clutched the hand re-centres sideways;
+- lumen lost: stop advancing and draw the stylus back slowly (back off), steering on the
+  last seen offset.
+The feedback force acts on the stylus through the device's motors; the hand resists it
+only through its impedance, so a guiding force moves the stylus: the operator yields.
+"""
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+
+@dataclasses.dataclass
+class OperatorConfig:
+    """The simulated operator. YAML-loadable; all fields default."""
+
+    # Hand impedance on the stylus: stiffness (N/m) and damping (N s/m); human grip
+    # stiffness is 100-400 N/m in light holding.
+    hand_stiffness: float = 150.0
+    hand_damping: float = 3.0
+    # Stylus speed away from the operator while advancing (m/s), and back while clutched.
+    advance_speed: float = 0.005
+    return_speed: float = 0.04
+    # Advance only while the lumen is within this angle of the image centre (deg).
+    advance_cone_deg: float = 30.0
+    # Steering: stylus speed (m/s) per unit lumen offset (sin of its angle), and reaction
+    # delay of the visual loop (s).
+    steer_gain: float = 0.01
+    reaction_time: float = 0.25
+    # Back-off speed while the lumen is out of view (m/s).
+    back_off_speed: float = 0.002
+    # Fraction of the workspace depth used before indexing.
+    stroke_fraction: float = 0.8
+    # Update period of the intent (s); the hand force itself follows the stylus at the
+    # device's servo rate.
+    period: float = 0.01
+
+
+def check_operator_config(config: OperatorConfig) -> None:
+    """Raises ValueError naming the first impossible field."""
+    for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
+                 "steer_gain", "reaction_time", "back_off_speed"):
+        if not getattr(config, name) >= 0.0:
+            raise ValueError(f"teleop operator {name} must be >= 0")
+    if not 0.0 < config.stroke_fraction <= 1.0:
+        raise ValueError("teleop operator stroke_fraction must be in (0, 1]")
+    if not 0.0 < config.advance_cone_deg <= 90.0:
+        raise ValueError("teleop operator advance_cone_deg must be in (0, 90]")
+    if not config.period > 0.0:
+        raise ValueError("teleop operator period must be > 0")
+
+
+class SimulatedOperator(LeafSystem):
+    """The hand (module docstring).
+
+    .. pydrake_system::
+
+        name: SimulatedOperator
+        input_ports:
+        - stylus
+        - stylus_velocity
+        - lumen_visible
+        - lumen_ray
+        output_ports:
+        - hand_force
+        - buttons
+        - intent
+
+    stylus, stylus_velocity: the device's. lumen_visible, lumen_ray: what the operator sees
+    (the lumen tracker's outputs, or the truth). hand_force: on the stylus (N, D), from the
+    hand impedance toward the hand target. buttons: [clutch, mode]. intent: [hand target
+    (3), phase (0 advancing, 1 returning, 2 backing off)].
+
+    Args:
+        config: OperatorConfig.
+        workspace_half_extents: the device's (m).
+    """
+
+    def __init__(self, config: OperatorConfig, workspace_half_extents):
+        super().__init__()
+        check_operator_config(config)
+        self._config = config
+        self._half = np.asarray(workspace_half_extents, dtype=float)
+        self._delay_steps = max(1, int(round(config.reaction_time / config.period)))
+        self._stylus = self.DeclareVectorInputPort("stylus", 9)
+        self._velocity = self.DeclareVectorInputPort("stylus_velocity", 3)
+        self._visible = self.DeclareVectorInputPort("lumen_visible", 1)
+        self._ray = self.DeclareVectorInputPort("lumen_ray", 3)
+        # [target (3), phase, clutch, seen offsets ring (2 x delay), seen visible ring (delay)]
+        n = self._delay_steps
+        initial = np.concatenate([[0.0, 0.0, self._half[2] * config.stroke_fraction, 0.0, 0.0],
+                                  np.zeros(3 * n)])
+        self._state = self.DeclareDiscreteState(BasicVector(initial))
+        self.DeclareVectorOutputPort("hand_force", 3, self._calc_force)
+        self.DeclareVectorOutputPort(
+            "buttons", 2,
+            lambda c, out: out.SetFromVector(
+                [c.get_discrete_state(self._state).value()[4], 0.0]), {self.xd_ticket()})
+        self.DeclareVectorOutputPort(
+            "intent", 4,
+            lambda c, out: out.SetFromVector(c.get_discrete_state(self._state).value()[:4]),
+            {self.xd_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
+
+    def _calc_force(self, context, output):
+        c = self._config
+        target = context.get_discrete_state(self._state).value()[:3]
+        p = np.asarray(self._stylus.Eval(context)[:3], dtype=float)
+        v = np.asarray(self._velocity.Eval(context), dtype=float)
+        output.SetFromVector(c.hand_stiffness * (target - p) - c.hand_damping * v)
+
+    def _update(self, context, discrete_state):
+        c = self._config
+        x = context.get_discrete_state(self._state).value().copy()
+        n = self._delay_steps
+        visible_now = float(self._visible.Eval(context)[0]) > 0.5
+        ray = np.asarray(self._ray.Eval(context), dtype=float)
+        if not np.all(np.isfinite(ray)):
+            visible_now = False
+        # What the operator reacts to now is what was on the screen `reaction_time` ago.
+        offsets = x[5:5 + 2 * n].reshape(n, 2)
+        visibles = x[5 + 2 * n:5 + 3 * n]
+        seen_offset, seen_visible = offsets[0].copy(), visibles[0] > 0.5
+        offsets = np.roll(offsets, -1, axis=0)
+        visibles = np.roll(visibles, -1)
+        offsets[-1] = [ray[0], -ray[1]] if visible_now else offsets[-2]
+        visibles[-1] = float(visible_now)
+        x[5:5 + 2 * n], x[5 + 2 * n:5 + 3 * n] = offsets.ravel(), visibles
+
+        target, phase = x[:3], x[3]
+        front = -self._half[2] * c.stroke_fraction
+        rear = self._half[2] * c.stroke_fraction
+        dt = c.period
+        if phase == 1.0:  # returning with the clutch held
+            target[2] = min(rear, target[2] + c.return_speed * dt)
+            target[:2] *= max(0.0, 1.0 - dt / 0.3)  # re-centre sideways
+            if target[2] >= rear:
+                phase, x[4] = 0.0, 0.0
+        else:
+            offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
+            if seen_visible:
+                phase = 0.0
+                if offset_angle < c.advance_cone_deg:
+                    target[2] -= c.advance_speed * dt
+            else:
+                phase = 2.0
+                target[2] = min(rear, target[2] + c.back_off_speed * dt)
+            target[:2] += c.steer_gain * seen_offset * dt
+            target[:2] = np.clip(target[:2], -self._half[:2], self._half[:2])
+            if target[2] <= front:
+                phase, x[4] = 1.0, 1.0
+        x[:3], x[3] = target, phase
+        discrete_state.set_value(self._state, x)
+
+
+class LumenRayFromTruth(LeafSystem):
+    """The lumen truth's pixel as a ray through the lens, for an operator who sees the truth.
+
+    .. pydrake_system::
+
+        name: LumenRayFromTruth
+        input_ports:
+        - pixel
+        - visible
+        output_ports:
+        - ray
+        - visible
+    """
+
+    def __init__(self, lens):
+        super().__init__()
+        self._lens = lens
+        self._pixel = self.DeclareVectorInputPort("pixel", 2)
+        self._visible = self.DeclareVectorInputPort("visible", 1)
+        self.DeclareVectorOutputPort("ray", 3, self._calc_ray)
+        self.DeclareVectorOutputPort("visible", 1, self._calc_visible)
+
+    def _ok(self, context):
+        pixel = np.asarray(self._pixel.Eval(context), dtype=float)
+        return float(self._visible.Eval(context)[0]) > 0.5 and np.all(np.isfinite(pixel)), pixel
+
+    def _calc_ray(self, context, output):
+        ok, pixel = self._ok(context)
+        output.SetFromVector(self._lens.unproject(pixel[None, :])[0] if ok else np.zeros(3))
+
+    def _calc_visible(self, context, output):
+        output.SetAtIndex(0, 1.0 if self._ok(context)[0] else 0.0)

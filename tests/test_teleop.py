@@ -1,0 +1,252 @@
+"""Teleoperation: the haptic device's dynamics and limits, the stylus-to-EPM mapping (the
+three motions, clutch, lost link), the simulated operator's intent, and the loop in the
+station with the simulated operator, a device over UDP and the browser."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from capsule_drake.epm_path import field_aligning_moment_direction
+from capsule_drake.scenario import Scenario, load_scenario
+from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for, make_station
+from capsule_drake.systems.epm_arm import EpmGuard
+from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
+from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
+from capsule_drake.teleop.operator import OperatorConfig, SimulatedOperator
+from capsule_drake.teleop.udp_client import StylusClient
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+
+from capsule_drake.station import PACKAGE, configure_parser
+
+
+def _device(hand, feedback, buttons=(0.0, 0.0), config=HapticDeviceConfig()):
+    builder = DiagramBuilder()
+    device = builder.AddSystem(HapticMaster(config))
+    for name, value in (("hand_force", hand), ("feedback_force", feedback),
+                        ("buttons", buttons)):
+        source = builder.AddSystem(ConstantVectorSource(np.asarray(value, dtype=float)))
+        builder.Connect(source.get_output_port(), device.GetInputPort(name))
+    diagram = builder.Build()
+    return diagram, device
+
+
+def test_device_stylus_moves_as_a_mass_with_friction():
+    config = HapticDeviceConfig()
+    diagram, device = _device([0.2, 0.0, 0.0], [0.0, 0.0, 0.0])
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.1)
+    context = device.GetMyContextFromRoot(simulator.get_context())
+    v = device.GetOutputPort("stylus_velocity").Eval(context)
+    m, b = config.stylus_mass, config.friction
+    expected = 0.2 / b * (1.0 - np.exp(-b * 0.1 / m))  # closed form of m v' = F - b v
+    assert v[0] == pytest.approx(expected, rel=0.02)
+    assert abs(v[1]) < 1e-12 and abs(v[2]) < 1e-12
+
+
+def test_device_saturates_the_rendered_force_and_has_stops():
+    diagram, device = _device([0.0, 0.0, 0.0], [6.0, 8.0, 0.0])
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.01)
+    context = device.GetMyContextFromRoot(simulator.get_context())
+    motor = device.GetOutputPort("motor_force").Eval(context)
+    np.testing.assert_allclose(motor[:3], [1.98, 2.64, 0.0], atol=1e-12)  # 3.3 N along it
+    assert motor[3] == 1.0
+    diagram, device = _device([0.0, 0.0, 0.0], [np.nan, 0.0, 0.0])
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.01)
+    context = device.GetMyContextFromRoot(simulator.get_context())
+    np.testing.assert_array_equal(device.GetOutputPort("motor_force").Eval(context)[:3], 0.0)
+    # Pushed out of the workspace with 2 N, the stylus rests on the stop 2 N / k beyond it.
+    config = HapticDeviceConfig()
+    diagram, device = _device([0.0, 0.0, -2.0], [0.0, 0.0, 0.0])
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(3.0)
+    context = device.GetMyContextFromRoot(simulator.get_context())
+    z = device.GetOutputPort("stylus").Eval(context)[2]
+    assert z == pytest.approx(-config.workspace_half_extents[2] - 2.0 / config.stop_stiffness,
+                              abs=1e-4)
+
+
+@pytest.fixture(scope="module")
+def colon():
+    return colon_for(Scenario())
+
+
+class _Mapping:
+    """A TeleopMapping on its own, the capsule held at a pose, the stylus set by hand."""
+
+    def __init__(self, colon, config=MappingConfig()):
+        scenario = Scenario()
+        guard = EpmGuard(colon.abdomen, scenario.epm.magnet, 0.02, np.zeros(3), np.inf)
+        plant = MultibodyPlant(0.0)
+        configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+        plant.Finalize()
+        X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+        self.X_WB = capsule_start_pose(colon, 0.45)
+        self.p_WM = self.X_WB.translation()
+        h0 = self.X_WB.rotation().col(2)
+        p = self.p_WM + [0.0, 0.0, 0.12]
+        u = (self.p_WM - p) / np.linalg.norm(self.p_WM - p)
+        first = np.concatenate([p, field_aligning_moment_direction(u, h0)])
+        self.system = TeleopMapping(config, X_BC, [0.0, 0.0, 0.0],
+                                    guard.lowest_centre_height, first, h0)
+        self.context = self.system.CreateDefaultContext()
+        q = self.X_WB.rotation().ToQuaternion()
+        state = np.concatenate([[q.w(), q.x(), q.y(), q.z()], self.p_WM, np.zeros(6)])
+        self.system.GetInputPort("capsule_state").FixValue(self.context, state)
+        self.R_WC = self.X_WB.rotation().matrix() @ X_BC.rotation().matrix()
+        self.simulator = Simulator(self.system, self.context)
+        self.set([0.0, 0.0, 0.0])
+
+    def set(self, p, clutch=0.0, age=0.0):
+        self.system.GetInputPort("stylus").FixValue(
+            self.context, np.concatenate([p, [1.0, 0.0, 0.0, 0.0], [clutch, 0.0]]))
+        self.system.GetInputPort("stylus_age").FixValue(self.context, [age])
+
+    def step(self, seconds=0.02):
+        self.simulator.AdvanceTo(self.context.get_time() + seconds)
+        return (self.system.GetOutputPort("epm_command").Eval(self.context).copy(),
+                self.system.GetOutputPort("heading").Eval(self.context).copy())
+
+
+def test_mapping_the_three_motions(colon):
+    m = _Mapping(colon)
+    command0, h0 = m.step()
+    m.set([0.0, 0.0, -0.01])  # push 1 cm away: forward
+    command, h = m.step()
+    travel = command[:2] - command0[:2]
+    forward = h0[:2] / np.linalg.norm(h0[:2])
+    assert travel @ forward == pytest.approx(0.02, abs=1e-9)  # 2:1 scale, along the heading
+    assert abs(travel @ np.array([-forward[1], forward[0]])) < 1e-9
+    np.testing.assert_allclose(h, h0, atol=1e-12)
+    # The moment makes the field at the capsule point along the heading.
+    u = (m.p_WM - command[:3]) / np.linalg.norm(m.p_WM - command[:3])
+    field = 3 * u * (u @ command[3:]) - command[3:]
+    assert np.degrees(np.arccos(field @ h / np.linalg.norm(field))) < 1e-6
+    m.set([0.01, 0.0, -0.01])  # 1 cm right: yaw right by 0.12 rad about the image's up
+    _, h_yaw = m.step()
+    right, up = m.R_WC[:, 0], -m.R_WC[:, 1]
+    assert np.arccos(np.clip(h_yaw @ h0, -1, 1)) == pytest.approx(0.12, abs=1e-9)
+    assert np.cross(h0, h_yaw) @ up < 0 and (h_yaw - h0) @ right > 0
+    m.set([0.01, 0.01, -0.01])  # and 1 cm up: pitch up
+    _, h_pitch = m.step()
+    assert (h_pitch - h_yaw) @ up > 0
+
+
+def test_mapping_clutch_and_lost_link_hold_the_command(colon):
+    m = _Mapping(colon)
+    m.step()
+    m.set([0.0, 0.0, -0.01])
+    engaged, _ = m.step()
+    m.set([0.0, 0.0, 0.03], clutch=1.0)  # indexing back: nothing moves
+    held, _ = m.step()
+    np.testing.assert_array_equal(held, engaged)
+    m.set([0.0, 0.0, 0.03])  # released: re-referenced there, no jump
+    np.testing.assert_array_equal(m.step()[0], engaged)
+    m.set([0.0, 0.0, 0.02])  # 1 cm further away from the new reference
+    moved, _ = m.step()
+    assert np.linalg.norm(moved[:2] - engaged[:2]) == pytest.approx(0.02, abs=1e-9)
+    m.set([0.0, 0.0, -0.03], age=0.5)  # stale: hold
+    np.testing.assert_array_equal(m.step()[0], moved)
+    m.set([np.nan, 0.0, 0.0])  # garbage: hold
+    np.testing.assert_array_equal(m.step()[0], moved)
+
+
+def test_simulated_operator_advances_indexes_and_steers():
+    config = OperatorConfig(reaction_time=0.02, period=0.01)
+    half = HapticDeviceConfig().workspace_half_extents
+    operator = SimulatedOperator(config, half)
+    context = operator.CreateDefaultContext()
+    operator.GetInputPort("stylus").FixValue(context, np.r_[np.zeros(3), 1, 0, 0, 0, 0, 0])
+    operator.GetInputPort("stylus_velocity").FixValue(context, np.zeros(3))
+    operator.GetInputPort("lumen_visible").FixValue(context, [1.0])
+    ray = np.array([0.2, 0.0, 1.0]) / np.linalg.norm([0.2, 0.0, 1.0])  # right of centre
+    operator.GetInputPort("lumen_ray").FixValue(context, ray)
+    simulator = Simulator(operator, context)
+    simulator.AdvanceTo(1.0)
+    intent = operator.GetOutputPort("intent").Eval(context)
+    start = half[2] * config.stroke_fraction
+    assert intent[2] == pytest.approx(start - config.advance_speed * 0.98, abs=2e-4)
+    assert intent[0] > 0  # steering right, toward the lumen
+    # The hand's force is its impedance toward the target.
+    force = operator.GetOutputPort("hand_force").Eval(context)
+    np.testing.assert_allclose(force, config.hand_stiffness * intent[:3])
+    simulator.AdvanceTo(20.0)  # long enough to reach the front: clutch and return
+    phases = []
+    for _ in range(400):
+        simulator.AdvanceTo(context.get_time() + 0.05)
+        phases.append(operator.GetOutputPort("intent").Eval(context)[3])
+    assert 1.0 in phases and 0.0 in phases
+
+
+def test_teleop_in_the_station_with_the_simulated_operator():
+    scenario = load_scenario(name="Teleop", override="{duration: 15.0, epm: {mount: stage}}")
+    diagram = make_station(scenario)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    command0 = diagram.GetOutputPort("epm.command").Eval(context).copy()
+    simulator.AdvanceTo(15.0)
+    command = diagram.GetOutputPort("epm.command").Eval(context)
+    colon = colon_for(scenario)
+    s = colon.centerline.closest(diagram.GetOutputPort("capsule.state").Eval(context)[4:7])[0]
+    assert np.linalg.norm(command[:2] - command0[:2]) > 0.03  # the EPM was driven forward
+    assert s > scenario.capsule.start_s + 0.01  # and the capsule followed
+    force = diagram.GetOutputPort("teleop.feedback_D").Eval(context)
+    assert np.all(np.isfinite(force)) and np.linalg.norm(force) <= 3.3 + 1e-9
+
+
+def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
+    scenario = load_scenario(name="Teleop", override=(
+        "{duration: 1.0, epm: {mount: stage}, teleop: {operator: udp}, "
+        "capsule: {camera: null, lumen_tracker: null}, pseudo_force: {lumen_weight: 0}}"))
+    diagram = make_station(scenario)
+    device = diagram.GetSubsystemByName("teleop.device")
+    client = StylusClient("127.0.0.1", device.port())
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    try:
+        command0 = diagram.GetOutputPort("epm.command").Eval(context).copy()
+        for k in range(300):  # the stylus pushed 15 mm away over 0.3 s
+            client.send([0.0, 0.0, -0.05e-3 * k], [1.0, 0.0, 0.0, 0.0], 0)
+            simulator.AdvanceTo((k + 1) * 0.001)
+        simulator.AdvanceTo(0.35)
+        command = diagram.GetOutputPort("epm.command").Eval(context).copy()
+        assert np.linalg.norm(command[:2] - command0[:2]) > 0.02
+        assert diagram.GetOutputPort("teleop.link_ok").Eval(context)[0] == 1.0
+        assert client.receive(timeout=0.1)  # force replies came back
+        simulator.AdvanceTo(0.45)  # no packets since 0.3 s: lost after the 0.1 s timeout
+        assert diagram.GetOutputPort("teleop.link_ok").Eval(context)[0] == 0.0
+        held = diagram.GetOutputPort("epm.command").Eval(context).copy()
+        simulator.AdvanceTo(0.8)  # the EPM command holds while the link is down
+        np.testing.assert_array_equal(diagram.GetOutputPort("epm.command").Eval(context),
+                                      held)
+        replies = client.receive(timeout=0.1)
+        assert replies and np.all(np.asarray(replies[-1].force) == 0.0)
+    finally:
+        client.close()
+        device.close()
+
+
+def test_teleop_from_the_browser_follows_the_sliders():
+    meshcat = Meshcat(MeshcatParams(port=0))
+    scenario = load_scenario(name="Teleop", override=(
+        "{duration: 1.0, epm: {mount: stage}, teleop: {operator: browser}, "
+        "capsule: {camera: {lens: {width: 64, height: 64}}}}"))
+    diagram = make_station(scenario, meshcat)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    simulator.AdvanceTo(0.1)
+    command0 = diagram.GetOutputPort("epm.command").Eval(context).copy()
+    meshcat.SetSliderValue("stylus z (m)", -0.01)
+    simulator.AdvanceTo(0.3)
+    stylus = diagram.GetOutputPort("teleop.stylus").Eval(context)
+    assert stylus[2] == pytest.approx(-0.01)
+    command = diagram.GetOutputPort("epm.command").Eval(context)
+    assert np.linalg.norm(command[:2] - command0[:2]) == pytest.approx(0.02, abs=1e-6)
