@@ -9,17 +9,15 @@ import pytest
 from pydrake.math import RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.epm_path import epm_pose_over, skin_gap
+from capsule_drake.epm_path import skin_gap
 from capsule_drake.magnetics import MagnetGeometry
-from capsule_drake.scenario import Scenario, load_scenario
-from capsule_drake.station import (PACKAGE, ArmMount, colon_for, configure_parser,
-                                   make_station)
-from capsule_drake.systems.epm_arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT, ArmConfig,
+from capsule_drake.scenario import Scenario
+from capsule_drake.station import (ArmMount, colon_for, configure_parser)
+from capsule_drake.systems.epm_arm import (ARM_JOINTS, SHOULDER_HEIGHT, ArmConfig,
                                            EpmArmController, EpmGuard, MagnetPose,
                                            arm_base_pose, rotate_axis_onto, solve_posture)
 

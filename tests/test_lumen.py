@@ -71,7 +71,7 @@ def test_threshold_equals_brute_force_over_levels():
             fast = dark_biased_threshold(values, g, bias)
             # Brute force: class statistics from the pixels, level by level.
             best, best_t = -np.inf, 0
-            mean, variance = values.mean(), values.var()
+            _mean, variance = values.mean(), values.var()
             overall = None if g is None else g.mean()
             for t in range(256):
                 dark = values <= t

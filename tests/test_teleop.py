@@ -2,7 +2,6 @@
 three motions, clutch, lost link), the simulated operator's intent, and the loop in the
 station with the simulated operator, a device over UDP and the browser."""
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -13,13 +12,12 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from capsule_drake.epm_path import field_aligning_moment_direction
 from capsule_drake.scenario import Scenario, load_scenario
-from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for, make_station
+from capsule_drake.station import capsule_start_pose, colon_for, make_station
 from capsule_drake.systems.epm_arm import EpmGuard
 from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
 from capsule_drake.teleop.operator import OperatorConfig, SimulatedOperator
 from capsule_drake.teleop.udp_client import StylusClient
-from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 

@@ -10,7 +10,7 @@ is sensed, not actuated: the stylus reports the identity here), two buttons.
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.framework import LeafSystem
 
 STYLUS_SIZE = 9  # position (3), quaternion wxyz (4), clutch (1), mode (1)
 

@@ -16,7 +16,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Rgba
 from pydrake.perception import BaseField, Fields, PointCloud
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
@@ -34,6 +34,22 @@ KEYS = (
 CLUTCH = ("Clutch (Space)", "Space")
 CENTRE = ("Re-centre (C)", "KeyC")
 SLIDERS = ("stylus x (m)", "stylus y (m)", "stylus z (m)")
+# The camera-view panel: its width (m), centre, and the viewpoint it faces (Meshcat's
+# default view of the station, from the patient's right, above the table).
+PANEL_WIDTH = 0.25
+PANEL_CENTRE = (-0.12, 0.32, 0.42)
+PANEL_FACES = (-0.55, -0.35, 0.65)
+
+
+def panel_pose(centre=PANEL_CENTRE, faces=PANEL_FACES) -> RigidTransform:
+    """Pose of a panel (drawn in its x-z plane) at `centre`, facing the point `faces`,
+    upright."""
+    centre = np.asarray(centre, dtype=float)
+    y = centre - np.asarray(faces, dtype=float)
+    y /= np.linalg.norm(y)
+    z = np.array([0.0, 0.0, 1.0]) - y[2] * y
+    z /= np.linalg.norm(z)
+    return RigidTransform(RotationMatrix(np.column_stack([np.cross(y, z), y, z])), centre)
 
 
 def key_motion(clicks: dict, step: float) -> np.ndarray:
@@ -101,6 +117,7 @@ class BrowserOperator(LeafSystem):
         self._clicks[CLUTCH[0]] = 0
         self._clicks[CENTRE[0]] = 0
         self._sliders = np.zeros(3)
+        self._panel = panel_pose()
         self._gamepad_button = False
         self._feedback = self.DeclareVectorInputPort("feedback_force", 3)
         self._rgb = self.DeclareAbstractInputPort(
@@ -157,36 +174,40 @@ class BrowserOperator(LeafSystem):
         return EventStatus.Succeeded()
 
     def _draw(self, context, x):
-        """The camera view as a coloured point cloud beside the patient, the detected lumen,
-        and the force as an arrow from the view's centre (1 cm per newton)."""
+        """The camera view as a coloured point cloud on a panel beside the patient, turned to
+        face the default viewpoint; the detected lumen as a green cross on it, and the
+        force the operator feels as an orange arrow from its centre (2 cm per newton, D's x
+        right and y up on the panel, z toward the viewer)."""
         m = self._meshcat
+        X_WV = self._panel
         info = self._frame_info.Eval(context)
-        origin = np.array([0.0, 0.45, 0.45])
         if info[1] != x[7]:
             x[7] = info[1]
             rgb = self._rgb.Eval(context).data[::2, ::2, :3]
             h, w = rgb.shape[:2]
             v, u = np.mgrid[0:h, 0:w]
-            size = 0.2 / max(h, w)
+            size = PANEL_WIDTH / max(h, w)
             xyz = np.stack([(u - w / 2) * size, np.zeros_like(u, dtype=float),
                             (h / 2 - v) * size]).reshape(3, -1).astype(np.float32)
             cloud = PointCloud(h * w, Fields(BaseField.kXYZs | BaseField.kRGBs))
             cloud.mutable_xyzs()[:] = xyz
             cloud.mutable_rgbs()[:] = rgb.reshape(-1, 3).T
-            m.SetObject("/teleop/camera_view", cloud, point_size=size * 1.2)
-            m.SetTransform("/teleop/camera_view", RigidTransform(origin))
+            m.SetObject("/teleop/camera_view", cloud, point_size=size * 1.5)
+            m.SetTransform("/teleop/camera_view", X_WV)
             if self._lumen_visible.HasValue(context) and \
                     self._lumen_visible.Eval(context)[0] > 0.5:
                 pixel = np.asarray(self._lumen_pixel.Eval(context)) / 2.0
-                marker = origin + np.array([(pixel[0] - w / 2) * size, -0.002,
-                                            (h / 2 - pixel[1]) * size])
-                m.SetLine("/teleop/lumen", np.column_stack([marker - [0.006, 0, 0],
-                                                            marker + [0.006, 0, 0]]),
-                          4.0, Rgba(0.1, 1.0, 0.1, 1.0))
+                c = np.array([(pixel[0] - w / 2) * size, -0.003, (h / 2 - pixel[1]) * size])
+                arms = [c + [-0.01, 0, 0], c + [0.01, 0, 0], c, c + [0, 0, -0.01],
+                        c + [0, 0, 0.01]]
+                m.SetLine("/teleop/lumen", X_WV.multiply(np.array(arms).T), 4.0,
+                          Rgba(0.1, 1.0, 0.1, 1.0))
+            else:
+                m.Delete("/teleop/lumen")
         force = (np.asarray(self._feedback.Eval(context), dtype=float)
                  if self._feedback.HasValue(context) else np.zeros(3))
         if np.all(np.isfinite(force)):
-            # D (x right, y up, z toward the operator) drawn in the view's plane.
-            tip = origin + 0.01 * np.array([force[0], -0.01, force[1]])
-            m.SetLine("/teleop/force", np.column_stack([origin, tip]), 6.0,
-                      Rgba(1.0, 0.5, 0.0, 1.0))
+            base = np.array([0.0, -0.006, 0.0])  # just in front of the panel
+            tip = base + 0.02 * np.array([force[0], -force[2], force[1]])
+            m.SetLine("/teleop/force", X_WV.multiply(np.column_stack([base, tip])),
+                      8.0, Rgba(1.0, 0.5, 0.0, 1.0))
