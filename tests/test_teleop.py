@@ -127,7 +127,7 @@ def test_mapping_the_three_motions(colon):
     # The moment makes the field at the capsule point along the heading.
     u = (m.p_WM - command[:3]) / np.linalg.norm(m.p_WM - command[:3])
     field = 3 * u * (u @ command[3:]) - command[3:]
-    assert np.degrees(np.arccos(field @ h / np.linalg.norm(field))) < 1e-6
+    assert np.degrees(np.arccos(np.clip(field @ h / np.linalg.norm(field), -1, 1))) < 1e-5
     m.set([0.01, 0.0, -0.01])  # 1 cm right: yaw right by 0.12 rad about the image's up
     _, h_yaw = m.step()
     right, up = m.R_WC[:, 0], -m.R_WC[:, 1]
@@ -185,12 +185,12 @@ def test_simulated_operator_advances_indexes_and_steers():
 
 
 def test_teleop_in_the_station_with_the_simulated_operator():
-    scenario = load_scenario(name="Teleop", override="{duration: 15.0, epm: {mount: stage}}")
+    scenario = load_scenario(name="Teleop", override="{duration: 20.0, epm: {mount: stage}}")
     diagram = make_station(scenario)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     command0 = diagram.GetOutputPort("epm.command").Eval(context).copy()
-    simulator.AdvanceTo(15.0)
+    simulator.AdvanceTo(20.0)
     command = diagram.GetOutputPort("epm.command").Eval(context)
     colon = colon_for(scenario)
     s = colon.centerline.closest(diagram.GetOutputPort("capsule.state").Eval(context)[4:7])[0]

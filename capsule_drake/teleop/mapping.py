@@ -8,8 +8,12 @@ commanded heading (REFERENCE section 1: m ~ (3/2 u u^T - I) h), which turns the 
 magnet, and with it the capsule. The EPM rides at its clearance above the skin (the arm's
 guard would raise it anyway), plus a height the operator does not control.
 
-Position mode (default): displacements of the stylus since the clutch was last released,
-scaled. Rate mode: the stylus's offset from the workspace centre sets speeds (a joystick).
+Position mode (default): the stylus's travel toward / away from the operator moves the EPM
+(scaled) along the commanded heading; its sideways and vertical displacement since the
+clutch was last released turns the heading (yaw, pitch) from what it was then, about the
+image's axes. Rate mode: the stylus's offset from the workspace centre sets the EPM's speed
+and the heading's turn rates. Either way the heading leads the capsule's current axis by
+at most `max_lead_deg`, so a capsule the lumen holds back cannot wind up a large error.
 The clutch button (held) decouples the stylus for indexing. A lost or stale link, or a
 non-finite stylus, holds the command; the next valid sample re-references (no jump).
 """
@@ -42,8 +46,10 @@ class MappingConfig:
     rate_yaw: float = 10.0
     rate_pitch: float = 10.0
     dead_band: float = 0.005
-    # The commanded heading stays within this angle of the horizontal (deg).
+    # The commanded heading stays within this angle of the horizontal (deg), and within
+    # max_lead_deg of the capsule's current axis.
     max_pitch_deg: float = 45.0
+    max_lead_deg: float = 40.0
     # Update period (s).
     period: float = 0.005
     # A stylus sample older than this (s; from the channel's `age`) counts as a lost link.
@@ -55,7 +61,7 @@ def check_mapping_config(config: MappingConfig) -> None:
     if config.mode not in MODES:
         raise ValueError(f"teleop mapping mode {config.mode!r} is not one of {MODES}")
     for name in ("translation_scale", "yaw_gain", "pitch_gain", "rate_translation",
-                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg"):
+                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg", "max_lead_deg"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"teleop mapping {name} must be >= 0")
     if not config.period > 0.0 or not config.stale_after > 0.0:
@@ -77,6 +83,19 @@ def limit_pitch(h, max_pitch: float):
         return h / np.linalg.norm(h)
     e = np.clip(elevation, -max_pitch, max_pitch)
     return np.array([h[0] / horizontal * np.cos(e), h[1] / horizontal * np.cos(e), np.sin(e)])
+
+
+def lead_at_most(h, axis, max_angle: float):
+    """h turned toward `axis` until it is at most `max_angle` (rad) from it."""
+    h = h / np.linalg.norm(h)
+    axis = axis / np.linalg.norm(axis)
+    angle = np.arccos(np.clip(h @ axis, -1.0, 1.0))
+    if angle <= max_angle:
+        return h
+    normal = np.cross(axis, h)
+    if np.linalg.norm(normal) < 1e-12:
+        return axis
+    return turn(axis, normal / np.linalg.norm(normal), max_angle)
 
 
 def horizontal(h):
@@ -133,8 +152,9 @@ class TeleopMapping(LeafSystem):
         command = np.asarray(initial_command, dtype=float)
         h0 = np.asarray(initial_heading, dtype=float)
         height = command[2] - floor(command[0], command[1], command[3:])
-        # [engaged, stylus ref (3), EPM ref p (3), heading ref (3), command (6), heading (3),
-        #  height above floor, right axis (3), up axis (3)]
+        # [engaged, stylus at engagement (3), image right at engagement (3), heading at
+        #  engagement (3), command (6), heading (3), height above floor, stylus at the
+        #  previous sample (3), image up at engagement (3)]
         initial = np.concatenate([[0.0], np.zeros(3), command[:3], h0, command, h0,
                                   [max(height, 0.0)], np.zeros(6)])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
@@ -149,11 +169,12 @@ class TeleopMapping(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
 
     def _camera_axes(self, state):
+        """The camera's right, up and forward axes and the capsule magnet's position (W)."""
         q = np.asarray(state[:4], dtype=float)
         R_WB = Quaternion(q / np.linalg.norm(q)).rotation()
         R_WC = R_WB @ self._R_BC
         p_WM = np.asarray(state[4:7]) + R_WB @ self._p_BM
-        return R_WC[:, 0], -R_WC[:, 1], p_WM  # right, up, magnet position
+        return R_WC[:, 0], -R_WC[:, 1], R_WC[:, 2], p_WM
 
     def command_for(self, p_WE_xy, heading, p_WM, height):
         """[p_WE, m_hat_W]: the EPM over (x, y) at `height` above its floor, its moment
@@ -181,26 +202,28 @@ class TeleopMapping(LeafSystem):
             x[0] = 0.0  # hold the command; re-reference on the next engaged sample
             discrete_state.set_value(self._state, x)
             return
-        right, up, p_WM = self._camera_axes(state)
+        right, up, forward_axis, p_WM = self._camera_axes(state)
         p = stylus[:3]
         if x[0] < 0.5:  # engage: references from here
             x[0] = 1.0
             x[1:4] = p
-            x[4:7] = x[10:13]
-            x[7:10] = x[16:19]
-            x[20:23], x[23:26] = right, up
-        ref_right, ref_up = x[20:23], x[23:26]
+            x[20:23] = p  # the stylus at the previous sample
+            x[7:10] = x[16:19]  # the heading at engagement
+            x[4:7], x[23:26] = right, up  # the image's axes at engagement
         if c.mode == "position":
-            delta = p - x[1:4]
-            forward = -delta[2] * c.translation_scale
-            yaw, pitch = delta[0] * c.yaw_gain, delta[1] * c.pitch_gain
-            h = turn(turn(x[7:10], ref_up, -yaw), ref_right, pitch)
-            xy = x[4:6] + forward * horizontal(x[7:10])[:2]
+            yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
+            h = turn(turn(x[7:10], x[23:26], -yaw), x[4:7], pitch)
+            step = -(p[2] - x[22]) * c.translation_scale
         else:
             offset = np.where(np.abs(p) > c.dead_band, p - np.sign(p) * c.dead_band, 0.0)
             h = turn(turn(x[16:19], up, -offset[0] * c.rate_yaw * c.period), right,
                      offset[1] * c.rate_pitch * c.period)
-            xy = x[10:12] - offset[2] * c.rate_translation * c.period * horizontal(h)[:2]
+            step = -offset[2] * c.rate_translation * c.period
+        x[20:23] = p
+        # The heading leads the capsule's axis by at most max_lead: a capsule the lumen holds
+        # back cannot wind up an ever larger turn.
+        h = lead_at_most(h, forward_axis, np.radians(c.max_lead_deg))
+        xy = x[10:12] + step * horizontal(h)[:2]
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[16:19] = h
         x[10:16] = self.command_for(xy, h, p_WM, x[19])

@@ -4,13 +4,15 @@ feedback force, so teleoperation runs in scripts, tests and benchmarks.
 The hand holds the stylus through an impedance (stiffness, damping) toward a hand target
 that the operator's intent moves:
 - advancing: while the lumen is in view and near the image centre, push the target away
-  (-z_D) at `advance_speed`; at the front of the workspace, press the clutch, bring the
-  stylus back to the rear, release (indexing), and go on;
-- steering: turn toward where the lumen appears, after a reaction delay: the target moves
-  right / up at `steer_gain` times the lumen's offset (the ray's x and -y in the camera
-  frame); while clutched the hand re-centres sideways;
-- lumen lost: stop advancing and draw the stylus back slowly (back off), steering on the
-  last seen offset.
+  (-z_D) at `advance_speed`; when the stylus reaches the front of the workspace (pushed by
+  the hand or by the guidance), press the clutch, bring it back to the rear, release
+  (indexing), and go on;
+- steering: turn toward where the lumen appears, after a reaction delay: the target's
+  sideways and vertical position goes to `steer_gain` times the lumen's offset (the ray's
+  x and -y in the camera frame, i.e. the sine of its angle) with the time constant
+  `steer_time`; while clutched the hand re-centres;
+- lumen lost: stop advancing, centre the stylus sideways and draw it back slowly (back
+  off).
 The feedback force acts on the stylus through the device's motors; the hand resists it
 only through its impedance, so a guiding force moves the stylus: the operator yields.
 """
@@ -33,10 +35,11 @@ class OperatorConfig:
     advance_speed: float = 0.005
     return_speed: float = 0.04
     # Advance only while the lumen is within this angle of the image centre (deg).
-    advance_cone_deg: float = 30.0
-    # Steering: stylus speed (m/s) per unit lumen offset (sin of its angle), and reaction
-    # delay of the visual loop (s).
-    steer_gain: float = 0.01
+    advance_cone_deg: float = 40.0
+    # Steering: stylus displacement (m) per unit lumen offset (sin of its angle), reached
+    # with time constant steer_time (s), after the visual loop's reaction delay (s).
+    steer_gain: float = 0.05
+    steer_time: float = 0.3
     reaction_time: float = 0.25
     # Back-off speed while the lumen is out of view (m/s).
     back_off_speed: float = 0.002
@@ -49,6 +52,8 @@ class OperatorConfig:
 
 def check_operator_config(config: OperatorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
+    if not config.steer_time > 0.0:
+        raise ValueError("teleop operator steer_time must be > 0")
     for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
                  "steer_gain", "reaction_time", "back_off_speed"):
         if not getattr(config, name) >= 0.0:
@@ -156,10 +161,13 @@ class SimulatedOperator(LeafSystem):
             else:
                 phase = 2.0
                 target[2] = min(rear, target[2] + c.back_off_speed * dt)
-            target[:2] += c.steer_gain * seen_offset * dt
+            aim = c.steer_gain * seen_offset if seen_visible else np.zeros(2)
+            target[:2] += (aim - target[:2]) * min(1.0, dt / c.steer_time)
             target[:2] = np.clip(target[:2], -self._half[:2], self._half[:2])
-            if target[2] <= front:
+            stylus_z = float(self._stylus.Eval(context)[2])
+            if target[2] <= front or stylus_z <= front:  # at the front: index
                 phase, x[4] = 1.0, 1.0
+                target[2] = max(target[2], stylus_z)
         x[:3], x[3] = target, phase
         discrete_state.set_value(self._state, x)
 
