@@ -138,6 +138,20 @@ def test_mapping_the_three_motions(colon):
     assert (h_pitch - h_yaw) @ up > 0
 
 
+def test_lead_mapping_keeps_the_epm_over_the_capsule_ahead_by_the_lead(colon):
+    m = _Mapping(colon, MappingConfig(mode="lead"))
+    m.step()
+    m.set([0.0, 0.0, -0.01])  # 1 cm away: a 2 cm lead along the heading
+    command, h = m.step()
+    lead = command[:2] - m.p_WM[:2]
+    forward = h[:2] / np.linalg.norm(h[:2])
+    assert lead @ forward == pytest.approx(0.02, abs=1e-9)
+    assert abs(lead @ np.array([-forward[1], forward[0]])) < 1e-9
+    m.set([0.0, 0.0, -0.2])  # far beyond the workspace: the lead stops at its limit
+    command, h = m.step()
+    assert np.linalg.norm(command[:2] - m.p_WM[:2]) == pytest.approx(0.05, abs=1e-9)
+
+
 def test_mapping_clutch_and_lost_link_hold_the_command(colon):
     m = _Mapping(colon)
     m.step()

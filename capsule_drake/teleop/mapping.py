@@ -11,8 +11,11 @@ guard would raise it anyway), plus a height the operator does not control.
 Position mode (default): the stylus's travel toward / away from the operator moves the EPM
 (scaled) along the commanded heading; its sideways and vertical displacement since the
 clutch was last released turns the heading (yaw, pitch) from what it was then, about the
-image's axes. Rate mode: the stylus's offset from the workspace centre sets the EPM's speed
-and the heading's turn rates. Either way the heading leads the capsule's current axis by
+image's axes. Lead mode: the same, except that the stylus's travel sets how far the EPM
+leads the capsule along the heading (up to `max_lead_distance`), the EPM staying over the
+capsule as it moves: hold the stylus forward and the magnet keeps pulling. Rate mode: the
+stylus's offset from the workspace centre sets the EPM's speed and the heading's turn
+rates. Either way the heading leads the capsule's current axis by
 at most `max_lead_deg`, so a capsule the lumen holds back cannot wind up a large error.
 The clutch button (held) decouples the stylus for indexing. A lost or stale link, or a
 non-finite stylus, holds the command; the next valid sample re-references (no jump).
@@ -26,14 +29,14 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.epm_path import field_aligning_moment_direction
 
-MODES = ("position", "rate")
+MODES = ("position", "lead", "rate")
 
 
 @dataclasses.dataclass
 class MappingConfig:
     """How the stylus drives the EPM. YAML-loadable; all fields default."""
 
-    # "position" or "rate" (see the module docstring).
+    # "position", "lead" or "rate" (see the module docstring).
     mode: str = "position"
     # Position mode: EPM travel per stylus travel along the heading (m/m), and heading turn
     # per stylus travel sideways (yaw) and up/down (pitch) (rad/m).
@@ -50,6 +53,8 @@ class MappingConfig:
     # max_lead_deg of the capsule's current axis.
     max_pitch_deg: float = 45.0
     max_lead_deg: float = 40.0
+    # Lead mode: the EPM's farthest lead ahead of (or behind) the capsule (m).
+    max_lead_distance: float = 0.05
     # Update period (s).
     period: float = 0.005
     # A stylus sample older than this (s; from the channel's `age`) counts as a lost link.
@@ -61,7 +66,8 @@ def check_mapping_config(config: MappingConfig) -> None:
     if config.mode not in MODES:
         raise ValueError(f"teleop mapping mode {config.mode!r} is not one of {MODES}")
     for name in ("translation_scale", "yaw_gain", "pitch_gain", "rate_translation",
-                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg", "max_lead_deg"):
+                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg", "max_lead_deg",
+                 "max_lead_distance"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"teleop mapping {name} must be >= 0")
     if not config.period > 0.0 or not config.stale_after > 0.0:
@@ -154,9 +160,9 @@ class TeleopMapping(LeafSystem):
         height = command[2] - floor(command[0], command[1], command[3:])
         # [engaged, stylus at engagement (3), image right at engagement (3), heading at
         #  engagement (3), command (6), heading (3), height above floor, stylus at the
-        #  previous sample (3), image up at engagement (3)]
+        #  previous sample (3), image up at engagement (3), lead (lead mode)]
         initial = np.concatenate([[0.0], np.zeros(3), command[:3], h0, command, h0,
-                                  [max(height, 0.0)], np.zeros(6)])
+                                  [max(height, 0.0)], np.zeros(6), [0.0]])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareVectorOutputPort(
             "epm_command", 6,
@@ -210,7 +216,7 @@ class TeleopMapping(LeafSystem):
             x[20:23] = p  # the stylus at the previous sample
             x[7:10] = x[16:19]  # the heading at engagement
             x[4:7], x[23:26] = right, up  # the image's axes at engagement
-        if c.mode == "position":
+        if c.mode in ("position", "lead"):
             yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
             h = turn(turn(x[7:10], x[23:26], -yaw), x[4:7], pitch)
             step = -(p[2] - x[22]) * c.translation_scale
@@ -223,7 +229,12 @@ class TeleopMapping(LeafSystem):
         # The heading leads the capsule's axis by at most max_lead: a capsule the lumen holds
         # back cannot wind up an ever larger turn.
         h = lead_at_most(h, forward_axis, np.radians(c.max_lead_deg))
-        xy = x[10:12] + step * horizontal(h)[:2]
+        if c.mode == "lead":
+            # The EPM stays over the capsule, ahead of it along the heading by the lead.
+            x[26] = np.clip(x[26] + step, -c.max_lead_distance, c.max_lead_distance)
+            xy = p_WM[:2] + x[26] * horizontal(h)[:2]
+        else:
+            xy = x[10:12] + step * horizontal(h)[:2]
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[16:19] = h
         x[10:16] = self.command_for(xy, h, p_WM, x[19])

@@ -45,6 +45,10 @@ class OperatorConfig:
     back_off_speed: float = 0.002
     # Fraction of the workspace depth used before indexing.
     stroke_fraction: float = 0.8
+    # For the lead mapping: instead of stroking, hold the stylus this far forward of the
+    # centre while the lumen is near the image centre (m), back at the centre when it is
+    # off-centre, and behind it when it is lost. 0: stroke and index.
+    cruise_offset: float = 0.0
     # Update period of the intent (s); the hand force itself follows the stylus at the
     # device's servo rate.
     period: float = 0.01
@@ -52,6 +56,8 @@ class OperatorConfig:
 
 def check_operator_config(config: OperatorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
+    if not config.cruise_offset >= 0.0:
+        raise ValueError("teleop operator cruise_offset must be >= 0")
     if not config.steer_time > 0.0:
         raise ValueError("teleop operator steer_time must be > 0")
     for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
@@ -104,8 +110,8 @@ class SimulatedOperator(LeafSystem):
         self._ray = self.DeclareVectorInputPort("lumen_ray", 3)
         # [target (3), phase, clutch, seen offsets ring (2 x delay), seen visible ring (delay)]
         n = self._delay_steps
-        initial = np.concatenate([[0.0, 0.0, self._half[2] * config.stroke_fraction, 0.0, 0.0],
-                                  np.zeros(3 * n)])
+        start_z = 0.0 if config.cruise_offset > 0.0 else self._half[2] * config.stroke_fraction
+        initial = np.concatenate([[0.0, 0.0, start_z, 0.0, 0.0], np.zeros(3 * n)])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareVectorOutputPort("hand_force", 3, self._calc_force)
         self.DeclareVectorOutputPort(
@@ -147,6 +153,22 @@ class SimulatedOperator(LeafSystem):
         front = -self._half[2] * c.stroke_fraction
         rear = self._half[2] * c.stroke_fraction
         dt = c.period
+        if c.cruise_offset > 0.0:
+            offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
+            if not seen_visible:
+                phase, goal = 2.0, 0.5 * c.cruise_offset
+            elif offset_angle < c.advance_cone_deg:
+                phase, goal = 0.0, -c.cruise_offset
+            else:
+                phase, goal = 0.0, 0.0
+            speed = c.advance_speed if goal < target[2] else c.back_off_speed * 4.0
+            target[2] += np.clip(goal - target[2], -speed * dt, speed * dt)
+            aim = c.steer_gain * seen_offset if seen_visible else np.zeros(2)
+            target[:2] += (aim - target[:2]) * min(1.0, dt / c.steer_time)
+            target[:2] = np.clip(target[:2], -self._half[:2], self._half[:2])
+            x[:3], x[3] = target, phase
+            discrete_state.set_value(self._state, x)
+            return
         if phase == 1.0:  # returning with the clutch held
             target[2] = min(rear, target[2] + c.return_speed * dt)
             target[:2] *= max(0.0, 1.0 - dt / 0.3)  # re-centre sideways
