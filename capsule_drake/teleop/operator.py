@@ -11,6 +11,8 @@ that the operator's intent moves:
   sideways and vertical position goes to `steer_gain` times the lumen's offset (the ray's
   x and -y in the camera frame, i.e. the sine of its angle) with the time constant
   `steer_time`; while clutched the hand re-centres;
+- off-centre beyond the cone for `push_after` s (a bend the capsule cannot turn in
+  place): push on at a fraction of the speed while steering;
 - lumen lost: stop advancing, centre the stylus sideways and draw it back slowly (back
   off).
 The feedback force acts on the stylus through the device's motors; the hand resists it
@@ -41,6 +43,10 @@ class OperatorConfig:
     steer_gain: float = 0.05
     steer_time: float = 0.3
     reaction_time: float = 0.25
+    # Off-centre beyond the cone for longer than push_after (s), push on at push_fraction of
+    # the advance speed (0: wait for the lumen to come to the centre).
+    push_after: float = 3.0
+    push_fraction: float = 0.5
     # Back-off speed while the lumen is out of view (m/s).
     back_off_speed: float = 0.002
     # Fraction of the workspace depth used before indexing.
@@ -56,6 +62,8 @@ class OperatorConfig:
 
 def check_operator_config(config: OperatorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
+    if not config.push_after >= 0.0 or not 0.0 <= config.push_fraction <= 1.0:
+        raise ValueError("teleop operator push_after must be >= 0, push_fraction in [0, 1]")
     if not config.cruise_offset >= 0.0:
         raise ValueError("teleop operator cruise_offset must be >= 0")
     if not config.steer_time > 0.0:
@@ -111,7 +119,8 @@ class SimulatedOperator(LeafSystem):
         # [target (3), phase, clutch, seen offsets ring (2 x delay), seen visible ring (delay)]
         n = self._delay_steps
         start_z = 0.0 if config.cruise_offset > 0.0 else self._half[2] * config.stroke_fraction
-        initial = np.concatenate([[0.0, 0.0, start_z, 0.0, 0.0], np.zeros(3 * n)])
+        # [..., time off-centre (s)]
+        initial = np.concatenate([[0.0, 0.0, start_z, 0.0, 0.0], np.zeros(3 * n), [0.0]])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareVectorOutputPort("hand_force", 3, self._calc_force)
         self.DeclareVectorOutputPort(
@@ -178,8 +187,13 @@ class SimulatedOperator(LeafSystem):
             offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
             if seen_visible:
                 phase = 0.0
+                x[-1] = 0.0 if offset_angle < c.advance_cone_deg else x[-1] + dt
                 if offset_angle < c.advance_cone_deg:
                     target[2] -= c.advance_speed * dt
+                elif x[-1] > c.push_after:
+                    # Off-centre for a while (a bend the capsule cannot turn in place):
+                    # push on slowly while steering, as an endoscopist slides by.
+                    target[2] -= c.push_fraction * c.advance_speed * dt
             else:
                 phase = 2.0
                 target[2] = min(rear, target[2] + c.back_off_speed * dt)
