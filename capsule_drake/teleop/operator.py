@@ -164,10 +164,13 @@ class SimulatedOperator(LeafSystem):
         dt = c.period
         if c.cruise_offset > 0.0:
             offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
+            x[-1] = 0.0 if (seen_visible and offset_angle < c.advance_cone_deg) else x[-1] + dt
             if not seen_visible:
                 phase, goal = 2.0, 0.5 * c.cruise_offset
             elif offset_angle < c.advance_cone_deg:
                 phase, goal = 0.0, -c.cruise_offset
+            elif x[-1] > c.push_after:
+                phase, goal = 0.0, -c.push_fraction * c.cruise_offset
             else:
                 phase, goal = 0.0, 0.0
             speed = c.advance_speed if goal < target[2] else c.back_off_speed * 4.0
