@@ -216,7 +216,8 @@ def test_teleop_in_the_station_with_the_simulated_operator():
 
 def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
     scenario = load_scenario(name="Teleop", override=(
-        "{duration: 1.0, epm: {mount: stage}, teleop: {operator: udp}, "
+        "{duration: 1.0, epm: {mount: stage}, "
+        "teleop: {operator: udp, mapping: {mode: position, translation_scale: 2.0}}, "
         "capsule: {camera: null, lumen_tracker: null}, pseudo_force: {lumen_weight: 0}}"))
     diagram = make_station(scenario)
     device = diagram.GetSubsystemByName("teleop.device")
@@ -249,7 +250,8 @@ def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
 def test_teleop_from_the_browser_follows_the_sliders():
     meshcat = Meshcat(MeshcatParams(port=0))
     scenario = load_scenario(name="Teleop", override=(
-        "{duration: 1.0, epm: {mount: stage}, teleop: {operator: browser}, "
+        "{duration: 1.0, epm: {mount: stage}, "
+        "teleop: {operator: browser, mapping: {mode: position, translation_scale: 2.0}}, "
         "capsule: {camera: {lens: {width: 64, height: 64}}}}"))
     diagram = make_station(scenario, meshcat)
     simulator = Simulator(diagram)
