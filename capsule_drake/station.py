@@ -377,6 +377,11 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
         first, start.rotation().col(2)))
     builder.Connect(plant.get_state_output_port(capsule_instance),
                     mapping.GetInputPort("capsule_state"))
+    if teleop.mapping.assist and scenario.capsule.lumen_tracker is not None:
+        tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+        builder.Connect(tracker.GetOutputPort("lumen_ray"), mapping.GetInputPort("lumen_ray"))
+        builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                        mapping.GetInputPort("lumen_visible"))
 
     channel_config = copy.deepcopy(teleop.channel)
     if all(c.delay == 0 and c.jitter == 0 and c.loss == 0

@@ -152,6 +152,19 @@ def test_lead_mapping_keeps_the_epm_over_the_capsule_ahead_by_the_lead(colon):
     assert np.linalg.norm(command[:2] - m.p_WM[:2]) == pytest.approx(0.05, abs=1e-9)
 
 
+def test_assisted_lead_goes_toward_the_detected_lumen(colon):
+    m = _Mapping(colon, MappingConfig(mode="lead", assist=True))
+    ray_C = np.array([0.5, 0.0, 1.0]) / np.linalg.norm([0.5, 0.0, 1.0])  # right of centre
+    m.system.GetInputPort("lumen_ray").FixValue(m.context, ray_C)
+    m.system.GetInputPort("lumen_visible").FixValue(m.context, [1.0])
+    m.step()
+    m.set([0.0, 0.0, -0.01])
+    command, _ = m.step()
+    lead = command[:2] - m.p_WM[:2]
+    toward = (m.R_WC @ ray_C)[:2]
+    np.testing.assert_allclose(lead, 0.02 * toward / np.linalg.norm(toward), atol=1e-9)
+
+
 def test_mapping_clutch_and_lost_link_hold_the_command(colon):
     m = _Mapping(colon)
     m.step()

@@ -55,6 +55,9 @@ class MappingConfig:
     max_lead_deg: float = 40.0
     # Lead mode: the EPM's farthest lead ahead of (or behind) the capsule (m).
     max_lead_distance: float = 0.05
+    # Shared control: the EPM's forward travel (or lead) goes toward the lumen the tracker
+    # detects, when it sees one, instead of along the commanded heading.
+    assist: bool = False
     # Update period (s).
     period: float = 0.005
     # A stylus sample older than this (s; from the channel's `age`) counts as a lost link.
@@ -121,6 +124,8 @@ class TeleopMapping(LeafSystem):
         - stylus
         - stylus_age (optional)
         - link_ok (optional)
+        - lumen_ray (optional)
+        - lumen_visible (optional)
         - capsule_state
         output_ports:
         - epm_command
@@ -128,7 +133,8 @@ class TeleopMapping(LeafSystem):
 
     stylus: [p_D (3), quaternion (4), clutch, mode] from the device (through the channel).
     stylus_age: how old that sample is (s); unconnected: fresh. link_ok: the device's link
-    (0: lost, hold the command); unconnected: up. capsule_state: [q wxyz,
+    (0: lost, hold the command); unconnected: up. lumen_ray, lumen_visible: the lumen
+    tracker's, for `assist`. capsule_state: [q wxyz,
     p_WB, w, v] of the capsule (the pose the operator's camera image shows; the capsule's
     position locates the field). epm_command: the EPM's centre and moment direction.
     heading: the commanded heading h_W (unit) of the capsule.
@@ -154,6 +160,8 @@ class TeleopMapping(LeafSystem):
         self._stylus = self.DeclareVectorInputPort("stylus", 9)
         self._age = self.DeclareVectorInputPort("stylus_age", 1)
         self._link = self.DeclareVectorInputPort("link_ok", 1)
+        self._lumen_ray = self.DeclareVectorInputPort("lumen_ray", 3)
+        self._lumen_visible = self.DeclareVectorInputPort("lumen_visible", 1)
         self._capsule = self.DeclareVectorInputPort("capsule_state", 13)
         command = np.asarray(initial_command, dtype=float)
         h0 = np.asarray(initial_heading, dtype=float)
@@ -173,6 +181,10 @@ class TeleopMapping(LeafSystem):
             lambda c, out: out.SetFromVector(c.get_discrete_state(self._state).value()[16:19]),
             {self.xd_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
+
+    def _R_WC(self, state):
+        q = np.asarray(state[:4], dtype=float)
+        return Quaternion(q / np.linalg.norm(q)).rotation() @ self._R_BC
 
     def _camera_axes(self, state):
         """The camera's right, up and forward axes and the capsule magnet's position (W)."""
@@ -229,12 +241,18 @@ class TeleopMapping(LeafSystem):
         # The heading leads the capsule's axis by at most max_lead: a capsule the lumen holds
         # back cannot wind up an ever larger turn.
         h = lead_at_most(h, forward_axis, np.radians(c.max_lead_deg))
+        travel = h
+        if c.assist and self._lumen_visible.HasValue(context) \
+                and float(self._lumen_visible.Eval(context)[0]) > 0.5:
+            ray = np.asarray(self._lumen_ray.Eval(context), dtype=float)
+            if np.all(np.isfinite(ray)) and np.linalg.norm(ray) > 0.5:
+                travel = self._R_WC(state) @ ray
         if c.mode == "lead":
             # The EPM stays over the capsule, ahead of it along the heading by the lead.
             x[26] = np.clip(x[26] + step, -c.max_lead_distance, c.max_lead_distance)
-            xy = p_WM[:2] + x[26] * horizontal(h)[:2]
+            xy = p_WM[:2] + x[26] * horizontal(travel)[:2]
         else:
-            xy = x[10:12] + step * horizontal(h)[:2]
+            xy = x[10:12] + step * horizontal(travel)[:2]
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[16:19] = h
         x[10:16] = self.command_for(xy, h, p_WM, x[19])
