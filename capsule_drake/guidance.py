@@ -147,6 +147,18 @@ def saturate(force, limit: float) -> np.ndarray:
     return force * (limit / norm) if norm > limit else force.copy()
 
 
+def saturate_checked(force, limit: float) -> tuple[np.ndarray, bool, bool]:
+    """A force for a device: (force (3,), saturated, invalid). A force with any NaN or inf
+    component is replaced by zero as a whole (invalid = True): zeroing only the bad component
+    would push the hand in a direction nobody commanded. A force longer than `limit` is
+    scaled down to it, keeping its direction (saturated = True)."""
+    f = np.asarray(force, dtype=float).reshape(3)
+    if not np.all(np.isfinite(f)):
+        return np.zeros(3), False, True
+    clipped = saturate(f, limit)
+    return clipped, bool(np.linalg.norm(f) > limit), False
+
+
 def lumen_attraction(ray_C, visible: bool, confidence: float, k_lateral: float,
                      k_forward: float) -> np.ndarray:
     """Term (a) in the camera frame (N): toward the lumen in the image, forward when centred.

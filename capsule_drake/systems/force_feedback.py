@@ -10,8 +10,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.guidance import rotation_from_rpy_deg
-from capsule_drake.systems.haptic_master import saturate
+from capsule_drake.guidance import rotation_from_rpy_deg, saturate
 
 
 def contact_force_D(F_W, R_WB, R_BC, R_DC, gain: float) -> np.ndarray:
@@ -68,4 +67,4 @@ class ForceFeedback(LeafSystem):
             q = state[:4] / np.linalg.norm(state[:4])
             R_WB = Quaternion(q).rotation()
             total += contact_force_D(F_W, R_WB, self._R_BC, self._R_DC, self._gain)
-        output.SetFromVector(saturate(total, self._limit)[0])
+        output.SetFromVector(saturate(total, self._limit))

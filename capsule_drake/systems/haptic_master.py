@@ -12,6 +12,8 @@ import dataclasses
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from capsule_drake.guidance import saturate_checked
+
 STYLUS_SIZE = 9  # position (3), quaternion wxyz (4), clutch (1), mode (1)
 
 
@@ -44,17 +46,6 @@ def check_haptic_device_config(config: HapticDeviceConfig) -> None:
     for name in ("friction", "stop_stiffness", "stop_damping"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"haptic device {name} must be >= 0")
-
-
-def saturate(force, limit: float):
-    """`force` scaled down to norm `limit` if longer; non-finite -> zero. (force, saturated)"""
-    force = np.asarray(force, dtype=float)
-    if not np.all(np.isfinite(force)):
-        return np.zeros(3), True
-    norm = float(np.linalg.norm(force))
-    if norm > limit:
-        return force * (limit / norm), True
-    return force.copy(), False
 
 
 class HapticMaster(LeafSystem):
@@ -128,7 +119,9 @@ class HapticMaster(LeafSystem):
         c = self._config
         x = context.get_discrete_state(self._state).value().copy()
         p, v = x[:3], x[3:6]
-        motor, saturated = saturate(self._read(self._feedback, context, 3), c.force_limit)
+        feedback = (self._feedback.Eval(context) if self._feedback.HasValue(context)
+                    else np.zeros(3))
+        motor, saturated, _ = saturate_checked(feedback, c.force_limit)
         hand = self._read(self._hand, context, 3)
         force = hand + motor - c.friction * v + self.stop_force(p, v)
         v = v + self._dt * force / c.stylus_mass

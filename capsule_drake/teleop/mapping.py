@@ -182,17 +182,11 @@ class TeleopMapping(LeafSystem):
             {self.xd_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
 
-    def _R_WC(self, state):
-        q = np.asarray(state[:4], dtype=float)
-        return Quaternion(q / np.linalg.norm(q)).rotation() @ self._R_BC
-
-    def _camera_axes(self, state):
-        """The camera's right, up and forward axes and the capsule magnet's position (W)."""
+    def _camera_pose(self, state):
+        """R_WC of the capsule's camera and the capsule magnet's position p_WM."""
         q = np.asarray(state[:4], dtype=float)
         R_WB = Quaternion(q / np.linalg.norm(q)).rotation()
-        R_WC = R_WB @ self._R_BC
-        p_WM = np.asarray(state[4:7]) + R_WB @ self._p_BM
-        return R_WC[:, 0], -R_WC[:, 1], R_WC[:, 2], p_WM
+        return R_WB @ self._R_BC, np.asarray(state[4:7]) + R_WB @ self._p_BM
 
     def command_for(self, p_WE_xy, heading, p_WM, height):
         """[p_WE, m_hat_W]: the EPM over (x, y) at `height` above its floor, its moment
@@ -220,7 +214,8 @@ class TeleopMapping(LeafSystem):
             x[0] = 0.0  # hold the command; re-reference on the next engaged sample
             discrete_state.set_value(self._state, x)
             return
-        right, up, forward_axis, p_WM = self._camera_axes(state)
+        R_WC, p_WM = self._camera_pose(state)
+        right, up, forward_axis = R_WC[:, 0], -R_WC[:, 1], R_WC[:, 2]
         p = stylus[:3]
         if x[0] < 0.5:  # engage: references from here
             x[0] = 1.0
@@ -246,7 +241,7 @@ class TeleopMapping(LeafSystem):
                 and float(self._lumen_visible.Eval(context)[0]) > 0.5:
             ray = np.asarray(self._lumen_ray.Eval(context), dtype=float)
             if np.all(np.isfinite(ray)) and np.linalg.norm(ray) > 0.5:
-                travel = self._R_WC(state) @ ray
+                travel = R_WC @ ray
         if c.mode == "lead":
             # The EPM stays over the capsule, ahead of it along the heading by the lead.
             x[26] = np.clip(x[26] + step, -c.max_lead_distance, c.max_lead_distance)

@@ -23,6 +23,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from capsule_drake.guidance import saturate_checked as saturate_force
+
 log = logging.getLogger(__name__)
 
 STYLUS_MAGIC = b"CSTY"
@@ -162,20 +164,6 @@ def sequence_is_newer(seq: int, reference: int) -> bool:
     """Serial-number order of uint32 sequence numbers (RFC 1982): `seq` is newer when it is
     1 to 2**31 - 1 steps after `reference`, modulo 2**32 (so 0 follows 2**32 - 1)."""
     return 0 < (int(seq) - int(reference)) % _SEQ_MODULUS < _SEQ_MODULUS // 2
-
-
-def saturate_force(force, limit: float) -> tuple[np.ndarray, bool, bool]:
-    """The force to send: (force (3,), saturated, invalid). A force with any NaN or inf
-    component is replaced by zero as a whole (invalid = True): zeroing only the bad component
-    would push the hand in a direction nobody commanded. A force longer than `limit` is
-    scaled down to it, keeping its direction (saturated = True)."""
-    f = np.asarray(force, dtype=float).reshape(3)
-    if not np.all(np.isfinite(f)):
-        return np.zeros(3), False, True
-    norm = float(np.linalg.norm(f))
-    if norm > limit:
-        return f * (limit / norm), True, False
-    return f.copy(), False, False
 
 
 @dataclasses.dataclass
