@@ -258,7 +258,15 @@ def test_cli_client_against_a_realtime_simulation(bench, tmp_path):
     seqs = replies[:, 1]
     assert np.all(np.diff(seqs) >= 0) and set(seqs) <= set(log[:, 0])
     assert np.all(np.diff(replies[:, 2]) > 0)  # one reply per tick
-    assert_allclose(replies[:, 3:6], np.tile(FORCE, (len(replies), 1)), rtol=1e-9)
+    # The client lingers 0.1 s after its last packet, as long as the link timeout, so the
+    # server may declare the link lost while the client still listens (a loaded machine can
+    # also stall the client mid-run): those replies say so and carry zero force (the safety
+    # rule); all others carry the source's force.
+    link_ok = (replies[:, 6].astype(int) & STATUS_LINK_OK) != 0
+    assert link_ok.sum() > 2000
+    assert stats["link_losses"] >= 1 or link_ok.all()
+    assert_allclose(replies[link_ok, 3:6], np.tile(FORCE, (link_ok.sum(), 1)), rtol=1e-9)
+    assert_array_equal(replies[~link_ok, 3:6], 0.0)
 
 
 def test_bad_packets_are_counted_and_never_stop_the_simulation(bench):
