@@ -1,13 +1,14 @@
 """Teleoperation with the simulated operator, haptic guidance on and off.
 
-    python benchmarks/bench_teleop.py [--duration 120] [--scenario Teleop]
+    python benchmarks/bench_teleop.py [--duration 120] [--scenario Teleop] [--seeds 0 1 2]
 
-Runs the scenario twice in parallel processes: with the pseudo-force (guidance on) and
+Runs the scenario on each colon seed twice, in parallel processes: with the pseudo-force (guidance on) and
 without it (the operator feels only the capsule's contact with the wall). Prints, for each:
 how far the capsule advanced along the colon and the time it took to advance 50 cm, the time
 the capsule spent touching the wall (contact load > 0.05 N) and the peak contact force, the
 lumen-centring error (median angle between the optical axis and the lumen truth while it is
-in view), the EPM's path length, and the real-time factor.
+in view), the EPM's path length, the capsule's speed (median and 99th percentile of the
+samples), and the real-time factor.
 """
 
 import argparse
@@ -18,7 +19,7 @@ import numpy as np
 
 
 def run(args):
-    scenario_name, duration, guidance = args
+    scenario_name, duration, guidance, seed = args
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
@@ -27,8 +28,8 @@ def run(args):
     from capsule_drake.station import colon_for, make_station
     from capsule_drake.systems.contact_monitor import ContactMonitor
 
-    override = f"{{duration: {duration}}}" if guidance else \
-        f"{{duration: {duration}, pseudo_force: null}}"
+    override = f"{{duration: {duration}, colon: {{seed: {seed}}}" + \
+        ("}" if guidance else ", pseudo_force: null}")
     scenario = load_scenario(name=scenario_name, override=override)
     colon = colon_for(scenario)
     builder = DiagramBuilder()
@@ -69,6 +70,8 @@ def run(args):
         "centring_deg": float(np.median(angles)),
         "lumen_in_view": float(np.mean(visible)),
         "epm_path_m": float(np.sum(np.linalg.norm(np.diff(epm, axis=1), axis=0))),
+        "speed_p50_p99": np.percentile(np.linalg.norm(data["capsule.state"][10:13], axis=0),
+                                       [50, 99]),
         "rtf": scenario.duration / wall,
     }
 
@@ -77,18 +80,23 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--scenario", default="Teleop")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0],
+                        help="colon seeds (default: 0, the default colon)")
     args = parser.parse_args()
-    jobs = [(args.scenario, args.duration, guidance) for guidance in (True, False)]
+    jobs = [(args.scenario, args.duration, guidance, seed) for seed in args.seeds
+            for guidance in (True, False)]
     with multiprocessing.get_context("spawn").Pool(2) as pool:
         results = pool.map(run, jobs)
     print(f"{args.scenario}, {args.duration:.0f} s simulated, simulated operator")
-    print(f"{'guidance':8s} {'advance':>8s} {'to 50 cm':>8s} {'wall contact':>12s} "
-          f"{'peak force':>10s} {'centring':>8s} {'in view':>7s} {'EPM path':>8s} {'RTF':>5s}")
-    for r in results:
-        print(f"{r['guidance']:8s} {r['advance_cm']:6.1f}cm {r['time_to_50cm_s']:7.1f}s "
+    print(f"{'seed':>4s} {'guidance':8s} {'advance':>8s} {'to 50 cm':>8s} {'wall contact':>12s} "
+          f"{'peak force':>10s} {'centring':>8s} {'in view':>7s} {'EPM path':>8s} "
+          f"{'speed p50/p99':>13s} {'RTF':>5s}")
+    for (_, _, _, seed), r in zip(jobs, results):
+        print(f"{seed:4d} {r['guidance']:8s} {r['advance_cm']:6.1f}cm {r['time_to_50cm_s']:7.1f}s "
               f"{r['wall_contact_s']:11.1f}s {r['peak_contact_N']:9.2f}N "
               f"{r['centring_deg']:7.1f}d {100 * r['lumen_in_view']:6.0f}% "
-              f"{r['epm_path_m']:7.2f}m {r['rtf']:5.2f}")
+              f"{r['epm_path_m']:7.2f}m {100 * r['speed_p50_p99'][0]:5.1f}/"
+              f"{100 * r['speed_p50_p99'][1]:5.1f}cm/s {r['rtf']:5.2f}")
 
 
 if __name__ == "__main__":

@@ -86,6 +86,7 @@ from capsule_drake.systems.epm_arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT
 from capsule_drake.systems.force_feedback import ForceFeedback
 from capsule_drake.systems.haptic_master import STYLUS_SIZE, HapticMaster
 from capsule_drake.systems.imu import Imu, add_random_sources
+from capsule_drake.systems.lumen_range import LumenRange
 from capsule_drake.systems.lumen_tracker import LumenTracker
 from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
@@ -94,7 +95,7 @@ from capsule_drake.systems.pseudo_force import PseudoForceField
 from capsule_drake.systems.stage_command import PoseToStage
 from capsule_drake.teleop.mapping import TeleopMapping
 from capsule_drake.teleop.browser import BrowserOperator
-from capsule_drake.teleop.operator import LumenRayFromTruth, SimulatedOperator
+from capsule_drake.teleop.operator import ForwardSpeed, LumenRayFromTruth, SimulatedOperator
 from capsule_drake.teleop.udp import UdpHapticDevice
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
@@ -396,6 +397,18 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
         builder.Connect(tracker.GetOutputPort("lumen_ray"), mapping.GetInputPort("lumen_ray"))
         builder.Connect(tracker.GetOutputPort("lumen_visible"),
                         mapping.GetInputPort("lumen_visible"))
+        camera = builder.GetSubsystemByName("capsule.camera")
+        if scenario.capsule.camera.render_depth:
+            free = builder.AddNamedSystem("teleop.lumen_range",
+                                          LumenRange(scenario.capsule.camera.far))
+            builder.Connect(camera.GetOutputPort("depth_image"),
+                            free.GetInputPort("depth_image"))
+            builder.Connect(tracker.GetOutputPort("lumen_pixel"),
+                            free.GetInputPort("lumen_pixel"))
+            builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                            free.GetInputPort("lumen_visible"))
+            builder.Connect(free.GetOutputPort("range"), mapping.GetInputPort("lumen_range"))
+            builder.ExportOutput(free.GetOutputPort("range"), "teleop.lumen_range")
 
     channel_config = copy.deepcopy(teleop.channel)
     if all(c.delay == 0 and c.jitter == 0 and c.loss == 0
@@ -433,6 +446,12 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
                         hand.GetInputPort("stylus_velocity"))
         builder.Connect(hand.GetOutputPort("hand_force"), device.GetInputPort("hand_force"))
         builder.Connect(hand.GetOutputPort("buttons"), device.GetInputPort("buttons"))
+        speed = builder.AddNamedSystem("teleop.forward_speed",
+                                       ForwardSpeed(X_BC.rotation().col(2)))
+        builder.Connect(plant.get_state_output_port(capsule_instance),
+                        speed.GetInputPort("capsule_state"))
+        builder.Connect(speed.GetOutputPort("forward_speed"),
+                        hand.GetInputPort("forward_speed"))
         if teleop.lumen_source == "tracker":
             tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
             builder.Connect(tracker.GetOutputPort("lumen_visible"),

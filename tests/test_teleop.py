@@ -16,7 +16,10 @@ from capsule_drake.station import capsule_start_pose, colon_for, make_station
 from capsule_drake.systems.epm_arm import EpmGuard
 from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
-from capsule_drake.teleop.operator import OperatorConfig, SimulatedOperator
+from capsule_drake.systems.lumen_range import free_range
+from capsule_drake.teleop.operator import ForwardSpeed, OperatorConfig, SimulatedOperator
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.math import RollPitchYaw, RotationMatrix
 from capsule_drake.teleop.udp_client import StylusClient
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
@@ -163,6 +166,101 @@ def test_assisted_lead_goes_toward_the_detected_lumen(colon):
     lead = command[:2] - m.p_WM[:2]
     toward = (m.R_WC @ ray_C)[:2]
     np.testing.assert_allclose(lead, 0.02 * toward / np.linalg.norm(toward), atol=1e-9)
+
+
+def test_assisted_lead_stops_short_of_the_tissue_along_the_lumen_ray(colon):
+    m = _Mapping(colon, MappingConfig(mode="lead", assist=True, assist_margin=0.01,
+                                      max_lead_distance=0.1))
+    ray_C = np.array([0.0, 0.3, 1.0]) / np.linalg.norm([0.0, 0.3, 1.0])
+    m.system.GetInputPort("lumen_ray").FixValue(m.context, ray_C)
+    m.system.GetInputPort("lumen_visible").FixValue(m.context, [1.0])
+    m.system.GetInputPort("lumen_range").FixValue(m.context, [0.04])
+    m.step()
+    m.set([0.0, 0.0, -0.01])  # a 2 cm lead, inside the 4 cm of open lumen: 2 cm along it
+    command, _ = m.step()
+    ray_W = m.R_WC @ ray_C
+    np.testing.assert_allclose(command[:2], m.p_WM[:2] + 0.02 * ray_W[:2], atol=1e-9)
+    m.set([0.0, 0.0, -0.03])  # a 6 cm lead: the EPM stops over 3 cm along the ray
+    command, _ = m.step()
+    np.testing.assert_allclose(command[:2], m.p_WM[:2] + 0.03 * ray_W[:2], atol=1e-9)
+    m.system.GetInputPort("lumen_range").FixValue(m.context, [np.nan])  # range unknown
+    command, _ = m.step()
+    toward = ray_W[:2] / np.linalg.norm(ray_W[:2])
+    np.testing.assert_allclose(command[:2], m.p_WM[:2] + 0.06 * toward, atol=1e-9)
+
+
+def test_lead_mapping_steers_from_the_cameras_current_axis(colon):
+    m = _Mapping(colon, MappingConfig(mode="lead"))
+    m.step()
+    m.set([0.01, 0.0, 0.0])  # 1 cm right: 0.12 rad right of where the camera looks now
+    _, h = m.step()
+    forward, right = m.R_WC[:, 2], m.R_WC[:, 0]
+    assert np.arccos(np.clip(h @ forward, -1, 1)) == pytest.approx(0.12, abs=1e-9)
+    assert (h - forward) @ right > 0
+    # The capsule turns (here: by hand, 0.3 rad about the image's up): the heading follows,
+    # still 0.12 rad right of the new axis, with no clutching.
+    up = -m.R_WC[:, 1]
+    R_turn = RotationMatrix(AngleAxis(-0.3, up)).matrix()  # right turn about image up
+    R_WB = R_turn @ m.X_WB.rotation().matrix()
+    q = RotationMatrix(R_WB).ToQuaternion()
+    m.system.GetInputPort("capsule_state").FixValue(
+        m.context, np.concatenate([[q.w(), q.x(), q.y(), q.z()], m.p_WM, np.zeros(6)]))
+    _, h2 = m.step()
+    forward2 = R_turn @ forward
+    assert np.arccos(np.clip(h2 @ forward2, -1, 1)) == pytest.approx(0.12, abs=1e-9)
+    assert np.arccos(np.clip(h2 @ h, -1, 1)) == pytest.approx(0.3, abs=1e-9)
+
+
+def test_mapping_limits_the_epm_speed(colon):
+    m = _Mapping(colon, MappingConfig(mode="lead", max_speed=0.02, period=0.005))
+    command0, _ = m.step()
+    m.set([0.0, 0.0, -0.02])  # a 4 cm lead at once: the command moves 2 cm/s toward it
+    command, _ = m.step(0.5)
+    moved = np.linalg.norm(command[:2] - command0[:2])
+    assert moved == pytest.approx(0.01, abs=1e-9)
+    command, _ = m.step(2.0)
+    assert np.linalg.norm(command[:2] - m.p_WM[:2]) == pytest.approx(0.04, abs=1e-9)
+
+
+def test_free_range_reads_the_depth_at_the_lumen_pixel():
+    depth = np.full((64, 64), 0.05, dtype=np.float32)
+    depth[30:35, 40:45] = np.inf  # beyond the far clip
+    assert free_range(depth, [10.2, 20.7], far=0.2) == pytest.approx(0.05)
+    assert free_range(depth, [42, 32], far=0.2) == pytest.approx(0.2)
+    assert np.isnan(free_range(depth, [70, 3], far=0.2))
+    assert np.isnan(free_range(depth, [np.nan, 3], far=0.2))
+
+
+def test_forward_speed_is_the_velocity_along_the_camera_axis():
+    speed = ForwardSpeed([0.0, 0.0, 1.0])
+    context = speed.CreateDefaultContext()
+    rpy = RollPitchYaw(0.3, 1.1, -0.4)
+    q, R = rpy.ToQuaternion(), rpy.ToRotationMatrix().matrix()
+    v = np.array([0.3, -0.1, 0.2])
+    speed.get_input_port().FixValue(
+        context, np.concatenate([[q.w(), q.x(), q.y(), q.z()], np.zeros(3), np.zeros(3), v]))
+    assert speed.get_output_port().Eval(context)[0] == pytest.approx(v @ R[:, 2], abs=1e-12)
+
+
+def test_simulated_operator_regulates_the_capsule_speed():
+    config = OperatorConfig(reaction_time=0.02, period=0.01, cruise_offset=0.03,
+                            target_speed=0.01, speed_gain=1.0, speed_time=0.05)
+    operator = SimulatedOperator(config, HapticDeviceConfig().workspace_half_extents)
+    context = operator.CreateDefaultContext()
+    operator.GetInputPort("stylus").FixValue(context, np.r_[np.zeros(3), 1, 0, 0, 0, 0, 0])
+    operator.GetInputPort("stylus_velocity").FixValue(context, np.zeros(3))
+    operator.GetInputPort("lumen_visible").FixValue(context, [1.0])
+    operator.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, 1.0])
+    operator.GetInputPort("forward_speed").FixValue(context, [0.0])  # stuck: push on
+    simulator = Simulator(operator, context)
+    simulator.AdvanceTo(1.0)
+    z_stuck = operator.GetOutputPort("intent").Eval(context)[2]
+    assert z_stuck == pytest.approx(-0.01 * 1.0, abs=1.5e-3)  # 1 cm/s of stylus, forward
+    operator.GetInputPort("forward_speed").FixValue(context, [0.2])  # shooting: draw back
+    simulator.AdvanceTo(1.5)
+    z_fast = operator.GetOutputPort("intent").Eval(context)[2]
+    assert z_fast > z_stuck + 0.01
+    assert z_fast <= 0.5 * config.cruise_offset + 1e-12  # at most a little behind centre
 
 
 def test_mapping_clutch_and_lost_link_hold_the_command(colon):

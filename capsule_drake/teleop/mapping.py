@@ -11,9 +11,12 @@ guard would raise it anyway), plus a height the operator does not control.
 Position mode (default): the stylus's travel toward / away from the operator moves the EPM
 (scaled) along the commanded heading; its sideways and vertical displacement since the
 clutch was last released turns the heading (yaw, pitch) from what it was then, about the
-image's axes. Lead mode: the same, except that the stylus's travel sets how far the EPM
-leads the capsule along the heading (up to `max_lead_distance`), the EPM staying over the
-capsule as it moves: hold the stylus forward and the magnet keeps pulling. Rate mode: the
+image's axes. Lead mode: everything relative to the capsule as the camera shows it: the
+stylus's travel sets how far the EPM leads the capsule along the heading (up to
+`max_lead_distance`), the EPM staying over the capsule as it moves (hold the stylus forward
+and the magnet keeps pulling), and its sideways and vertical displacement turn the heading
+from the camera's current axis (hold it right and the capsule keeps turning right; centre
+it and the capsule holds its direction). Rate mode: the
 stylus's offset from the workspace centre sets the EPM's speed and the heading's turn
 rates. Either way the heading leads the capsule's current axis by
 at most `max_lead_deg`, so a capsule the lumen holds back cannot wind up a large error.
@@ -56,8 +59,16 @@ class MappingConfig:
     # Lead mode: the EPM's farthest lead ahead of (or behind) the capsule (m).
     max_lead_distance: float = 0.05
     # Shared control: the EPM's forward travel (or lead) goes toward the lumen the tracker
-    # detects, when it sees one, instead of along the commanded heading.
+    # detects, when it sees one, instead of along the commanded heading. In the lead mode,
+    # with the free range along the lumen ray known (`lumen_range`, from the depth image),
+    # the EPM goes over the point that far along the ray, at most the range less
+    # `assist_margin`: the capsule is pulled toward open lumen, never into the tissue
+    # beyond it.
     assist: bool = False
+    assist_margin: float = 0.01
+    # The EPM's command moves over the patient at most this fast (m/s; 0: no limit). In the
+    # lead mode this also keeps a capsule that breaks free from dragging the EPM after it.
+    max_speed: float = 0.0
     # Update period (s).
     period: float = 0.005
     # A stylus sample older than this (s; from the channel's `age`) counts as a lost link.
@@ -70,7 +81,7 @@ def check_mapping_config(config: MappingConfig) -> None:
         raise ValueError(f"teleop mapping mode {config.mode!r} is not one of {MODES}")
     for name in ("translation_scale", "yaw_gain", "pitch_gain", "rate_translation",
                  "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg", "max_lead_deg",
-                 "max_lead_distance"):
+                 "max_lead_distance", "assist_margin", "max_speed"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"teleop mapping {name} must be >= 0")
     if not config.period > 0.0 or not config.stale_after > 0.0:
@@ -126,6 +137,7 @@ class TeleopMapping(LeafSystem):
         - link_ok (optional)
         - lumen_ray (optional)
         - lumen_visible (optional)
+        - lumen_range (optional)
         - capsule_state
         output_ports:
         - epm_command
@@ -134,7 +146,8 @@ class TeleopMapping(LeafSystem):
     stylus: [p_D (3), quaternion (4), clutch, mode] from the device (through the channel).
     stylus_age: how old that sample is (s); unconnected: fresh. link_ok: the device's link
     (0: lost, hold the command); unconnected: up. lumen_ray, lumen_visible: the lumen
-    tracker's, for `assist`. capsule_state: [q wxyz,
+    tracker's, for `assist`; lumen_range: the free range along that ray (m; NaN:
+    unknown; systems/lumen_range.py). capsule_state: [q wxyz,
     p_WB, w, v] of the capsule (the pose the operator's camera image shows; the capsule's
     position locates the field). epm_command: the EPM's centre and moment direction.
     heading: the commanded heading h_W (unit) of the capsule.
@@ -162,6 +175,7 @@ class TeleopMapping(LeafSystem):
         self._link = self.DeclareVectorInputPort("link_ok", 1)
         self._lumen_ray = self.DeclareVectorInputPort("lumen_ray", 3)
         self._lumen_visible = self.DeclareVectorInputPort("lumen_visible", 1)
+        self._lumen_range = self.DeclareVectorInputPort("lumen_range", 1)
         self._capsule = self.DeclareVectorInputPort("capsule_state", 13)
         command = np.asarray(initial_command, dtype=float)
         h0 = np.asarray(initial_heading, dtype=float)
@@ -223,9 +237,15 @@ class TeleopMapping(LeafSystem):
             x[20:23] = p  # the stylus at the previous sample
             x[7:10] = x[16:19]  # the heading at engagement
             x[4:7], x[23:26] = right, up  # the image's axes at engagement
-        if c.mode in ("position", "lead"):
+        if c.mode == "position":
             yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
             h = turn(turn(x[7:10], x[23:26], -yaw), x[4:7], pitch)
+            step = -(p[2] - x[22]) * c.translation_scale
+        elif c.mode == "lead":
+            # Relative to the capsule: the stylus's offset turns the heading from the
+            # camera's current axis, as an endoscope's tip is steered from its own view.
+            yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
+            h = turn(turn(forward_axis, up, -yaw), right, pitch)
             step = -(p[2] - x[22]) * c.translation_scale
         else:
             offset = np.where(np.abs(p) > c.dead_band, p - np.sign(p) * c.dead_band, 0.0)
@@ -236,18 +256,29 @@ class TeleopMapping(LeafSystem):
         # The heading leads the capsule's axis by at most max_lead: a capsule the lumen holds
         # back cannot wind up an ever larger turn.
         h = lead_at_most(h, forward_axis, np.radians(c.max_lead_deg))
-        travel = h
+        travel, free = h, np.nan
         if c.assist and self._lumen_visible.HasValue(context) \
                 and float(self._lumen_visible.Eval(context)[0]) > 0.5:
             ray = np.asarray(self._lumen_ray.Eval(context), dtype=float)
             if np.all(np.isfinite(ray)) and np.linalg.norm(ray) > 0.5:
-                travel = R_WC @ ray
+                travel = R_WC @ (ray / np.linalg.norm(ray))
+                if self._lumen_range.HasValue(context):
+                    free = float(self._lumen_range.Eval(context)[0])
         if c.mode == "lead":
             # The EPM stays over the capsule, ahead of it along the heading by the lead.
             x[26] = np.clip(x[26] + step, -c.max_lead_distance, c.max_lead_distance)
-            xy = p_WM[:2] + x[26] * horizontal(travel)[:2]
+            if np.isfinite(free) and x[26] > 0.0:
+                # Over the point the lead along the lumen ray, short of the tissue there.
+                xy = p_WM[:2] + min(x[26], max(0.0, free - c.assist_margin)) * travel[:2]
+            else:
+                xy = p_WM[:2] + x[26] * horizontal(travel)[:2]
         else:
             xy = x[10:12] + step * horizontal(travel)[:2]
+        if c.max_speed > 0.0:
+            move = xy - x[10:12]
+            reach = c.max_speed * c.period
+            if np.linalg.norm(move) > reach:
+                xy = x[10:12] + move * (reach / np.linalg.norm(move))
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[16:19] = h
         x[10:16] = self.command_for(xy, h, p_WM, x[19])

@@ -14,7 +14,8 @@ that the operator's intent moves:
 - off-centre beyond the cone for `push_after` s (a bend the capsule cannot turn in
   place): push on at a fraction of the speed while steering;
 - lumen lost: stop advancing, centre the stylus sideways and draw it back slowly (back
-  off).
+  off); with the lead mapping (`cruise_offset`), hold a lead behind the capsule and, with
+  `search_offset`, keep turning toward the side where the lumen was last seen.
 The feedback force acts on the stylus through the device's motors; the hand resists it
 only through its impedance, so a guiding force moves the stylus: the operator yields.
 """
@@ -22,6 +23,7 @@ only through its impedance, so a guiding force moves the stylus: the operator yi
 import dataclasses
 
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 
@@ -55,6 +57,28 @@ class OperatorConfig:
     # centre while the lumen is near the image centre (m), back at the centre when it is
     # off-centre, and behind it when it is lost. 0: stroke and index.
     cruise_offset: float = 0.0
+    # For the lead mapping: while the lumen is out of view, besides backing off, hold the
+    # stylus this far toward the side where the lumen was last seen (m): keep turning the
+    # way it went (right when it was seen near the centre). 0: centre the stylus.
+    search_offset: float = 0.0
+    # Not found after search_sweep_after (s): the side turned toward sweeps around the image
+    # once every search_sweep_period (s).
+    search_sweep_after: float = 2.0
+    search_sweep_period: float = 8.0
+    # For the lead mapping: regulate the capsule's speed as seen in the video (its forward
+    # speed, m/s) instead of holding the stylus at cruise_offset: push the stylus forward
+    # while the capsule goes slower than this, draw it back while faster, at speed_gain
+    # metres of stylus per second per (m/s) of error (at most return_speed). The forward
+    # offset stays within the stroke; the speed is seen through speed_time (s) of
+    # low-pass. 0: hold cruise_offset.
+    target_speed: float = 0.0
+    speed_gain: float = 1.0
+    speed_time: float = 0.5
+    # Regulating, with the stylus at the front of its stroke and the capsule not moving
+    # (below a fifth of target_speed) for stall_after (s): treat the view as misleading:
+    # back off and search for retreat_time (s) as if the lumen were lost, then go on.
+    stall_after: float = 5.0
+    retreat_time: float = 3.0
     # Update period of the intent (s); the hand force itself follows the stylus at the
     # device's servo rate.
     period: float = 0.01
@@ -64,11 +88,15 @@ def check_operator_config(config: OperatorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     if not config.push_after >= 0.0 or not 0.0 <= config.push_fraction <= 1.0:
         raise ValueError("teleop operator push_after must be >= 0, push_fraction in [0, 1]")
-    if not config.cruise_offset >= 0.0:
-        raise ValueError("teleop operator cruise_offset must be >= 0")
-    if not config.steer_time > 0.0:
-        raise ValueError("teleop operator steer_time must be > 0")
+    if not config.cruise_offset >= 0.0 or not config.search_offset >= 0.0:
+        raise ValueError("teleop operator cruise_offset and search_offset must be >= 0")
+    if not config.steer_time > 0.0 or not config.speed_time > 0.0 \
+            or not config.search_sweep_period > 0.0:
+        raise ValueError("teleop operator steer_time, speed_time and search_sweep_period "
+                         "must be > 0")
     for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
+                 "target_speed", "speed_gain", "search_sweep_after", "stall_after",
+                 "retreat_time",
                  "steer_gain", "reaction_time", "back_off_speed"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"teleop operator {name} must be >= 0")
@@ -91,13 +119,15 @@ class SimulatedOperator(LeafSystem):
         - stylus_velocity
         - lumen_visible
         - lumen_ray
+        - forward_speed (optional)
         output_ports:
         - hand_force
         - buttons
         - intent
 
     stylus, stylus_velocity: the device's. lumen_visible, lumen_ray: what the operator sees
-    (the lumen tracker's outputs, or the truth). hand_force: on the stylus (N, D), from the
+    (the lumen tracker's outputs, or the truth). forward_speed: the capsule's speed along
+    its camera axis as the video shows it (m/s; needed with `target_speed`). hand_force: on the stylus (N, D), from the
     hand impedance toward the hand target. buttons: [clutch, mode]. intent: [hand target
     (3), phase (0 advancing, 1 returning, 2 backing off)].
 
@@ -116,11 +146,14 @@ class SimulatedOperator(LeafSystem):
         self._velocity = self.DeclareVectorInputPort("stylus_velocity", 3)
         self._visible = self.DeclareVectorInputPort("lumen_visible", 1)
         self._ray = self.DeclareVectorInputPort("lumen_ray", 3)
+        self._speed = self.DeclareVectorInputPort("forward_speed", 1)
+        self._regulating = config.cruise_offset > 0.0 and config.target_speed > 0.0
         # [target (3), phase, clutch, seen offsets ring (2 x delay), seen visible ring (delay)]
         n = self._delay_steps
         start_z = 0.0 if config.cruise_offset > 0.0 else self._half[2] * config.stroke_fraction
-        # [..., time off-centre (s)]
-        initial = np.concatenate([[0.0, 0.0, start_z, 0.0, 0.0], np.zeros(3 * n), [0.0]])
+        # [..., stalled for (s), retreat left (s), speed seen (m/s), time off-centre (s)]
+        initial = np.concatenate([[0.0, 0.0, start_z, 0.0, 0.0], np.zeros(3 * n),
+                                  [0.0, 0.0, 0.0, 0.0]])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareVectorOutputPort("hand_force", 3, self._calc_force)
         self.DeclareVectorOutputPort(
@@ -165,17 +198,51 @@ class SimulatedOperator(LeafSystem):
         if c.cruise_offset > 0.0:
             offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
             x[-1] = 0.0 if (seen_visible and offset_angle < c.advance_cone_deg) else x[-1] + dt
+            if self._regulating:
+                # The capsule's speed as the operator sees it in the video (low-passed).
+                v_now = float(self._speed.Eval(context)[0])
+                if np.isfinite(v_now):
+                    x[-2] += (v_now - x[-2]) * min(1.0, dt / c.speed_time)
+                # Pushing at the front of the stroke and going nowhere: retreat and search.
+                at_front = target[2] <= -self._half[2] * c.stroke_fraction + 1e-6
+                stalled = at_front and abs(x[-2]) < 0.2 * c.target_speed and x[-3] <= 0.0
+                x[-4] = x[-4] + dt if stalled else 0.0
+                if x[-4] > c.stall_after:
+                    x[-4], x[-3] = 0.0, c.retreat_time
+                if x[-3] > 0.0:
+                    x[-3] = max(0.0, x[-3] - dt)
+                    seen_visible = False
+                    x[-1] += dt
             if not seen_visible:
                 phase, goal = 2.0, 0.5 * c.cruise_offset
-            elif offset_angle < c.advance_cone_deg:
-                phase, goal = 0.0, -c.cruise_offset
-            elif x[-1] > c.push_after:
-                phase, goal = 0.0, -c.push_fraction * c.cruise_offset
+            elif offset_angle < c.advance_cone_deg or x[-1] > c.push_after:
+                phase = 0.0
+                wanted = c.target_speed * (1.0 if x[-1] == 0.0 else c.push_fraction)
+                if self._regulating:
+                    rate = np.clip(c.speed_gain * (wanted - x[-2]), -c.return_speed,
+                                   c.return_speed)
+                    goal = float(np.clip(target[2] - rate * dt,
+                                         -self._half[2] * c.stroke_fraction,
+                                         0.5 * c.cruise_offset))
+                else:
+                    goal = -c.cruise_offset * (1.0 if x[-1] == 0.0 else c.push_fraction)
             else:
-                phase, goal = 0.0, 0.0
-            speed = c.advance_speed if goal < target[2] else c.back_off_speed * 4.0
-            target[2] += np.clip(goal - target[2], -speed * dt, speed * dt)
-            aim = c.steer_gain * seen_offset if seen_visible else np.zeros(2)
+                phase, goal = 0.0, min(target[2], 0.0) if self._regulating else 0.0
+            if self._regulating and phase == 0.0:
+                target[2] = goal
+            else:
+                speed = c.advance_speed if goal < target[2] else c.back_off_speed * 4.0
+                target[2] += np.clip(goal - target[2], -speed * dt, speed * dt)
+            if seen_visible:
+                aim = c.steer_gain * seen_offset
+            else:  # search: turn toward where the lumen was last seen, then sweep around
+                norm = np.linalg.norm(seen_offset)
+                side = seen_offset / norm if norm > 0.05 else np.array([1.0, 0.0])
+                sweep = 2.0 * np.pi * max(0.0, x[-1] - c.search_sweep_after) \
+                    / c.search_sweep_period
+                aim = c.search_offset * np.array([
+                    side[0] * np.cos(sweep) - side[1] * np.sin(sweep),
+                    side[0] * np.sin(sweep) + side[1] * np.cos(sweep)])
             target[:2] += (aim - target[:2]) * min(1.0, dt / c.steer_time)
             target[:2] = np.clip(target[:2], -self._half[:2], self._half[:2])
             x[:3], x[3] = target, phase
@@ -243,3 +310,33 @@ class LumenRayFromTruth(LeafSystem):
 
     def _calc_visible(self, context, output):
         output.SetAtIndex(0, 1.0 if self._ok(context)[0] else 0.0)
+
+
+class ForwardSpeed(LeafSystem):
+    """The capsule's speed along its camera's axis (m/s): what the video's motion shows
+    the operator (forward positive).
+
+    .. pydrake_system::
+
+        name: ForwardSpeed
+        input_ports:
+        - capsule_state
+        output_ports:
+        - forward_speed
+
+    capsule_state: [q wxyz, p_WB, w_WB, v_WB] of the capsule's floating body.
+
+    Args:
+        z_BC: the camera's optical axis in the capsule's body frame.
+    """
+
+    def __init__(self, z_BC):
+        super().__init__()
+        self._z_BC = np.asarray(z_BC, dtype=float) / np.linalg.norm(z_BC)
+        self._state = self.DeclareVectorInputPort("capsule_state", 13)
+        self.DeclareVectorOutputPort("forward_speed", 1, self._calc)
+
+    def _calc(self, context, output):
+        x = np.asarray(self._state.Eval(context), dtype=float)
+        q = x[:4] / np.linalg.norm(x[:4])
+        output.SetAtIndex(0, float(x[10:13] @ (Quaternion(q).rotation() @ self._z_BC)))
