@@ -641,13 +641,18 @@ class ArmMount:
         return None
 
 
-def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool = True):
+def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool = True,
+                 external_epm_command: bool = False):
     """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is given.
 
     Pure construction: the scenario is not modified, nothing is simulated.
     `apply_magnet_force=False` leaves the magnet system's outputs available but does not
     apply its forces (the capsule lies on the wall under gravity): for ablation benchmarks.
+    `external_epm_command=True` (without teleop): the EPM follows the diagram's input port
+    `epm.command` ([p_WE, m_hat_W]) instead of the scenario's path, e.g. from a navigator.
     """
+    if external_epm_command and scenario.teleop is not None:
+        raise ScenarioError("scenario: an external EPM command and teleop both drive the EPM")
     colon = colon_for(scenario)
     # The capsule must start inside the colon, clear of both end caps.
     half_length = 0.02
@@ -688,8 +693,11 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
                                          capsule_start_pose(colon, scenario.capsule.start_s))
     trajectory, _ = _epm_trajectory(scenario, colon)
-    command_input = mount.connect(builder, plant, colon, trajectory,
-                                  external_command=scenario.teleop is not None)
+    command_input = mount.connect(
+        builder, plant, colon, trajectory,
+        external_command=scenario.teleop is not None or external_epm_command)
+    if external_epm_command:
+        builder.ExportInput(command_input, "epm.command")
 
     X_C_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
     magnets = [
