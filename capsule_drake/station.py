@@ -378,7 +378,8 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
                 trajectory, meshcat):
     """The haptic loop (scenario.teleop): operator -> device -> channel -> mapping -> EPM
     command (returned, for the mount), and force feedback (pseudo-force + the capsule's
-    contact, saturated) -> channel -> passivity -> device. Exports teleop.<signal>."""
+    contact, saturated) -> channel -> passivity -> device; the channel only when the link
+    is not ideal (teleop.channel_energy then). Exports teleop.<signal>."""
     teleop = scenario.teleop
     capsule = plant.GetBodyByName(CAPSULE_BODY)
     X_BC = plant.GetFrameByName("camera", capsule_instance).GetFixedPoseInBodyFrame()
@@ -410,15 +411,6 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
             builder.Connect(free.GetOutputPort("range"), mapping.GetInputPort("lumen_range"))
             builder.ExportOutput(free.GetOutputPort("range"), "teleop.lumen_range")
 
-    channel_config = copy.deepcopy(teleop.channel)
-    if all(c.delay == 0 and c.jitter == 0 and c.loss == 0
-           for c in (channel_config.forward, channel_config.backward)):
-        channel_config.passivity.enabled = False  # an ideal link: nothing to stabilise
-    channel = builder.AddNamedSystem("teleop.channel",
-                                     TeleopChannel(STYLUS_SIZE, channel_config))
-    builder.Connect(channel.GetOutputPort("stylus_out"), mapping.GetInputPort("stylus"))
-    builder.Connect(channel.GetOutputPort("stylus_age"), mapping.GetInputPort("stylus_age"))
-
     # What the operator feels: the pseudo-force (if any) and the capsule's contact.
     monitor = builder.AddNamedSystem("teleop.contact", ContactMonitor(
         plant.GetCollisionGeometriesForBody(capsule)))
@@ -435,7 +427,21 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
     if scenario.pseudo_force is not None:
         builder.Connect(builder.GetSubsystemByName("pseudo_force").GetOutputPort("F_D"),
                         feedback.GetInputPort("pseudo_force_D"))
-    builder.Connect(feedback.GetOutputPort("F_D"), channel.GetInputPort("force_in"))
+
+    # The link between device and robot. An ideal one (no delay, jitter or loss: the
+    # default, as the seed paper assumes) is a wire: nothing to stabilise, and the two 1 kHz
+    # channel systems would cost ~0.2 s per simulated second for nothing.
+    channel = None
+    force_to_device = feedback.GetOutputPort("F_D")
+    if not all(c.delay == 0 and c.jitter == 0 and c.loss == 0
+               for c in (teleop.channel.forward, teleop.channel.backward)):
+        channel = builder.AddNamedSystem("teleop.channel", TeleopChannel(
+            STYLUS_SIZE, copy.deepcopy(teleop.channel)))
+        builder.Connect(channel.GetOutputPort("stylus_out"), mapping.GetInputPort("stylus"))
+        builder.Connect(channel.GetOutputPort("stylus_age"),
+                        mapping.GetInputPort("stylus_age"))
+        builder.Connect(feedback.GetOutputPort("F_D"), channel.GetInputPort("force_in"))
+        force_to_device = channel.GetOutputPort("force_out")
 
     if teleop.operator == "simulated":
         device = builder.AddNamedSystem("teleop.device", HapticMaster(teleop.device))
@@ -467,22 +473,21 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
             builder.Connect(truth.GetOutputPort("visible"), hand.GetInputPort("lumen_visible"))
             builder.Connect(truth.GetOutputPort("ray"), hand.GetInputPort("lumen_ray"))
         builder.ExportOutput(hand.GetOutputPort("intent"), "teleop.intent")
-        builder.Connect(channel.GetOutputPort("force_out"),
-                        device.GetInputPort("feedback_force"))
-        builder.Connect(device.GetOutputPort("stylus_velocity"),
-                        channel.GetInputPort("stylus_velocity"))
+        builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
+        if channel is not None:
+            builder.Connect(device.GetOutputPort("stylus_velocity"),
+                            channel.GetInputPort("stylus_velocity"))
         builder.ExportOutput(device.GetOutputPort("motor_force"), "teleop.motor_force")
     elif teleop.operator == "udp":
         device = builder.AddNamedSystem("teleop.device", UdpHapticDevice(teleop.udp))
-        builder.Connect(channel.GetOutputPort("force_out"), device.GetInputPort("force_D"))
+        builder.Connect(force_to_device, device.GetInputPort("force_D"))
         builder.Connect(device.GetOutputPort("link_ok"), mapping.GetInputPort("link_ok"))
         builder.ExportOutput(device.GetOutputPort("link_ok"), "teleop.link_ok")
         builder.ExportOutput(device.GetOutputPort("stats"), "teleop.udp_stats")
     else:  # browser
         device = builder.AddNamedSystem("teleop.device", BrowserOperator(
             meshcat, teleop.device, scenario.capsule.camera))
-        builder.Connect(channel.GetOutputPort("force_out"),
-                        device.GetInputPort("feedback_force"))
+        builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
         for name in ("rgb_image", "frame_info"):
             builder.Connect(builder.GetSubsystemByName("capsule.camera").GetOutputPort(name),
                             device.GetInputPort(name))
@@ -490,14 +495,17 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
             tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
             for name in ("lumen_pixel", "lumen_visible"):
                 builder.Connect(tracker.GetOutputPort(name), device.GetInputPort(name))
-    split = builder.AddNamedSystem("teleop.stylus_position",
-                                   Demultiplexer([3, STYLUS_SIZE - 3]))
-    builder.Connect(device.GetOutputPort("stylus"), split.get_input_port())
-    builder.Connect(device.GetOutputPort("stylus"), channel.GetInputPort("stylus_in"))
-    builder.Connect(split.get_output_port(0), channel.GetInputPort("stylus_position"))
+    if channel is not None:
+        split = builder.AddNamedSystem("teleop.stylus_position",
+                                       Demultiplexer([3, STYLUS_SIZE - 3]))
+        builder.Connect(device.GetOutputPort("stylus"), split.get_input_port())
+        builder.Connect(device.GetOutputPort("stylus"), channel.GetInputPort("stylus_in"))
+        builder.Connect(split.get_output_port(0), channel.GetInputPort("stylus_position"))
+        builder.ExportOutput(channel.GetOutputPort("energy"), "teleop.channel_energy")
+    else:
+        builder.Connect(device.GetOutputPort("stylus"), mapping.GetInputPort("stylus"))
     builder.ExportOutput(device.GetOutputPort("stylus"), "teleop.stylus")
     builder.ExportOutput(feedback.GetOutputPort("F_D"), "teleop.feedback_D")
-    builder.ExportOutput(channel.GetOutputPort("energy"), "teleop.channel_energy")
     builder.ExportOutput(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
     builder.ExportOutput(mapping.GetOutputPort("heading"), "teleop.heading")
     return mapping.GetOutputPort("epm_command")

@@ -46,7 +46,8 @@ class PseudoForceField(LeafSystem):
     - ``terms_D`` (9, N): the lumen, wall and potential terms, weighted, in D, before
       saturation.
     - ``wall_distance`` (1, m): from the capsule's surface to the wall (< 0: pressed into
-      it); NaN before the first sample and while the capsule pose is not finite.
+      it); NaN before the first sample, while the capsule's pose is not finite, and when
+      the wall term's weight is 0 (the distance is then not computed).
     - ``invalid_inputs`` (3): per term (lumen, wall, potential), how many samples found its
       inputs not finite and set it to zero.
 
