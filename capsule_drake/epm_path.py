@@ -12,6 +12,8 @@ E's +z, which the joints point along (cos yaw sin pitch, sin yaw sin pitch, cos 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -59,13 +61,20 @@ def magnet_footprint_radius(geometry: MagnetGeometry) -> float:
     return 0.5 * float(np.linalg.norm(dims))
 
 
-def highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
-    """The highest skin point under a disc of `radius` centred at (x, y)."""
+@functools.lru_cache(maxsize=16)
+def _disc_samples(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets of a 9 x 9 grid's points inside a disc of `radius` (cached: the guards call
+    `highest_skin_under` hundreds of times a second with the magnet's one radius)."""
     offsets = np.linspace(-radius, radius, 9)
     dx, dy = np.meshgrid(offsets, offsets)
     inside = dx**2 + dy**2 <= radius**2 + 1e-12
-    heights = abdomen.skin_height(x + dx[inside], y + dy[inside])
-    return float(np.max(heights))
+    return dx[inside], dy[inside]
+
+
+def highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
+    """The highest skin point under a disc of `radius` centred at (x, y)."""
+    dx, dy = _disc_samples(float(radius))
+    return float(np.max(abdomen.skin_height(x + dx, y + dy)))
 
 
 def epm_pose_over(colon, s: float, clearance: float, geometry: MagnetGeometry):

@@ -1,0 +1,52 @@
+"""Real-time factor of the full teleoperation diagram.
+
+    .venv/bin/python benchmarks/bench_teleop_rtf.py [--fps 15 5] [--sim-seconds 5] [--repeats 3]
+
+The `Teleop` scenario as a person would drive it: physics, the EPM on the arm, the 256 px
+fisheye camera (colour and depth) at the given frame rates, the lumen tracker, the
+pseudo-force, and the haptic loop at 1 kHz (device, force feedback, mapping), with the
+simulated operator standing in for the person's hand (it costs what a browser or UDP
+device would). No Meshcat. Prints, per frame rate, the median real-time factor over
+repeats (each a fresh simulation warmed up for 1 s), and the wall time per simulated second.
+Target: at least 1x with the camera at 15 frames/s.
+"""
+
+import argparse
+import platform
+import statistics
+import time
+
+from pydrake.systems.analysis import Simulator
+
+from capsule_drake.scenario import load_scenario
+from capsule_drake.station import make_station
+
+
+def real_time_factor(fps: float, sim_seconds: float, warm_up: float = 1.0) -> float:
+    scenario = load_scenario(name="Teleop", override=f"{{capsule: {{camera: {{fps: {fps}}}}}}}")
+    simulator = Simulator(make_station(scenario))
+    simulator.Initialize()
+    simulator.AdvanceTo(warm_up)
+    start = time.perf_counter()
+    simulator.AdvanceTo(warm_up + sim_seconds)
+    return sim_seconds / (time.perf_counter() - start)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fps", type=float, nargs="+", default=[15.0, 5.0])
+    parser.add_argument("--sim-seconds", type=float, default=5.0)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    print(f"Teleop diagram, {platform.processor() or platform.machine()}, "
+          f"{args.repeats} x {args.sim_seconds:.0f} s simulated per frame rate")
+    for fps in args.fps:
+        factors = [real_time_factor(fps, args.sim_seconds) for _ in range(args.repeats)]
+        median = statistics.median(factors)
+        print(f"camera {fps:4.0f} fps: real-time factor {median:.2f} "
+              f"(runs {min(factors):.2f}-{max(factors):.2f}), "
+              f"{1.0 / median:.2f} s per simulated second")
+
+
+if __name__ == "__main__":
+    main()
