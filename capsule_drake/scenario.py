@@ -77,6 +77,13 @@ class ContactConfig:
     # Coulomb friction between capsule and mucosa (dynamic = static). Measured values span
     # 0.0004-0.054 on small-bowel mucosa; REFERENCE section 3 suggests sweeping 0.05-0.3.
     friction: float = 0.2
+    # Resistance to the capsule's motion that grows with its speed (tissue drag, mucus; the
+    # colon's friction rises with sliding velocity, Gao et al., IEEE Trans. Biomed. Eng.):
+    # a linear damping of the capsule's velocity relative to the colon, translational
+    # (N s/m) and rotational (N m s/rad), on its floating joint. 0 (default): not modelled,
+    # only Coulomb friction resists motion, so a capsule that breaks free accelerates.
+    drag_translational: float = 0.0
+    drag_rotational: float = 0.0
     # Drake's discrete contact approximation: "lagged" (default of Drake 1.58), "sap",
     # "similar" or "tamsi" (gone in 1.58).
     discrete_contact_approximation: str = "lagged"
@@ -322,6 +329,8 @@ def validate(scenario: Scenario) -> None:
          f"contact.model must be one of {', '.join(CONTACT_MODELS)}, "
          f"got {scenario.contact.model!r}")
     need(scenario.contact.friction >= 0, "contact.friction must be >= 0")
+    need(scenario.contact.drag_translational >= 0, "contact.drag_translational must be >= 0")
+    need(scenario.contact.drag_rotational >= 0, "contact.drag_rotational must be >= 0")
     need(scenario.epm.clearance >= 0, "epm.clearance must be >= 0")
     need(scenario.epm.mount in EPM_MOUNTS,
          f"epm.mount must be one of {', '.join(EPM_MOUNTS)}, got {scenario.epm.mount!r}")

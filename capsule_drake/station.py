@@ -66,7 +66,7 @@ from pydrake.multibody.plant import (
     ExternallyAppliedSpatialForce,
     MultibodyPlantConfig,
 )
-from pydrake.multibody.tree import PdControllerGains
+from pydrake.multibody.tree import PdControllerGains, QuaternionFloatingJoint
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer, TrajectorySource, ZeroOrderHold
 
@@ -272,6 +272,18 @@ class CameraWalls:
     def __call__(self, p_WC) -> str:
         s = self.centerline.closest(np.asarray(p_WC, dtype=float))[0]
         return self.renderer_names[self.windows.index_at(s)]
+
+
+def add_capsule_drag(plant, scenario: Scenario):
+    """With a speed-dependent resistance in the scenario (contact.drag_*), the capsule's
+    floating joint is declared here, with that damping (relative to the world, where the
+    colon is); otherwise Finalize gives it a free one. Call before Finalize."""
+    c = scenario.contact
+    if c.drag_translational > 0.0 or c.drag_rotational > 0.0:
+        capsule = plant.GetBodyByName(CAPSULE_BODY)
+        plant.AddJoint(QuaternionFloatingJoint(
+            "capsule_floating", plant.world_frame(), capsule.body_frame(),
+            angular_damping=c.drag_rotational, translational_damping=c.drag_translational))
 
 
 def set_capsule_contact(plant, scene_graph, scenario: Scenario):
@@ -694,12 +706,16 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
             raise ScenarioError(f"scenario: capsule.camera: {e}") from None
         renderer_for = add_camera_walls(plant, scene_graph, scenario, colon, camera_config)
     set_capsule_contact(plant, scene_graph, scenario)
+    add_capsule_drag(plant, scenario)
 
     plant.Finalize()
 
     # Initial state: capsule on the centerline at its start, the EPM where its path begins.
-    plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
-                                         capsule_start_pose(colon, scenario.capsule.start_s))
+    start_pose = capsule_start_pose(colon, scenario.capsule.start_s)
+    if plant.HasJointNamed("capsule_floating"):  # declared with damping (add_capsule_drag)
+        plant.GetJointByName("capsule_floating").SetDefaultPose(start_pose)
+    else:
+        plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY), start_pose)
     trajectory, _ = _epm_trajectory(scenario, colon)
     command_input = mount.connect(
         builder, plant, colon, trajectory,
