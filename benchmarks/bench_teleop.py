@@ -1,6 +1,7 @@
 """Teleoperation with the simulated operator, haptic guidance on and off.
 
     python benchmarks/bench_teleop.py [--duration 120] [--scenario Teleop] [--seeds 0 1 2]
+        [--scenario-text YAML]
 
 Runs the scenario on each colon seed twice, in parallel processes: with the pseudo-force (guidance on) and
 without it (the operator feels only the capsule's contact with the wall). Prints, for each:
@@ -18,8 +19,17 @@ import time
 import numpy as np
 
 
+def merge(base: dict, extra: dict) -> dict:
+    """base with extra laid over it, nested dicts merged."""
+    out = dict(base)
+    for key, value in extra.items():
+        out[key] = (merge(out[key], value) if isinstance(value, dict)
+                    and isinstance(out.get(key), dict) else value)
+    return out
+
+
 def run(args):
-    scenario_name, duration, guidance, seed = args
+    scenario_name, duration, guidance, seed, text = args
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
@@ -28,8 +38,12 @@ def run(args):
     from capsule_drake.station import colon_for, make_station
     from capsule_drake.systems.contact_monitor import ContactMonitor
 
-    override = f"{{duration: {duration}, colon: {{seed: {seed}}}" + \
-        ("}" if guidance else ", pseudo_force: null}")
+    import yaml
+
+    override = merge(yaml.safe_load(text) or {}, {"duration": duration, "colon": {"seed": seed}})
+    if not guidance:
+        override["pseudo_force"] = None
+    override = yaml.safe_dump(override, default_flow_style=True)
     scenario = load_scenario(name=scenario_name, override=override)
     colon = colon_for(scenario)
     builder = DiagramBuilder()
@@ -82,16 +96,19 @@ def main():
     parser.add_argument("--scenario", default="Teleop")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0],
                         help="colon seeds (default: 0, the default colon)")
+    parser.add_argument("--scenario-text", default="",
+                        help="YAML layered on the scenario, e.g. '{contact: {friction: 0.1}}'")
     args = parser.parse_args()
-    jobs = [(args.scenario, args.duration, guidance, seed) for seed in args.seeds
-            for guidance in (True, False)]
+    jobs = [(args.scenario, args.duration, guidance, seed, args.scenario_text)
+            for seed in args.seeds for guidance in (True, False)]
     with multiprocessing.get_context("spawn").Pool(2) as pool:
         results = pool.map(run, jobs)
-    print(f"{args.scenario}, {args.duration:.0f} s simulated, simulated operator")
+    print(f"{args.scenario} {args.scenario_text}, {args.duration:.0f} s simulated, "
+          "simulated operator")
     print(f"{'seed':>4s} {'guidance':8s} {'advance':>8s} {'to 50 cm':>8s} {'wall contact':>12s} "
           f"{'peak force':>10s} {'centring':>8s} {'in view':>7s} {'EPM path':>8s} "
           f"{'speed p50/p99':>13s} {'RTF':>5s}")
-    for (_, _, _, seed), r in zip(jobs, results):
+    for (_, _, _, seed, _), r in zip(jobs, results):
         print(f"{seed:4d} {r['guidance']:8s} {r['advance_cm']:6.1f}cm {r['time_to_50cm_s']:7.1f}s "
               f"{r['wall_contact_s']:11.1f}s {r['peak_contact_N']:9.2f}N "
               f"{r['centring_deg']:7.1f}d {100 * r['lumen_in_view']:6.0f}% "
