@@ -95,7 +95,8 @@ from capsule_drake.systems.pseudo_force import PseudoForceField
 from capsule_drake.systems.stage_command import PoseToStage
 from capsule_drake.teleop.mapping import TeleopMapping
 from capsule_drake.teleop.browser import BrowserOperator
-from capsule_drake.teleop.operator import ForwardSpeed, LumenRayFromTruth, SimulatedOperator
+from capsule_drake.teleop.operator import (ForwardSpeed, LumenRayFromTruth, SimulatedOperator,
+                                           WayForward)
 from capsule_drake.teleop.udp import UdpHapticDevice
 
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
@@ -470,6 +471,11 @@ def _add_teleop(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
                         speed.GetInputPort("capsule_state"))
         builder.Connect(speed.GetOutputPort("forward_speed"),
                         hand.GetInputPort("forward_speed"))
+        way = builder.AddNamedSystem("teleop.way_forward", WayForward(
+            X_BC.rotation().matrix(), start.translation()))
+        builder.Connect(plant.get_state_output_port(capsule_instance),
+                        way.GetInputPort("capsule_state"))
+        builder.Connect(way.GetOutputPort("way_C"), hand.GetInputPort("way_forward"))
         if teleop.lumen_source == "tracker":
             tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
             builder.Connect(tracker.GetOutputPort("lumen_visible"),

@@ -17,7 +17,8 @@ from capsule_drake.systems.epm_arm import EpmGuard
 from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
 from capsule_drake.systems.lumen_range import free_range
-from capsule_drake.teleop.operator import ForwardSpeed, OperatorConfig, SimulatedOperator
+from capsule_drake.teleop.operator import (ForwardSpeed, OperatorConfig, SimulatedOperator,
+                                           WayForward)
 from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.math import RollPitchYaw, RotationMatrix
 from capsule_drake.teleop.udp_client import StylusClient
@@ -261,6 +262,48 @@ def test_simulated_operator_regulates_the_capsule_speed():
     z_fast = operator.GetOutputPort("intent").Eval(context)[2]
     assert z_fast > z_stuck + 0.01
     assert z_fast <= 0.5 * config.cruise_offset + 1e-12  # at most a little behind centre
+
+
+def test_way_forward_points_from_the_trail_to_the_capsule_in_the_camera_frame():
+    rpy = RollPitchYaw(0.2, -0.4, 1.0)
+    R_WB = rpy.ToRotationMatrix().matrix()
+    R_BC = RollPitchYaw(np.pi, 0.0, 0.0).ToRotationMatrix().matrix()
+    way = WayForward(R_BC, start=[0.0, 0.0, 0.0], trail_time=1.0, period=0.05)
+    context = way.CreateDefaultContext()
+    q = rpy.ToQuaternion()
+
+    def at(p):
+        way.get_input_port().FixValue(context, np.concatenate(
+            [[q.w(), q.x(), q.y(), q.z()], p, np.zeros(6)]))
+        return way.get_output_port().Eval(context)
+
+    np.testing.assert_array_equal(at([0.01, 0.0, 0.0]), 0.0)  # within 2 cm of the trail
+    p = np.array([0.1, 0.05, 0.0])
+    np.testing.assert_allclose(at(p), (R_WB @ R_BC).T @ (p / np.linalg.norm(p)), atol=1e-12)
+    simulator = Simulator(way, context)
+    simulator.AdvanceTo(10.0)  # the trail catches up with a capsule that stays put
+    np.testing.assert_array_equal(at(p), 0.0)
+
+
+def test_operator_looking_back_the_way_it_came_searches_toward_the_way_forward():
+    config = OperatorConfig(reaction_time=0.02, period=0.01, cruise_offset=0.03,
+                            search_offset=0.02, turn_back_deg=30.0, steer_time=0.05)
+    operator = SimulatedOperator(config, HapticDeviceConfig().workspace_half_extents)
+    context = operator.CreateDefaultContext()
+    operator.GetInputPort("stylus").FixValue(context, np.r_[np.zeros(3), 1, 0, 0, 0, 0, 0])
+    operator.GetInputPort("stylus_velocity").FixValue(context, np.zeros(3))
+    operator.GetInputPort("lumen_visible").FixValue(context, [1.0])
+    operator.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, 1.0])  # centred
+    way = np.array([0.6, 0.0, -0.8])  # the way forward is behind, to the right
+    operator.GetInputPort("way_forward").FixValue(context, way)
+    simulator = Simulator(operator, context)
+    simulator.AdvanceTo(1.0)
+    intent = operator.GetOutputPort("intent").Eval(context)
+    assert intent[3] == 2.0  # not advancing toward the lumen in view: searching
+    assert intent[0] > 0.015 and abs(intent[1]) < 1e-3  # turning right, toward the way
+    operator.GetInputPort("way_forward").FixValue(context, [0.0, 0.0, 1.0])  # ahead again
+    simulator.AdvanceTo(2.0)
+    assert operator.GetOutputPort("intent").Eval(context)[3] == 0.0  # advancing
 
 
 def test_mapping_clutch_and_lost_link_hold_the_command(colon):

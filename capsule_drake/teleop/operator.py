@@ -79,6 +79,10 @@ class OperatorConfig:
     # back off and search for retreat_time (s) as if the lumen were lost, then go on.
     stall_after: float = 5.0
     retreat_time: float = 3.0
+    # Sense of direction (with the `way_forward` input): when the camera looks back the way
+    # the capsule came (the way forward more than this angle behind the image plane, deg),
+    # the lumen in view is the way out: search, turning toward the way forward. 0: off.
+    turn_back_deg: float = 0.0
     # Update period of the intent (s); the hand force itself follows the stylus at the
     # device's servo rate.
     period: float = 0.01
@@ -96,7 +100,7 @@ def check_operator_config(config: OperatorConfig) -> None:
                          "must be > 0")
     for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
                  "target_speed", "speed_gain", "search_sweep_after", "stall_after",
-                 "retreat_time",
+                 "retreat_time", "turn_back_deg",
                  "steer_gain", "reaction_time", "back_off_speed"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"teleop operator {name} must be >= 0")
@@ -120,6 +124,7 @@ class SimulatedOperator(LeafSystem):
         - lumen_visible
         - lumen_ray
         - forward_speed (optional)
+        - way_forward (optional)
         output_ports:
         - hand_force
         - buttons
@@ -127,7 +132,9 @@ class SimulatedOperator(LeafSystem):
 
     stylus, stylus_velocity: the device's. lumen_visible, lumen_ray: what the operator sees
     (the lumen tracker's outputs, or the truth). forward_speed: the capsule's speed along
-    its camera axis as the video shows it (m/s; needed with `target_speed`). hand_force: on the stylus (N, D), from the
+    its camera axis as the video shows it (m/s; needed with `target_speed`). way_forward: the
+    way the capsule has been going, in the camera frame (unit, or zeros; `WayForward`; used
+    with `turn_back_deg`). hand_force: on the stylus (N, D), from the
     hand impedance toward the hand target. buttons: [clutch, mode]. intent: [hand target
     (3), phase (0 advancing, 1 returning, 2 backing off)].
 
@@ -147,6 +154,7 @@ class SimulatedOperator(LeafSystem):
         self._visible = self.DeclareVectorInputPort("lumen_visible", 1)
         self._ray = self.DeclareVectorInputPort("lumen_ray", 3)
         self._speed = self.DeclareVectorInputPort("forward_speed", 1)
+        self._way = self.DeclareVectorInputPort("way_forward", 3)
         self._regulating = config.cruise_offset > 0.0 and config.target_speed > 0.0
         # [target (3), phase, clutch, seen offsets ring (2 x delay), seen visible ring (delay)]
         n = self._delay_steps
@@ -195,6 +203,18 @@ class SimulatedOperator(LeafSystem):
         front = -self._half[2] * c.stroke_fraction
         rear = self._half[2] * c.stroke_fraction
         dt = c.period
+        turned_back = False
+        if c.cruise_offset > 0.0 and c.turn_back_deg > 0.0 and self._way.HasValue(context):
+            way = np.asarray(self._way.Eval(context), dtype=float)
+            if np.all(np.isfinite(way)) and np.linalg.norm(way) > 0.5 \
+                    and way[2] < -np.sin(np.radians(c.turn_back_deg)):
+                # Looking back the way it came: what is in view is the way out. Search,
+                # turning toward the way forward (its side in the image; right if straight
+                # behind).
+                turned_back = True
+                seen_visible = False
+                side = np.array([way[0], -way[1]])
+                seen_offset = side if np.linalg.norm(side) > 0.05 else np.array([1.0, 0.0])
         if c.cruise_offset > 0.0:
             offset_angle = np.degrees(np.arcsin(np.clip(np.linalg.norm(seen_offset), 0, 1)))
             x[-1] = 0.0 if (seen_visible and offset_angle < c.advance_cone_deg) else x[-1] + dt
@@ -340,3 +360,51 @@ class ForwardSpeed(LeafSystem):
         x = np.asarray(self._state.Eval(context), dtype=float)
         q = x[:4] / np.linalg.norm(x[:4])
         output.SetAtIndex(0, float(x[10:13] @ (Quaternion(q).rotation() @ self._z_BC)))
+
+
+class WayForward(LeafSystem):
+    """The way the capsule has been going, as the operator knows it from the external view
+    (or a localisation display): from a trail point that follows the capsule with a lag
+    (low-pass of its position, time constant `trail_time`) to the capsule, in the camera
+    frame, unit; zeros until the capsule is `min_distance` from the trail.
+
+    .. pydrake_system::
+
+        name: WayForward
+        input_ports:
+        - capsule_state
+        output_ports:
+        - way_C
+
+    Args:
+        R_BC: the camera's orientation in the capsule body (3, 3).
+        start: the capsule's start position (where the trail begins).
+    """
+
+    def __init__(self, R_BC, start, trail_time: float = 10.0, min_distance: float = 0.02,
+                 period: float = 0.05):
+        super().__init__()
+        self._R_BC = np.asarray(R_BC, dtype=float)
+        self._alpha = min(1.0, period / trail_time)
+        self._min = min_distance
+        self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
+        self._trail = self.DeclareDiscreteState(np.asarray(start, dtype=float))
+        self.DeclareVectorOutputPort("way_C", 3, self._calc, {self.all_sources_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    def _update(self, context, discrete_state):
+        x = np.asarray(self._state_port.Eval(context), dtype=float)
+        trail = context.get_discrete_state(self._trail).value()
+        if np.all(np.isfinite(x[4:7])):
+            discrete_state.set_value(self._trail, trail + self._alpha * (x[4:7] - trail))
+
+    def _calc(self, context, output):
+        x = np.asarray(self._state_port.Eval(context), dtype=float)
+        way = x[4:7] - context.get_discrete_state(self._trail).value()
+        distance = np.linalg.norm(way)
+        if not np.isfinite(distance) or distance < self._min:
+            output.SetFromVector(np.zeros(3))
+            return
+        q = x[:4] / np.linalg.norm(x[:4])
+        R_WC = Quaternion(q).rotation() @ self._R_BC
+        output.SetFromVector(R_WC.T @ (way / distance))
