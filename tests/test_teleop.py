@@ -243,15 +243,22 @@ def test_forward_speed_is_the_velocity_along_the_camera_axis():
     assert speed.get_output_port().Eval(context)[0] == pytest.approx(v @ R[:, 2], abs=1e-12)
 
 
-def test_simulated_operator_regulates_the_capsule_speed():
-    config = OperatorConfig(reaction_time=0.02, period=0.01, cruise_offset=0.03,
-                            target_speed=0.01, speed_gain=1.0, speed_time=0.05)
+def _operator_seeing(config, ray=(0.0, 0.0, 1.0)):
+    """A SimulatedOperator with the stylus at rest at the centre and the lumen in view along
+    `ray`; returns (operator, context)."""
     operator = SimulatedOperator(config, HapticDeviceConfig().workspace_half_extents)
     context = operator.CreateDefaultContext()
     operator.GetInputPort("stylus").FixValue(context, np.r_[np.zeros(3), 1, 0, 0, 0, 0, 0])
     operator.GetInputPort("stylus_velocity").FixValue(context, np.zeros(3))
     operator.GetInputPort("lumen_visible").FixValue(context, [1.0])
-    operator.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, 1.0])
+    operator.GetInputPort("lumen_ray").FixValue(context, np.asarray(ray, dtype=float))
+    return operator, context
+
+
+def test_simulated_operator_regulates_the_capsule_speed():
+    config = OperatorConfig(reaction_time=0.02, period=0.01, cruise_offset=0.03,
+                            target_speed=0.01, speed_gain=1.0, speed_time=0.05)
+    operator, context = _operator_seeing(config)
     operator.GetInputPort("forward_speed").FixValue(context, [0.0])  # stuck: push on
     simulator = Simulator(operator, context)
     simulator.AdvanceTo(1.0)
@@ -288,12 +295,7 @@ def test_way_forward_points_from_the_trail_to_the_capsule_in_the_camera_frame():
 def test_operator_looking_back_the_way_it_came_searches_toward_the_way_forward():
     config = OperatorConfig(reaction_time=0.02, period=0.01, cruise_offset=0.03,
                             search_offset=0.02, turn_back_deg=30.0, steer_time=0.05)
-    operator = SimulatedOperator(config, HapticDeviceConfig().workspace_half_extents)
-    context = operator.CreateDefaultContext()
-    operator.GetInputPort("stylus").FixValue(context, np.r_[np.zeros(3), 1, 0, 0, 0, 0, 0])
-    operator.GetInputPort("stylus_velocity").FixValue(context, np.zeros(3))
-    operator.GetInputPort("lumen_visible").FixValue(context, [1.0])
-    operator.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, 1.0])  # centred
+    operator, context = _operator_seeing(config)  # the lumen centred
     way = np.array([0.6, 0.0, -0.8])  # the way forward is behind, to the right
     operator.GetInputPort("way_forward").FixValue(context, way)
     simulator = Simulator(operator, context)

@@ -237,15 +237,14 @@ class TeleopMapping(LeafSystem):
             x[20:23] = p  # the stylus at the previous sample
             x[7:10] = x[16:19]  # the heading at engagement
             x[4:7], x[23:26] = right, up  # the image's axes at engagement
-        if c.mode == "position":
+        if c.mode in ("position", "lead"):
             yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
-            h = turn(turn(x[7:10], x[23:26], -yaw), x[4:7], pitch)
-            step = -(p[2] - x[22]) * c.translation_scale
-        elif c.mode == "lead":
-            # Relative to the capsule: the stylus's offset turns the heading from the
-            # camera's current axis, as an endoscope's tip is steered from its own view.
-            yaw, pitch = (p[:2] - x[1:3]) * [c.yaw_gain, c.pitch_gain]
-            h = turn(turn(forward_axis, up, -yaw), right, pitch)
+            # Position: turned from the heading at engagement, about the image's axes then.
+            # Lead: from the camera's current axis, as an endoscope's tip is steered from
+            # its own view.
+            h0, h_up, h_right = ((x[7:10], x[23:26], x[4:7]) if c.mode == "position"
+                                 else (forward_axis, up, right))
+            h = turn(turn(h0, h_up, -yaw), h_right, pitch)
             step = -(p[2] - x[22]) * c.translation_scale
         else:
             offset = np.where(np.abs(p) > c.dead_band, p - np.sign(p) * c.dead_band, 0.0)
