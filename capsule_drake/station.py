@@ -346,8 +346,10 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
     exported as capsule.camera.<signal> and capsule.lumen.<signal>."""
     config = scenario.capsule.camera
     camera_frame = plant.GetFrameByName("camera", capsule_instance)
+    # With camera walls the camera sees only the anchored wall (add_camera_walls), so its
+    # depth image can be drawn on demand.
     camera = builder.AddNamedSystem("capsule.camera", capsule_camera_for_frame(
-        plant, camera_frame, config, renderer_for))
+        plant, camera_frame, config, renderer_for, static_scene=renderer_for is not None))
     builder.Connect(scene_graph.get_query_output_port(), camera.get_query_object_input_port())
     builder.ExportOutput(camera.get_rgb_image_output_port(), "capsule.camera.rgb_image")
     builder.ExportOutput(camera.get_depth_image_output_port(), "capsule.camera.depth_image")

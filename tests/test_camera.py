@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
-from pydrake.geometry import (Box, GeometryInstance, PerceptionProperties, Rgba, SceneGraph, Sphere)
+from pydrake.geometry import (Box, GeometryInstance, PerceptionProperties, Rgba, Role,
+                              SceneGraph, Sphere)
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.parsing import Parser
@@ -164,19 +165,34 @@ def test_lumen_is_dark_with_the_camera_light(colon_scene, lens):
     assert np.hypot(*np.subtract(darkest, deepest)) < 0.1 * renderer.width
 
 
-def _moving_capsule_diagram(config, speed):
-    """A weightless capsule gliding along its axis at `speed` in front of a plate."""
+def _moving_capsule_diagram(config, speed, static_scene=None):
+    """A weightless capsule gliding along its axis at `speed` in front of a plate. With
+    `static_scene` (True / False), the capsule's own shell is invisible to cameras and the
+    diagram holds two cameras, the given one last, the other first."""
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
     configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
     plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0.0, 0.0, 0.06]),
                                  Box(1.0, 1.0, 0.01), "plate", np.array([0.8, 0.4, 0.3, 1.0]))
+    if static_scene is not None:
+        plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0.02, 0.0, 0.04]),
+                                     Sphere(0.008), "ball", np.array([0.3, 0.8, 0.3, 1.0]))
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
     plant.Finalize()
     add_camera_renderer(scene_graph, config)
-    camera = builder.AddNamedSystem("camera", capsule_camera_for_frame(
-        plant, plant.GetFrameByName("camera"), config))
-    builder.Connect(scene_graph.get_query_output_port(), camera.get_query_object_input_port())
+    cameras = []
+    for static in ([not static_scene, static_scene] if static_scene is not None else [False]):
+        camera = builder.AddNamedSystem(f"camera_{len(cameras)}", capsule_camera_for_frame(
+            plant, plant.GetFrameByName("camera"), config, static_scene=static))
+        builder.Connect(scene_graph.get_query_output_port(),
+                        camera.get_query_object_input_port())
+        cameras.append(camera)
+    if static_scene is not None:
+        source = plant.get_source_id()
+        for geometry_id in plant.GetVisualGeometriesForBody(plant.GetBodyByName("capsule")):
+            if scene_graph.model_inspector().GetPerceptionProperties(geometry_id):
+                scene_graph.RemoveRole(source, geometry_id, Role.kPerception)
+    camera = cameras[-1]
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyContextFromRoot(context)
@@ -184,7 +200,49 @@ def _moving_capsule_diagram(config, speed):
     plant.SetFreeBodyPose(plant_context, body, RigidTransform())
     plant.SetFreeBodySpatialVelocity(plant_context, body,
                                      SpatialVelocity(np.zeros(3), [0.0, 0.0, speed]))
+    if static_scene is not None:
+        return diagram, context, cameras
     return diagram, context, camera
+
+
+def test_depth_drawn_on_demand_is_the_frames_own():
+    """In a static scene the depth image is drawn when first read, from the pose its frame
+    was taken at: the same image as drawing it with the frame, and never drawn unread."""
+    config = CameraConfig(lens=LensConfig(width=96, height=96), fps=10.0)
+    diagram, context, (eager, lazy) = _moving_capsule_diagram(config, 0.05, static_scene=True)
+    drawn = []
+    render_range = lazy.renderer.render_range
+    lazy.renderer.render_range = lambda *a, **k: drawn.append(1) or render_range(*a, **k)
+    simulator = Simulator(diagram, context)
+    simulator.AdvanceTo(0.35)  # frames at 0, 0.1, 0.2, 0.3; the capsule 5 mm on since
+    assert not drawn
+    lazy_context = lazy.GetMyContextFromRoot(simulator.get_context())
+    eager_context = eager.GetMyContextFromRoot(simulator.get_context())
+
+    def depths():
+        return (lazy.get_depth_image_output_port().Eval(lazy_context).data[..., 0].copy(),
+                eager.get_depth_image_output_port().Eval(eager_context).data[..., 0])
+
+    first, expected = depths()
+    assert len(drawn) == 1
+    assert np.isfinite(expected).sum() > 1000
+    np.testing.assert_array_equal(np.isfinite(first), np.isfinite(expected))
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(first[finite], expected[finite], atol=1e-6)
+    # Drawn from the frame's pose, not the capsule's current one (5 mm nearer the plate).
+    now = lazy.renderer.render_range(
+        lazy.get_query_object_input_port().Eval(lazy_context), lazy._parent_frame,
+        lazy._X_PC)
+    both = finite & np.isfinite(now)
+    assert np.abs(now[both] - first[both]).max() > 0.003
+    depths()
+    assert len(drawn) == 2  # one more: the check just above; the cached image stands
+    simulator.AdvanceTo(0.45)
+    second, expected = depths()
+    assert len(drawn) == 3
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(second[finite], expected[finite], atol=1e-6)
+    assert np.abs(second[finite] - first[finite]).max() > 0.003  # a new frame
 
 
 @pytest.mark.parametrize("mode, speed, duration, frames", [

@@ -393,10 +393,15 @@ class CapsuleCamera(LeafSystem):
         renderer_for: optional function of the camera's world position (3,) returning the
             name of the renderer to draw with (the colon window it is in; see
             `station.add_camera_walls`). None: always `config.renderer_name`.
+        static_scene: True when everything the camera can see is anchored (in a colon with
+            camera walls, the station strips the perception role from all else). Then the
+            depth image of a frame is drawn when something first reads it, from the pose
+            the frame was taken at, and never when nothing does: the same image, at no
+            cost to a diagram that does not use depth. False: drawn with every frame.
     """
 
     def __init__(self, config: CameraConfig, parent_frame: FrameId, X_PC: RigidTransform,
-                 renderer_for=None):
+                 renderer_for=None, static_scene: bool = False):
         super().__init__()
         self._config = dataclasses.replace(config)
         self._renderer = LensRenderer(self._config)
@@ -421,7 +426,17 @@ class CapsuleCamera(LeafSystem):
         # Camera pose at the previous tick, [R_WC row-major (9), p_WC (3)], for the motion.
         self._pose_index = self.DeclareDiscreteState(np.full(12, np.nan))
         self._rgb_port = self.DeclareStateOutputPort("rgb_image", self._rgb_index)
-        self._depth_port = self.DeclareStateOutputPort("depth_image", self._depth_index)
+        # Depth drawn on demand (static scene): the pose of the last frame, in the same
+        # layout, and an output port cached until the next frame. Its calculation reads the
+        # query object but depends only on that pose: the scene it sees does not move.
+        self._lazy_depth = bool(static_scene and c.render_depth)
+        if self._lazy_depth:
+            self._frame_pose_index = self.DeclareDiscreteState(np.full(12, np.nan))
+            self._depth_port = self.DeclareAbstractOutputPort(
+                "depth_image", lambda: AbstractValue.Make(ImageDepth32F(W, H)),
+                self._calc_lazy_depth, {self.discrete_state_ticket(self._frame_pose_index)})
+        else:
+            self._depth_port = self.DeclareStateOutputPort("depth_image", self._depth_index)
         self._frame_info_port = self.DeclareStateOutputPort("frame_info", self._info_index)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._tick, 0.0, self._on_tick)
@@ -458,15 +473,32 @@ class CapsuleCamera(LeafSystem):
         X_WP = query_object.GetPoseInWorld(self._parent_frame)
         return self._renderer_for(X_WP.multiply(self._X_PC.translation()))
 
-    def _capture(self, query_object, state):
+    def _capture(self, query_object, state, pose_now=None):
         renderer = self.renderer_name(query_object)
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         self._renderer.render_rgba(query_object, self._parent_frame, self._X_PC,
                                    out=rgb.mutable_data, renderer=renderer)
-        if self._config.render_depth:
+        if self._lazy_depth:
+            if pose_now is None:
+                pose_now = self._camera_pose_vector(query_object)
+            state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose_now)
+        elif self._config.render_depth:
             depth = state.get_mutable_abstract_state(self._depth_index).get_mutable_value()
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
                                         out=depth.mutable_data[..., 0], renderer=renderer)
+
+    def _calc_lazy_depth(self, context, value):
+        pose = context.get_discrete_state(self._frame_pose_index).value()
+        depth = value.get_mutable_value()
+        if not np.all(np.isfinite(pose)):  # no frame yet
+            depth.mutable_data[...] = np.inf
+            return
+        query_object = self._query_object_port.Eval(context)
+        X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
+        renderer = (self._config.renderer_name if self._renderer_for is None
+                    else self._renderer_for(pose[9:]))
+        self._renderer.render_range(query_object, query_object.inspector().world_frame_id(),
+                                    X_WC, out=depth.mutable_data[..., 0], renderer=renderer)
 
     def _camera_pose_vector(self, query_object) -> np.ndarray:
         X_WC = query_object.GetPoseInWorld(self._parent_frame).multiply(self._X_PC)
@@ -508,7 +540,7 @@ class CapsuleCamera(LeafSystem):
         # Half a tick of slack: ticks land on multiples of the tick period up to rounding.
         take = t - t_last >= 1.0 / rate - 0.5 * self._tick
         if take:
-            self._capture(query_object, state)
+            self._capture(query_object, state, pose_now)
             t_last, count = t, count + 1.0
         state.get_mutable_discrete_state(self._info_index).set_value(
             [t_last, count, 1.0 if take else 0.0, rate])
@@ -517,9 +549,9 @@ class CapsuleCamera(LeafSystem):
 
 
 def capsule_camera_for_frame(plant, frame, config: CameraConfig,
-                             renderer_for=None) -> CapsuleCamera:
+                             renderer_for=None, static_scene: bool = False) -> CapsuleCamera:
     """A CapsuleCamera fixed to a plant frame (e.g. the capsule model's `camera` frame):
     resolves the frame's body to its SceneGraph frame and the frame's pose in that body."""
     body = frame.body()
     return CapsuleCamera(config, plant.GetBodyFrameIdOrThrow(body.index()),
-                         frame.GetFixedPoseInBodyFrame(), renderer_for)
+                         frame.GetFixedPoseInBodyFrame(), renderer_for, static_scene)
