@@ -73,7 +73,14 @@ def _disc_samples(radius: float) -> tuple[np.ndarray, np.ndarray]:
 
 def highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
     """The highest skin point under a disc of `radius` centred at (x, y)."""
-    dx, dy = _disc_samples(float(radius))
+    return _highest_skin_under(abdomen, float(x), float(y), float(radius))
+
+
+@functools.lru_cache(maxsize=64)
+def _highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
+    # Cached on the exact arguments: in a teleoperation step the mapping and the arm's
+    # guard ask about the same EPM position several times.
+    dx, dy = _disc_samples(radius)
     return float(np.max(abdomen.skin_height(x + dx, y + dy)))
 
 

@@ -30,6 +30,8 @@ result says so (`PseudoForce.invalid`), so a caller can count them.
 
 import dataclasses
 
+import math
+
 import numpy as np
 
 CAPSULE_RADIUS = 0.0058
@@ -153,10 +155,14 @@ def saturate_checked(force, limit: float) -> tuple[np.ndarray, bool, bool]:
     would push the hand in a direction nobody commanded. A force longer than `limit` is
     scaled down to it, keeping its direction (saturated = True)."""
     f = np.asarray(force, dtype=float).reshape(3)
-    if not np.all(np.isfinite(f)):
-        return np.zeros(3), False, True
-    clipped = saturate(f, limit)
-    return clipped, bool(np.linalg.norm(f) > limit), False
+    norm = math.sqrt(f @ f)
+    if not math.isfinite(norm):
+        if not np.all(np.isfinite(f)):
+            return np.zeros(3), False, True
+        norm = float(np.linalg.norm(f))  # finite, but its square overflowed
+    if norm > limit:
+        return f * (limit / norm), True, False
+    return f.copy(), False, False
 
 
 def lumen_attraction(ray_C, visible: bool, confidence: float, k_lateral: float,

@@ -92,6 +92,7 @@ from capsule_drake.systems.lumen_truth import LumenTruth
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.systems.magnetometer import Magnetometer
 from capsule_drake.systems.pseudo_force import PseudoForceField
+from capsule_drake.systems.render_worker import RenderWorker
 from capsule_drake.systems.stage_command import PoseToStage
 from capsule_drake.teleop.mapping import TeleopMapping
 from capsule_drake.teleop.browser import BrowserOperator
@@ -347,9 +348,12 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
     config = scenario.capsule.camera
     camera_frame = plant.GetFrameByName("camera", capsule_instance)
     # With camera walls the camera sees only the anchored wall (add_camera_walls), so its
-    # depth image can be drawn on demand.
+    # depth image can be drawn on demand, and frames with latency on another core.
+    static = renderer_for is not None
+    worker = (RenderWorker(scenario.colon, config)
+              if static and config.latency > 0.0 and config.render_process else None)
     camera = builder.AddNamedSystem("capsule.camera", capsule_camera_for_frame(
-        plant, camera_frame, config, renderer_for, static_scene=renderer_for is not None))
+        plant, camera_frame, config, renderer_for, static_scene=static, worker=worker))
     builder.Connect(scene_graph.get_query_output_port(), camera.get_query_object_input_port())
     builder.ExportOutput(camera.get_rgb_image_output_port(), "capsule.camera.rgb_image")
     builder.ExportOutput(camera.get_depth_image_output_port(), "capsule.camera.depth_image")
@@ -364,7 +368,8 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
         builder.ExportOutput(lumen.GetOutputPort(name), f"capsule.lumen.{name}")
     if scenario.capsule.lumen_tracker is not None:
         tracker = builder.AddNamedSystem("capsule.lumen_tracker", LumenTracker(
-            camera.lens, scenario.capsule.lumen_tracker, period=camera.tick()))
+            camera.lens, scenario.capsule.lumen_tracker, period=camera.tick(),
+            delay=camera.latency() + 1e-6))
         builder.Connect(camera.get_rgb_image_output_port(), tracker.GetInputPort("rgb_image"))
         builder.Connect(camera.get_frame_info_output_port(), tracker.GetInputPort("frame_info"))
         for i in range(tracker.num_output_ports()):

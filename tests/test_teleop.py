@@ -14,13 +14,14 @@ from capsule_drake.epm_path import field_aligning_moment_direction
 from capsule_drake.scenario import Scenario, load_scenario
 from capsule_drake.station import capsule_start_pose, colon_for, make_station
 from capsule_drake.systems.epm_arm import EpmGuard
+from capsule_drake.systems.force_feedback import ForceFeedback
 from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
 from capsule_drake.systems.lumen_range import free_range
 from capsule_drake.teleop.operator import (ForwardSpeed, OperatorConfig, SimulatedOperator,
                                            WayForward)
 from pydrake.common.eigen_geometry import AngleAxis
-from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from capsule_drake.teleop.udp_client import StylusClient
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
@@ -74,6 +75,35 @@ def test_device_saturates_the_rendered_force_and_has_stops():
     z = device.GetOutputPort("stylus").Eval(context)[2]
     assert z == pytest.approx(-config.workspace_half_extents[2] - 2.0 / config.stop_stiffness,
                               abs=1e-4)
+
+
+def test_force_feedback_is_the_pseudo_force_plus_the_contact_seen_from_the_camera():
+    """F_D = pseudo + gain R_DC R_CW F_W, saturated by norm; non-finite inputs count as
+    zero. R_CW is built here from roll-pitch-yaw, not the quaternion the system reads."""
+    X_BC = RigidTransform(RollPitchYaw(0.3, -0.2, 0.1), [0.0, 0.0, 0.01])
+    feedback = ForceFeedback(X_BC, contact_gain=2.0, force_limit=3.3)
+    context = feedback.CreateDefaultContext()
+    R_WB = RotationMatrix(RollPitchYaw(0.7, 0.4, -1.1))
+    q = R_WB.ToQuaternion()
+    state = np.concatenate([[q.w(), q.x(), q.y(), q.z()], np.zeros(9)])
+    R_DC = np.diag([1.0, -1.0, -1.0])  # 180 deg about x, the default device_from_camera
+    R_CW = (R_WB.matrix() @ X_BC.rotation().matrix()).T
+
+    def output(pseudo, F_W, state=state):
+        feedback.GetInputPort("pseudo_force_D").FixValue(context, pseudo)
+        feedback.GetInputPort("capsule_force_W").FixValue(context, F_W)
+        feedback.GetInputPort("capsule_state").FixValue(context, state)
+        return feedback.GetOutputPort("F_D").Eval(context).copy()
+
+    F_W, pseudo = np.array([0.2, -0.3, 0.5]), np.array([0.1, 0.2, -0.3])
+    expected = pseudo + 2.0 * R_DC @ R_CW @ F_W
+    np.testing.assert_allclose(output(pseudo, F_W), expected, atol=1e-12)
+    np.testing.assert_allclose(output(pseudo, 10.0 * F_W),
+                               3.3 * (u := pseudo + 20.0 * R_DC @ R_CW @ F_W)
+                               / np.linalg.norm(u), atol=1e-12)
+    np.testing.assert_allclose(output([np.nan, 0.0, 0.0], F_W), expected - pseudo, atol=1e-12)
+    np.testing.assert_allclose(output(pseudo, [np.inf, 0.0, 0.0]), pseudo, atol=1e-12)
+    np.testing.assert_allclose(output(pseudo, F_W, np.full(13, np.nan)), pseudo, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

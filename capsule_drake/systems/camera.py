@@ -104,6 +104,14 @@ class CameraConfig:
     # Face resolution relative to what the lens needs where it is sharpest (1 = no finer
     # than one output pixel; lower is faster and blurrier).
     face_resolution_scale: float = 1.0
+    # Time from a frame's exposure to its delivery at the outputs (s): a capsule sends its
+    # frames over a radio link to the workstation. 0: delivered at the exposure. Must be
+    # below the camera's tick (1 / fps, or 1 / fps_max in adaptive mode) and needs a scene
+    # the camera sees unmoving (a colon's camera walls).
+    latency: float = 0.0
+    # With latency > 0: draw frames in a process of their own (systems/render_worker.py),
+    # on another core while the simulation runs on; the images are the same either way.
+    render_process: bool = True
 
 
 def check_camera_config(config: CameraConfig) -> None:
@@ -126,6 +134,12 @@ def check_camera_config(config: CameraConfig) -> None:
         raise ValueError("camera window_spacing must be >= 0 (0: no windows)")
     if config.face_resolution_scale <= 0.0:
         raise ValueError("camera face_resolution_scale must be positive")
+    if not config.latency >= 0.0:
+        raise ValueError(f"camera latency {config.latency} must be >= 0")
+    tick = 1.0 / (config.fps_max if config.fps_mode == "adaptive" else config.fps)
+    if config.latency >= tick:
+        raise ValueError(f"camera latency {config.latency} s must be below the camera's "
+                         f"tick ({tick:.4g} s: one frame in flight at a time)")
 
 
 def make_render_engine_params(light_intensity: float = 1.6,
@@ -361,7 +375,9 @@ class CapsuleCamera(LeafSystem):
 
     A periodic unrestricted update renders from the SceneGraph's query object and stores the
     images in abstract state; the outputs are that state (sample-and-hold, no algebraic
-    loop). Fixed mode captures every 1 / fps. Adaptive mode ticks at fps_max and captures
+    loop). With `latency` > 0 a frame exposed at t is delivered at t + latency by a second
+    periodic event (drawn meanwhile by `worker`, when given and able, else at delivery from
+    the exposure's pose: the same image). Fixed mode captures every 1 / fps. Adaptive mode ticks at fps_max and captures
     when the time since the last frame reaches 1 / rate, where the rate rises linearly from
     fps_min (camera at rest) to fps_max (image motion >= motion_for_fps_max); image motion
     is estimated from the camera's pose change over the last tick, read from the query
@@ -381,8 +397,8 @@ class CapsuleCamera(LeafSystem):
     depth_image: ImageDepth32F (H x W), metres of RANGE along each pixel's ray from the
     camera centre (not z-depth: beyond 90 degrees z-depth is meaningless); +inf beyond `far`
     and outside the image circle, 0 nearer than `near`. Stays +inf if render_depth is off.
-    frame_info: [time of the last frame (s), frames taken, 1 if this tick took a frame else
-    0, current frame rate (1/s)].
+    frame_info: [exposure time of the last frame delivered (s), frames delivered, 1 if the
+    camera's last event delivered a frame else 0, current frame rate (1/s)].
 
     Args:
         config: CameraConfig (lens, frame rate, clipping, light, renderer name). The
@@ -398,10 +414,11 @@ class CapsuleCamera(LeafSystem):
             depth image of a frame is drawn when something first reads it, from the pose
             the frame was taken at, and never when nothing does: the same image, at no
             cost to a diagram that does not use depth. False: drawn with every frame.
+        worker: optional RenderWorker drawing the frames of a camera with latency.
     """
 
     def __init__(self, config: CameraConfig, parent_frame: FrameId, X_PC: RigidTransform,
-                 renderer_for=None, static_scene: bool = False):
+                 renderer_for=None, static_scene: bool = False, worker=None):
         super().__init__()
         self._config = dataclasses.replace(config)
         self._renderer = LensRenderer(self._config)
@@ -412,6 +429,11 @@ class CapsuleCamera(LeafSystem):
         c = self._config
         self._adaptive = c.fps_mode == "adaptive"
         self._tick = 1.0 / (c.fps_max if self._adaptive else c.fps)
+        self._latency = c.latency
+        if self._latency > 0.0 and not static_scene:
+            raise ValueError("camera latency needs a scene the camera sees unmoving (a "
+                             "colon's camera walls): a frame is drawn after its exposure")
+        self._worker = worker if self._latency > 0.0 else None
 
         self._query_object_port = self.DeclareAbstractInputPort(
             "query_object", AbstractValue.Make(QueryObject()))
@@ -438,8 +460,13 @@ class CapsuleCamera(LeafSystem):
         else:
             self._depth_port = self.DeclareStateOutputPort("depth_image", self._depth_index)
         self._frame_info_port = self.DeclareStateOutputPort("frame_info", self._info_index)
+        # A frame in flight (latency > 0): [exposed (0/1), exposure time, pose (12)].
+        self._exposure_index = self.DeclareDiscreteState(np.full(14, np.nan))
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._tick, 0.0, self._on_tick)
+        if self._latency > 0.0:
+            self.DeclarePeriodicUnrestrictedUpdateEvent(self._tick, self._latency,
+                                                        self._on_delivery)
 
     @property
     def lens(self) -> Lens:
@@ -448,6 +475,15 @@ class CapsuleCamera(LeafSystem):
     def tick(self) -> float:
         """Period (s) at which the camera checks whether to take a frame."""
         return self._tick
+
+    @property
+    def worker(self):
+        """The RenderWorker drawing this camera's frames, or None."""
+        return self._worker
+
+    def latency(self) -> float:
+        """Time (s) from a frame's exposure (at a tick) to its delivery at the outputs."""
+        return self._latency
 
     @property
     def renderer(self) -> LensRenderer:
@@ -486,6 +522,14 @@ class CapsuleCamera(LeafSystem):
             depth = state.get_mutable_abstract_state(self._depth_index).get_mutable_value()
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
                                         out=depth.mutable_data[..., 0], renderer=renderer)
+
+    def _draw_at(self, query_object, pose, rgb: np.ndarray):
+        """Draws the colour frame at camera pose [R_WC (9), p_WC (3)] (static scene)."""
+        X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
+        renderer = (self._config.renderer_name if self._renderer_for is None
+                    else self._renderer_for(pose[9:]))
+        self._renderer.render_rgba(query_object, query_object.inspector().world_frame_id(),
+                                   X_WC, out=rgb, renderer=renderer)
 
     def _calc_lazy_depth(self, context, value):
         pose = context.get_discrete_state(self._frame_pose_index).value()
@@ -539,19 +583,44 @@ class CapsuleCamera(LeafSystem):
         rate = self.frame_rate(pose_before, pose_now, self._tick)
         # Half a tick of slack: ticks land on multiples of the tick period up to rounding.
         take = t - t_last >= 1.0 / rate - 0.5 * self._tick
-        if take:
+        delivered = take
+        if take and self._latency > 0.0:
+            # Exposed now, delivered `latency` later (_on_delivery); meanwhile drawn by the
+            # worker, if it can take it.
+            state.get_mutable_discrete_state(self._exposure_index).set_value(
+                np.concatenate([[1.0, t], pose_now]))
+            if self._worker is not None:
+                self._worker.submit(pose_now)
+            delivered = False
+        elif take:
             self._capture(query_object, state, pose_now)
             t_last, count = t, count + 1.0
         state.get_mutable_discrete_state(self._info_index).set_value(
-            [t_last, count, 1.0 if take else 0.0, rate])
+            [t_last, count, 1.0 if delivered else 0.0, rate])
         state.get_mutable_discrete_state(self._pose_index).set_value(pose_now)
         return EventStatus.Succeeded()
 
+    def _on_delivery(self, context, state):
+        exposure = context.get_discrete_state(self._exposure_index).value()
+        if not exposure[0] == 1.0:
+            return EventStatus.DidNothing()
+        pose = exposure[2:]
+        rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
+        if self._worker is None or not self._worker.collect(pose, rgb.mutable_data):
+            self._draw_at(self._query_object_port.Eval(context), pose, rgb.mutable_data)
+        if self._lazy_depth:
+            state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose)
+        _, count, _, rate = context.get_discrete_state(self._info_index).value()
+        state.get_mutable_discrete_state(self._info_index).set_value(
+            [exposure[1], count + 1.0, 1.0, rate])
+        state.get_mutable_discrete_state(self._exposure_index).set_value(np.full(14, np.nan))
+        return EventStatus.Succeeded()
 
-def capsule_camera_for_frame(plant, frame, config: CameraConfig,
-                             renderer_for=None, static_scene: bool = False) -> CapsuleCamera:
+
+def capsule_camera_for_frame(plant, frame, config: CameraConfig, renderer_for=None,
+                             static_scene: bool = False, worker=None) -> CapsuleCamera:
     """A CapsuleCamera fixed to a plant frame (e.g. the capsule model's `camera` frame):
     resolves the frame's body to its SceneGraph frame and the frame's pose in that body."""
     body = frame.body()
     return CapsuleCamera(config, plant.GetBodyFrameIdOrThrow(body.index()),
-                         frame.GetFixedPoseInBodyFrame(), renderer_for, static_scene)
+                         frame.GetFixedPoseInBodyFrame(), renderer_for, static_scene, worker)

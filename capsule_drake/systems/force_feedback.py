@@ -6,6 +6,8 @@ turned into D through the camera view (D x right, y up, z toward the operator; t
 R_DC as the pseudo-force), the sum saturated by norm to the device's limit.
 """
 
+import math
+
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
@@ -49,6 +51,8 @@ class ForceFeedback(LeafSystem):
         self._R_BC = np.asarray(X_BC.rotation().matrix())
         self._R_DC = rotation_from_rpy_deg(device_from_camera_rpy_deg)
         self._gain = contact_gain
+        # contact_force_D's product with the capsule's orientation factored out.
+        self._contact_to_D = contact_gain * (self._R_DC @ self._R_BC.T)
         self._limit = force_limit
         self._pseudo = self.DeclareVectorInputPort("pseudo_force_D", 3)
         self._contact = self.DeclareVectorInputPort("capsule_force_W", 3)
@@ -56,15 +60,17 @@ class ForceFeedback(LeafSystem):
         self.DeclareVectorOutputPort("F_D", 3, self._calc)
 
     def _calc(self, context, output):
+        # Evaluated at the device's servo rate (1 kHz): kept lean.
         total = np.zeros(3)
         if self._pseudo.HasValue(context):
-            pseudo = np.asarray(self._pseudo.Eval(context), dtype=float)
-            if np.all(np.isfinite(pseudo)):
+            pseudo = self._pseudo.Eval(context)
+            if math.isfinite(pseudo.sum()):
                 total += pseudo
-        state = np.asarray(self._state.Eval(context), dtype=float)
-        F_W = np.asarray(self._contact.Eval(context), dtype=float)
-        if np.all(np.isfinite(state)) and np.all(np.isfinite(F_W)) and self._gain > 0.0:
-            q = state[:4] / np.linalg.norm(state[:4])
-            R_WB = Quaternion(q).rotation()
-            total += contact_force_D(F_W, R_WB, self._R_BC, self._R_DC, self._gain)
+        if self._gain > 0.0:
+            F_W = self._contact.Eval(context)
+            if F_W.any() and math.isfinite(F_W.sum()):
+                q = self._state.Eval(context)[:4]
+                if math.isfinite(q.sum()):
+                    R_WB = Quaternion(q / math.sqrt(q @ q)).rotation()
+                    total += self._contact_to_D @ (R_WB.T @ F_W)
         output.SetFromVector(saturate(total, self._limit))

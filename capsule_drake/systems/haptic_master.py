@@ -8,6 +8,7 @@ is sensed, not actuated: the stylus reports the identity here), two buttons.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -101,7 +102,9 @@ class HapticMaster(LeafSystem):
     def _read(self, port, context, size):
         if not port.HasValue(context):
             return np.zeros(size)
-        value = np.asarray(port.Eval(context), dtype=float)
+        value = port.Eval(context)
+        if math.isfinite(value.sum()):
+            return value
         return np.where(np.isfinite(value), value, 0.0)
 
     def _calc_stylus(self, context, output):
@@ -116,16 +119,20 @@ class HapticMaster(LeafSystem):
         return -c.stop_stiffness * beyond - c.stop_damping * v * outward
 
     def _update(self, context, discrete_state):
+        # Runs at the servo rate (1 kHz): kept lean.
         c = self._config
-        x = context.get_discrete_state(self._state).value().copy()
+        x = context.get_discrete_state(self._state).value()
         p, v = x[:3], x[3:6]
         feedback = (self._feedback.Eval(context) if self._feedback.HasValue(context)
                     else np.zeros(3))
         motor, saturated, _ = saturate_checked(feedback, c.force_limit)
-        hand = self._read(self._hand, context, 3)
-        force = hand + motor - c.friction * v + self.stop_force(p, v)
-        v = v + self._dt * force / c.stylus_mass
-        p = p + self._dt * v
-        buttons = (self._read(self._buttons, context, 2) > 0.5).astype(float)
-        discrete_state.set_value(self._state, np.concatenate(
-            [p, v, buttons, motor, [float(saturated)]]))
+        force = self._read(self._hand, context, 3) + motor - c.friction * v
+        if np.any(np.abs(p) > self._half):
+            force += self.stop_force(p, v)
+        new = np.empty(12)
+        new[3:6] = v + (self._dt / c.stylus_mass) * force
+        new[:3] = p + self._dt * new[3:6]
+        new[6:8] = self._read(self._buttons, context, 2) > 0.5
+        new[8:11] = motor
+        new[11] = saturated
+        discrete_state.set_value(self._state, new)
