@@ -23,6 +23,17 @@ from capsule_drake.scenario import load_scenario
 from capsule_drake.station import make_station
 
 
+def machine_reference_ms(calls: int = 20000) -> float:
+    """Wall time (ms) of a fixed piece of the 1 kHz loop's kind of Python (dipole pair
+    forces): this VM's speed drifts by tens of percent over minutes, so each real-time
+    factor is printed beside it (about 40 ms when the README's figures were taken)."""
+    from capsule_drake.magnetics import dipole_pair_interaction_float
+    start = time.perf_counter()
+    for k in range(calls):
+        dipole_pair_interaction_float((0.0, 0.0, 1.0), (0.1, 0.0, 0.0), (0.0, 0.01 * k, 0.1))
+    return 1000.0 * (time.perf_counter() - start)
+
+
 def real_time_factor(fps: float, sim_seconds: float, latency: float | None = None,
                      warm_up: float = 1.0) -> float:
     scenario = load_scenario(name="Teleop", override=f"{{capsule: {{camera: {{fps: {fps}}}}}}}")
@@ -51,12 +62,16 @@ def main():
     print(f"Teleop diagram, {platform.processor() or platform.machine()}, "
           f"{args.repeats} x {args.sim_seconds:.0f} s simulated per frame rate")
     for fps in args.fps:
-        factors = [real_time_factor(fps, args.sim_seconds, args.latency)
-                   for _ in range(args.repeats)]
+        factors, references = [], []
+        for _ in range(args.repeats):
+            references.append(machine_reference_ms())
+            factors.append(real_time_factor(fps, args.sim_seconds, args.latency))
         median = statistics.median(factors)
         print(f"camera {fps:4.0f} fps: real-time factor {median:.2f} "
               f"(runs {min(factors):.2f}-{max(factors):.2f}), "
-              f"{1.0 / median:.2f} s per simulated second")
+              f"{1.0 / median:.2f} s per simulated second; machine reference "
+              f"{statistics.median(references):.0f} ms "
+              f"({min(references):.0f}-{max(references):.0f})")
 
 
 if __name__ == "__main__":

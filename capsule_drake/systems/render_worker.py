@@ -22,13 +22,14 @@ stops it.
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import pickle
+import select
 import struct
 import subprocess
 import sys
-import threading
 import weakref
 
 import numpy as np
@@ -38,6 +39,7 @@ log = logging.getLogger(__name__)
 # Longest wait for a frame already submitted (s): a worker this late is taken for dead.
 FRAME_TIMEOUT = 30.0
 _POSE_BYTES = 12 * 8
+_F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)
 
 
 def _read_exactly(stream, n: int) -> bytes:
@@ -134,14 +136,15 @@ class RenderWorker:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=stderr,
             # One rasteriser thread: the worker keeps to the core the simulation leaves.
             env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), LP_NUM_THREADS="1"))
+        # Room in the pipe for a whole frame, so the worker finishes writing it while the
+        # simulation runs and collecting it is a copy (Linux; elsewhere the default pipe).
+        try:
+            fcntl.fcntl(self._process.stdout.fileno(), _F_SETPIPE_SZ, self._size + 4096)
+        except (OSError, AttributeError):
+            pass
         self._state = "starting"  # -> "ready" -> "failed" or "closed"
         self._pending: bytes | None = None  # the pose of the frame being drawn
         self._finalizer = weakref.finalize(self, _stop, self._process)
-        # Replies are read by a thread, so the camera can ask whether one has come.
-        self._replies: list[bytes | Exception] = []
-        self._arrived = threading.Condition()
-        threading.Thread(target=self._read_replies, daemon=True,
-                         name="capsule-camera-renderer-replies").start()
         try:
             _write_message(self._process.stdin, pickle.dumps((colon_params, config)))
         except OSError as e:
@@ -192,29 +195,16 @@ class RenderWorker:
         self._finalizer()
 
     # ---- internals ------------------------------------------------------------------------
-    def _read_replies(self):
-        stdout = self._process.stdout
-        while True:
-            try:
-                reply = _read_message(stdout)
-            except (EOFError, OSError, ValueError) as e:
-                reply = e
-            with self._arrived:
-                self._replies.append(reply)
-                self._arrived.notify()
-            if isinstance(reply, Exception):
-                return
-
     def _next_reply(self, timeout: float):
-        with self._arrived:
-            if not self._replies:
-                self._arrived.wait(timeout)
-            if not self._replies:
-                return None
-            reply = self._replies[0]
-            if not isinstance(reply, Exception):
-                self._replies.pop(0)
-            return reply
+        """The worker's next message, None if none came within `timeout` (s), or the
+        exception that ended the pipe."""
+        stdout = self._process.stdout
+        if not select.select([stdout], [], [], timeout)[0]:
+            return None
+        try:
+            return _read_message(stdout)
+        except (EOFError, OSError, ValueError, struct.error) as e:
+            return e
 
     def _receive_start(self, timeout: float):
         reply = self._next_reply(timeout)
