@@ -358,6 +358,7 @@ def _add_camera(builder, plant, scene_graph, scenario: Scenario, colon, capsule_
     builder.ExportOutput(camera.get_rgb_image_output_port(), "capsule.camera.rgb_image")
     builder.ExportOutput(camera.get_depth_image_output_port(), "capsule.camera.depth_image")
     builder.ExportOutput(camera.get_frame_info_output_port(), "capsule.camera.frame_info")
+    builder.ExportOutput(camera.get_frame_pose_output_port(), "capsule.camera.frame_pose")
     lumen = builder.AddNamedSystem("capsule.lumen", LumenTruth(
         colon, camera.lens, camera_frame.GetFixedPoseInBodyFrame(),
         lookahead=scenario.capsule.lumen_lookahead, depth_is_range=True))

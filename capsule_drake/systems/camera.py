@@ -392,6 +392,7 @@ class CapsuleCamera(LeafSystem):
         - rgb_image
         - depth_image
         - frame_info
+        - frame_pose
 
     rgb_image: ImageRgba8U (H x W); black outside the lens's image circle.
     depth_image: ImageDepth32F (H x W), metres of RANGE along each pixel's ray from the
@@ -399,6 +400,8 @@ class CapsuleCamera(LeafSystem):
     and outside the image circle, 0 nearer than `near`. Stays +inf if render_depth is off.
     frame_info: [exposure time of the last frame delivered (s), frames delivered, 1 if the
     camera's last event delivered a frame else 0, current frame rate (1/s)].
+    frame_pose: the camera's pose at that frame's exposure, [R_WC row-major (9), p_WC (3)]
+    (NaN before the first frame).
 
     Args:
         config: CameraConfig (lens, frame rate, clipping, light, renderer name). The
@@ -452,8 +455,10 @@ class CapsuleCamera(LeafSystem):
         # layout, and an output port cached until the next frame. Its calculation reads the
         # query object but depends only on that pose: the scene it sees does not move.
         self._lazy_depth = bool(static_scene and c.render_depth)
+        self._frame_pose_index = self.DeclareDiscreteState(np.full(12, np.nan))
+        self._frame_pose_port = self.DeclareStateOutputPort("frame_pose",
+                                                            self._frame_pose_index)
         if self._lazy_depth:
-            self._frame_pose_index = self.DeclareDiscreteState(np.full(12, np.nan))
             self._depth_port = self.DeclareAbstractOutputPort(
                 "depth_image", lambda: AbstractValue.Make(ImageDepth32F(W, H)),
                 self._calc_lazy_depth, {self.discrete_state_ticket(self._frame_pose_index)})
@@ -501,6 +506,9 @@ class CapsuleCamera(LeafSystem):
     def get_frame_info_output_port(self):
         return self._frame_info_port
 
+    def get_frame_pose_output_port(self):
+        return self._frame_pose_port
+
     # ---- events ---------------------------------------------------------------------------
     def renderer_name(self, query_object) -> str:
         """The renderer this frame draws with (the window the camera is in)."""
@@ -514,11 +522,10 @@ class CapsuleCamera(LeafSystem):
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         self._renderer.render_rgba(query_object, self._parent_frame, self._X_PC,
                                    out=rgb.mutable_data, renderer=renderer)
-        if self._lazy_depth:
-            if pose_now is None:
-                pose_now = self._camera_pose_vector(query_object)
-            state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose_now)
-        elif self._config.render_depth:
+        if pose_now is None:
+            pose_now = self._camera_pose_vector(query_object)
+        state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose_now)
+        if not self._lazy_depth and self._config.render_depth:
             depth = state.get_mutable_abstract_state(self._depth_index).get_mutable_value()
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
                                         out=depth.mutable_data[..., 0], renderer=renderer)
@@ -608,8 +615,7 @@ class CapsuleCamera(LeafSystem):
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         if self._worker is None or not self._worker.collect(pose, rgb.mutable_data):
             self._draw_at(self._query_object_port.Eval(context), pose, rgb.mutable_data)
-        if self._lazy_depth:
-            state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose)
+        state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose)
         _, count, _, rate = context.get_discrete_state(self._info_index).value()
         state.get_mutable_discrete_state(self._info_index).set_value(
             [exposure[1], count + 1.0, 1.0, rate])

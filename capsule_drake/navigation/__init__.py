@@ -1,0 +1,1 @@
+"""Autonomous navigation of the magnetic capsule (the EPM moved by a controller, no hand)."""
