@@ -85,7 +85,89 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--out", type=Path, default=Path("eval_lumen"), metavar="DIR",
                     help="folder for the contact sheets and results.json (default eval_lumen)")
     ev.add_argument("--quiet", action="store_true", help="no progress")
+
+    bench = verbs.add_parser(
+        "benchmark", help="navigators on seeded random colons: a table, CSV and plots",
+        description="Run each navigator on each seeded random colon (from the rectum, up to "
+                    "--duration simulated seconds, stopping at the cecum) in parallel "
+                    "processes, print a table per run and per navigator, and write runs.csv, "
+                    "summary.csv, progress.png and segments.png. Navigators: autonomy-truth, "
+                    "autonomy-detected, teleop-guided, teleop-unguided, or a user's "
+                    "'package.module:function' (the plug-in interface in "
+                    "capsule_drake/navigation/benchmark.py).")
+    bench.add_argument("--seeds", default="0-9",
+                       help="colon seeds: '0-9', '0,3,7' or '5' (default 0-9)")
+    bench.add_argument("--navigators", default="autonomy-truth,autonomy-detected",
+                       help="comma-separated (default autonomy-truth,autonomy-detected)")
+    bench.add_argument("--duration", type=float, default=600.0, metavar="S",
+                       help="simulated seconds per run at most (default 600)")
+    bench.add_argument("--scenario", default="Navigation", metavar="NAME",
+                       help="base scenario of the autonomous and user navigators (default "
+                            "Navigation; teleop navigators use Teleop)")
+    bench.add_argument("--scenario-text", default="", metavar="YAML",
+                       help="YAML layered on every run's scenario")
+    bench.add_argument("--workers", type=int, default=2, help="parallel runs (default 2)")
+    bench.add_argument("--engine", choices=("local", "dask"), default="local",
+                       help="local process pool, or a Dask cluster (default local)")
+    bench.add_argument("--address", metavar="HOST:PORT",
+                       help="an existing Dask scheduler (with --engine dask; default: a "
+                            "local cluster of --workers processes)")
+    bench.add_argument("--out", type=Path, metavar="DIR",
+                       help="output folder (default runs/benchmark-<date-time>)")
+    bench.add_argument("--quiet", action="store_true", help="no progress line")
     return parser
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        seeds = []
+        for part in text.split(","):
+            first, _, last = part.strip().partition("-")
+            seeds += list(range(int(first), int(last) + 1)) if last else [int(first)]
+    except ValueError:
+        raise ScenarioError(f"--seeds {text!r}: expected e.g. '0-9', '0,3,7' or '5'") from None
+    if not seeds or min(seeds) < 0:
+        raise ScenarioError(f"--seeds {text!r}: expected non-negative seeds")
+    return seeds
+
+
+def _benchmark(args) -> int:
+    from capsule_drake.navigation.benchmark import (BUILT_IN, COLUMNS, Task, format_table,
+                                                    load_navigator, run_suite, summary,
+                                                    write_outputs)
+
+    seeds = _seeds(args.seeds)
+    navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
+    if not navigators:
+        raise ScenarioError("--navigators: none given")
+    if args.duration <= 0 or args.workers < 1:
+        raise ScenarioError("--duration must be > 0 and --workers >= 1")
+    for navigator in navigators:
+        if navigator not in BUILT_IN:
+            try:
+                load_navigator(navigator)
+            except ValueError as e:
+                raise ScenarioError(str(e)) from None
+    tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
+             for n in navigators for seed in seeds]
+    # Fail on a bad scenario here, with one line, not in a worker.
+    from capsule_drake.navigation.benchmark import task_scenario
+    for navigator in navigators:
+        try:
+            task_scenario(Task(navigator, seeds[0], args.duration, args.scenario,
+                               args.scenario_text))
+        except ValueError as e:
+            raise ScenarioError(str(e)) from None
+    out_dir = args.out or Path("runs") / f"benchmark-{time.strftime('%Y%m%d-%H%M%S')}"
+    results = run_suite(tasks, workers=args.workers, engine=args.engine,
+                        address=args.address, progress=not args.quiet)
+    print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
+    print()
+    rows = summary(results)
+    print(format_table(rows, list(rows[0])))
+    paths = write_outputs(results, out_dir)
+    print(f"\nwrote {', '.join(str(p) for p in paths.values())}")
+    return 0
 
 
 def _scenario_arguments(parser):
@@ -288,6 +370,8 @@ def main(argv=None) -> int:
             return _eval_lumen(args)
         if args.verb == "teleop":
             return _teleop(args)
+        if args.verb == "benchmark":
+            return _benchmark(args)
     except ScenarioError as e:
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 2

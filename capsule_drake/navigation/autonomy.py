@@ -11,7 +11,7 @@ The control law, every `period`:
   low-passed, kept within `max_lead_deg` of the capsule's axis (a capsule the tissue holds
   back cannot wind up a large turn) and within `max_pitch_deg` of the horizontal.
 - The EPM goes over the point `lead` ahead of the capsule's magnet along the horizontal
-  projection of h, as low as its clearance from the skin allows (+ `height_margin`), its
+  projection of h (the lead is a fraction of the EPM's height above the magnet), as low as its clearance from the skin allows (+ `height_margin`), its
   moment turned so that its field at the capsule's magnet points along h
   (`field_aligning_moment_direction`), as the teleoperation mapping's lead mode does. The
   attraction then pulls the capsule forward and the field turns it toward the lumen.
@@ -56,14 +56,16 @@ class LumenFollowerConfig:
     period: float = 0.05
     # Speed the capsule is driven at along its heading (m/s).
     target_speed: float = 0.01
-    # Rate at which the lead grows per unit of speed shortfall ((m/s) per (m/s)).
-    lead_gain: float = 1.0
-    # Shortest and longest lead of the EPM ahead of the capsule's magnet in cruise (m).
-    min_lead: float = 0.0
-    max_lead: float = 0.06
-    # Above overspeed * target_speed the lead shrinks at brake_rate (m/s).
+    # Leads are fractions of the EPM's height above the capsule's magnet (the horizontal pull
+    # peaks near 0.6 of the height, where it also about equals the vertical attraction).
+    # Rate at which the lead grows per unit of speed shortfall (1 per m).
+    lead_gain: float = 10.0
+    # Shortest and longest lead of the EPM ahead of the capsule's magnet in cruise.
+    min_lead: float = 0.2
+    max_lead: float = 0.7
+    # Above overspeed * target_speed the lead shrinks at brake_rate (1/s).
     overspeed: float = 2.0
-    brake_rate: float = 0.05
+    brake_rate: float = 0.5
     # Time constant of the capsule's speed estimate (s).
     speed_time: float = 1.0
     # Time constant with which the heading follows the lumen direction (s).
@@ -80,23 +82,23 @@ class LumenFollowerConfig:
     # target_speed for stall_after (s) -> push.
     stall_speed_fraction: float = 0.2
     stall_after: float = 6.0
-    # Push: lead (m), duration (s), sideways wiggle of the heading (deg, period s), and the
+    # Push: lead, duration (s), sideways wiggle of the heading (deg, period s), and the
     # progress along the heading that counts as unstuck (m).
-    push_lead: float = 0.08
+    push_lead: float = 1.0
     push_time: float = 8.0
     wiggle_deg: float = 25.0
     wiggle_period: float = 4.0
     unstick_distance: float = 0.01
-    # Back off: the EPM this far behind the capsule's magnet (m), for this long (s).
-    backoff_lead: float = 0.02
+    # Back off: the EPM this far behind the capsule's magnet, for this long (s).
+    backoff_lead: float = 0.3
     backoff_time: float = 3.0
     # Lumen not seen for lost_after (s) -> back off, then search: the heading sweeps a cone
     # of half-angle search_cone_deg (deg) once per search_period (s) with the EPM
-    # search_lead (m) ahead; after search_time (s) without the lumen, back off again.
+    # search_lead ahead; after search_time (s) without the lumen, back off again.
     lost_after: float = 1.0
     search_cone_deg: float = 35.0
     search_period: float = 8.0
-    search_lead: float = 0.01
+    search_lead: float = 0.1
     search_time: float = 16.0
     # Sense of direction: time constant of the capsule's trail (s), the trail's smallest
     # distance that defines the way (m), and the angle beyond the normal to the way
@@ -133,7 +135,7 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
 # Layout of the discrete state.
 _CMD = slice(0, 6)      # the EPM command [p_WE, m_hat_W]
 _H = slice(6, 9)        # heading (world, unit)
-_LEAD = 9               # lead (m)
+_LEAD = 9               # lead (fraction of the EPM's height above the magnet)
 _TRAIL = slice(10, 13)  # the trail point (world)
 _V = 13                 # filtered speed along the heading (m/s)
 _PREV = slice(14, 17)   # capsule position at the previous update
@@ -169,7 +171,8 @@ class LumenFollower(LeafSystem):
     the lumen in the camera frame (x right, y down, z forward). lumen_visible: 1 when the
     lumen is in view. epm_command: [p_WE (3), m_hat_W (3)], the EPM's centre and moment
     direction (for the station's `epm.command`). heading: the commanded heading h_W (unit).
-    status: [mode (0 cruise, 1 push, 2 back off, 3 search), lead (m), speed along the heading
+    status: [mode (0 cruise, 1 push, 2 back off, 3 search), lead (fraction of the EPM's
+    height above the capsule's magnet), speed along the heading
     (m/s), time since the lumen was seen (s)].
 
     Args:
@@ -245,6 +248,7 @@ class LumenFollower(LeafSystem):
         x[_WAY] = z_W
         x[_SIDE] = 1.0
         x[_INIT] = 1.0
+        x[_LEAD] = self._config.min_lead
         x[_CMD] = self.command_for(p_WM[:2], z_W, p_WM)
 
     def _update(self, context, discrete_state):
@@ -368,8 +372,10 @@ class LumenFollower(LeafSystem):
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[_H] = h
 
-        # The EPM over the point `lead` ahead of the capsule's magnet, at most max_epm_speed.
-        xy = p_WM[:2] + lead * horizontal(h)[:2]
+        # The EPM over the point `lead` heights ahead of the capsule's magnet, moving at most
+        # max_epm_speed.
+        height = max(float(x[2] - p_WM[2]), 0.0)
+        xy = p_WM[:2] + lead * height * horizontal(h)[:2]
         move = xy - x[0:2]
         reach = c.max_epm_speed * dt
         if np.linalg.norm(move) > reach:

@@ -1,0 +1,64 @@
+"""The navigation benchmark: a user's navigator through the plug-in interface on two colons
+(locally and on a two-worker Dask cluster, the same table), and its one-line errors."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from capsule_drake.navigation.benchmark import (COLUMNS, Task, format_table, load_navigator,
+                                                run_suite, run_task, summary, write_outputs)
+
+# Short runs without the camera worker: a few simulated seconds each.
+TEXT = "{capsule: {camera: {fps: 2.0, latency: 0.0}}}"
+
+
+def _tasks():
+    return [Task("plugins.navigators:creep", seed, duration=3.0, scenario_text=TEXT)
+            for seed in (0, 1)]
+
+
+@pytest.fixture(scope="module")
+def local_results():
+    return run_suite(_tasks(), workers=2, engine="local", progress=False)
+
+
+def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, tmp_path):
+    rows = [r["row"] for r in local_results]
+    assert [row["seed"] for row in rows] == [0, 1]
+    for row in rows:
+        assert row["sim_time_s"] == pytest.approx(3.0)
+        assert not row["reached_cecum"] and np.isnan(row["time_to_cecum_s"])
+        # The EPM crept 3 cm: its path is that (plus the floor's rise), not zero.
+        assert 0.029 < row["epm_path_m"] < 0.06
+        assert 0.0 < row["coverage"] < 0.2  # the camera saw some of the rectum's wall
+        assert row["stuck_in"] == "rectum"
+        assert np.isfinite(row["centring_error_deg"])
+    paths = write_outputs(local_results, tmp_path)
+    with open(paths["runs"]) as f:
+        written = list(csv.DictReader(f))
+    assert [int(r["seed"]) for r in written] == [0, 1] and list(written[0]) == list(COLUMNS)
+    assert paths["progress"].stat().st_size > 10_000 and paths["segments"].exists()
+    table = format_table(summary(local_results), ["navigator", "runs", "reached_cecum"])
+    assert "plugins.navigators:creep" in table and "0/2" in table
+
+
+def test_the_same_seeds_give_the_same_table_on_a_dask_cluster(local_results):
+    results = run_suite(_tasks(), workers=2, engine="dask", progress=False)
+    for a, b in zip(local_results, results):
+        a = {k: v for k, v in a["row"].items() if k != "wall_time_s"}
+        b = {k: v for k, v in b["row"].items() if k != "wall_time_s"}
+        assert a.keys() == b.keys()
+        for key in a:
+            assert a[key] == b[key] or (a[key] != a[key] and b[key] != b[key]), key
+
+
+def test_bad_navigators_get_one_line_errors():
+    with pytest.raises(ValueError, match="is not one of autonomy-truth"):
+        load_navigator("wander")
+    with pytest.raises(ValueError, match="cannot import 'nosuchmodule'"):
+        load_navigator("nosuchmodule:f")
+    with pytest.raises(ValueError, match="has no function 'nothing'"):
+        load_navigator("plugins.navigators:nothing")
+    with pytest.raises(ValueError, match="input port 'colon_centerline' is not one of"):
+        run_task(Task("plugins.navigators:bad_port", 0, duration=0.1, scenario_text=TEXT))
