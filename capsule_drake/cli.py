@@ -133,8 +133,8 @@ def _seeds(text: str) -> list[int]:
 
 def _benchmark(args) -> int:
     from capsule_drake.navigation.benchmark import (BUILT_IN, COLUMNS, Task, format_table,
-                                                    load_navigator, run_suite, summary,
-                                                    write_outputs)
+                                                    load_navigator, run_suite, segment_table,
+                                                    summary, write_outputs)
 
     seeds = _seeds(args.seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
@@ -164,6 +164,10 @@ def _benchmark(args) -> int:
     print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
     print()
     rows = summary(results)
+    print(format_table(rows, list(rows[0])))
+    print()
+    rows = segment_table(results)
+    print("runs through each segment:")
     print(format_table(rows, list(rows[0])))
     paths = write_outputs(results, out_dir)
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}")

@@ -62,3 +62,13 @@ def test_bad_navigators_get_one_line_errors():
         load_navigator("plugins.navigators:nothing")
     with pytest.raises(ValueError, match="input port 'colon_centerline' is not one of"):
         run_task(Task("plugins.navigators:bad_port", 0, duration=0.1, scenario_text=TEXT))
+
+
+def test_benchmark_command_line_errors_are_one_line(capsys):
+    from capsule_drake.cli import main
+    for argv, message in ((["--seeds", "x"], "--seeds 'x': expected"),
+                          (["--navigators", "wander"], "navigator 'wander' is not one of"),
+                          (["--scenario", "Nowhere"], "Nowhere")):
+        assert main(["benchmark", *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, err

@@ -392,6 +392,18 @@ def summary(results: list[dict]) -> list[dict]:
     return out
 
 
+def segment_table(results: list[dict]) -> list[dict]:
+    """Per navigator, the share of runs that got through each colon segment."""
+    names = list(results[0]["segments"])
+    out = []
+    for navigator in dict.fromkeys(r["row"]["navigator"] for r in results):
+        rows = [r["row"] for r in results if r["row"]["navigator"] == navigator]
+        out.append({"navigator": navigator, **{
+            name: f"{sum(name in row['segments_passed'] for row in rows)}/{len(rows)}"
+            for name in names}})
+    return out
+
+
 def format_table(rows: list[dict], columns) -> str:
     cells = [[str(row.get(c, "")) for c in columns] for row in rows]
     widths = [max(len(c), *(len(r[k]) for r in cells)) for k, c in enumerate(columns)]
