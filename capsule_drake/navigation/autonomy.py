@@ -11,23 +11,26 @@ The control law, every `period`:
   low-passed, kept within `max_lead_deg` of the capsule's axis (a capsule the tissue holds
   back cannot wind up a large turn) and within `max_pitch_deg` of the horizontal.
 - The EPM goes over the point `lead` ahead of the capsule's magnet along the horizontal
-  projection of h (the lead is a fraction of the EPM's height above the magnet), as low as its clearance from the skin allows (+ `height_margin`), its
-  moment turned so that its field at the capsule's magnet points along h
-  (`field_aligning_moment_direction`), as the teleoperation mapping's lead mode does. The
+  projection of h (the lead is a fraction of the EPM's height above the magnet), as low
+  as its clearance from the skin allows (+ `height_margin`), its moment turned so that
+  its field at the capsule's magnet points along h (`field_aligning_moment_direction`),
+  as the teleoperation mapping's lead mode does. The
   attraction then pulls the capsule forward and the field turns it toward the lumen.
 - Speed: the lead grows while the capsule moves slower than `target_speed` along h and
   shrinks while it moves faster (quickly above `overspeed` times the target); the command
   moves at most `max_epm_speed`, so a capsule that breaks free does not drag the EPM on.
 - Stall: with the lead at its longest and no progress for `stall_after`, push: the lead
-  goes to `push_lead` and the heading wiggles sideways; if the capsule still does not move
-  within `push_time`, back off (the EPM `backoff_lead` behind the capsule for
-  `backoff_time`) and retry.
+  sweeps between `push_lead` and `push_lead_low` and the heading wiggles sideways; if
+  the capsule still does not move within `push_time`, back off (the EPM `backoff_lead`
+  behind the capsule for `backoff_time`) and retry.
 - Lumen lost (not seen for `lost_after`): back off, then search: the heading sweeps a cone
   around the last forward direction the lumen was seen in; when it is seen again, go on.
-- Sense of direction: the controller low-passes the capsule's position (a trail, time
-  constant `trail_time`); the way from the trail to the capsule is the way it has come. A
-  lumen seen more than `turn_back_deg` behind the normal to that way is the way out
-  (the capsule has turned back): ignored, and the search goes on toward the way forward.
+- Sense of direction: the controller drops breadcrumbs along the capsule's path (its own
+  memory of the poses it was given). A lumen direction that heads into crumbs older than
+  the one the capsule is at is the way out (the capsule has turned back, or the truth's
+  "ahead" flipped with the camera): ignored, and the search turns toward the way forward
+  (along the crumbs from older to newer around the capsule). This holds in the sigmoid's
+  hairpins, where the way forward does point back across the abdomen.
 
 A non-finite capsule pose holds the command; a non-finite lumen ray counts as not seen.
 """
@@ -82,10 +85,15 @@ class LumenFollowerConfig:
     # target_speed for stall_after (s) -> push.
     stall_speed_fraction: float = 0.2
     stall_after: float = 6.0
-    # Push: lead, duration (s), sideways wiggle of the heading (deg, period s), and the
-    # progress along the heading that counts as unstuck (m).
+    # Push: the lead sweeps from push_lead down to push_lead_low and back once per
+    # push_sweep_period (s) (a climbing lumen wants the vertical attraction of a short lead
+    # to lift the capsule off the floor, a level one the pull of a long lead), for
+    # push_time (s), while the heading wiggles sideways (deg, period s); progress along the
+    # heading of unstick_distance (m) counts as unstuck.
     push_lead: float = 1.0
-    push_time: float = 8.0
+    push_lead_low: float = 0.0
+    push_sweep_period: float = 12.0
+    push_time: float = 12.0
     wiggle_deg: float = 25.0
     wiggle_period: float = 4.0
     unstick_distance: float = 0.01
@@ -100,34 +108,41 @@ class LumenFollowerConfig:
     search_period: float = 8.0
     search_lead: float = 0.1
     search_time: float = 16.0
-    # Sense of direction: time constant of the capsule's trail (s), the trail's smallest
-    # distance that defines the way (m), and the angle beyond the normal to the way
-    # (deg) at which a lumen counts as behind (0: no check).
-    trail_time: float = 10.0
-    way_min_distance: float = 0.02
-    turn_back_deg: float = 30.0
+    # Sense of direction: the controller drops a breadcrumb wherever the capsule has moved
+    # crumb_spacing (m) from the last one (at most max_crumbs; the oldest go first). A
+    # direction d is backward when the point look_ahead (m) along d from the capsule lies
+    # within crumb_radius (m) of a crumb older than the one nearest the capsule (it heads
+    # into where the capsule came from).
+    crumb_spacing: float = 0.01
+    max_crumbs: int = 400
+    look_ahead: float = 0.03
+    crumb_radius: float = 0.015
 
 
 def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    for name in ("period", "speed_time", "heading_time", "trail_time", "wiggle_period",
-                 "search_period", "max_epm_speed", "target_speed"):
+    for name in ("period", "speed_time", "heading_time", "wiggle_period", "search_period",
+                 "max_epm_speed", "target_speed", "crumb_spacing", "look_ahead",
+                 "crumb_radius"):
         if not getattr(config, name) > 0.0:
             raise ValueError(f"lumen follower {name} must be > 0, got {getattr(config, name)}")
     for name in ("lead_gain", "min_lead", "brake_rate", "height_margin",
                  "stall_speed_fraction", "stall_after", "push_time", "wiggle_deg",
                  "unstick_distance", "backoff_lead", "backoff_time", "lost_after",
-                 "search_cone_deg", "search_lead", "search_time", "way_min_distance",
-                 "turn_back_deg"):
+                 "search_cone_deg", "search_lead", "search_time"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"lumen follower {name} must be >= 0, got {getattr(config, name)}")
     if not config.max_lead >= config.min_lead:
         raise ValueError("lumen follower max_lead must be >= min_lead")
-    if not config.push_lead >= 0.0:
-        raise ValueError("lumen follower push_lead must be >= 0")
+    if not config.push_lead >= config.push_lead_low >= 0.0:
+        raise ValueError("lumen follower needs push_lead >= push_lead_low >= 0")
+    if not config.push_sweep_period > 0.0:
+        raise ValueError("lumen follower push_sweep_period must be > 0")
+    if not config.max_crumbs >= 3:
+        raise ValueError("lumen follower max_crumbs must be >= 3")
     if not config.overspeed > 1.0:
         raise ValueError("lumen follower overspeed must be > 1")
-    for name in ("max_lead_deg", "max_pitch_deg", "turn_back_deg", "search_cone_deg"):
+    for name in ("max_lead_deg", "max_pitch_deg", "search_cone_deg"):
         if not getattr(config, name) <= 90.0:
             raise ValueError(f"lumen follower {name} must be <= 90 deg")
 
@@ -136,7 +151,8 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
 _CMD = slice(0, 6)      # the EPM command [p_WE, m_hat_W]
 _H = slice(6, 9)        # heading (world, unit)
 _LEAD = 9               # lead (fraction of the EPM's height above the magnet)
-_TRAIL = slice(10, 13)  # the trail point (world)
+_NCRUMB = 10            # number of breadcrumbs
+# 11, 12: unused
 _V = 13                 # filtered speed along the heading (m/s)
 _PREV = slice(14, 17)   # capsule position at the previous update
 _MODE = 17
@@ -148,8 +164,8 @@ _ANCHOR = slice(24, 27)  # capsule position when the push began
 _INIT = 27              # 0 until the first update
 _SIDE = 28              # +-1: side the next wiggle starts to
 _BASE = slice(29, 32)   # the push's / search's base heading
-_WAY = slice(32, 35)    # way the capsule has come (world, unit)
-_SIZE = 35
+_WAY = slice(32, 35)    # the way forward (world, unit)
+_CRUMBS = 35            # breadcrumbs (max_crumbs x 3) from here on
 
 
 class LumenFollower(LeafSystem):
@@ -193,7 +209,8 @@ class LumenFollower(LeafSystem):
         self._pose = self.DeclareVectorInputPort("capsule_pose", 7)
         self._ray = self.DeclareVectorInputPort("lumen_ray", 3)
         self._visible = self.DeclareVectorInputPort("lumen_visible", 1)
-        self._state = self.DeclareDiscreteState(BasicVector(np.zeros(_SIZE)))
+        self._state = self.DeclareDiscreteState(
+            BasicVector(np.zeros(_CRUMBS + 3 * config.max_crumbs)))
         self.DeclareVectorOutputPort(
             "epm_command", 6,
             lambda c, out: out.SetFromVector(c.get_discrete_state(self._state).value()[_CMD]),
@@ -243,7 +260,10 @@ class LumenFollower(LeafSystem):
         p_WM = p + R_WB @ self._p_BM
         x[:] = 0.0
         x[_H] = z_W
-        x[_TRAIL] = p - self._config.way_min_distance * 1.5 * z_W
+        spacing = self._config.crumb_spacing
+        crumbs = x[_CRUMBS:].reshape(-1, 3)
+        crumbs[:3] = [p - 2.0 * spacing * z_W, p - spacing * z_W, p]
+        x[_NCRUMB] = 3.0
         x[_PREV] = p
         x[_WAY] = z_W
         x[_SIDE] = 1.0
@@ -265,13 +285,31 @@ class LumenFollower(LeafSystem):
         z_W = R_WC[:, 2]
         p_WM = p + R_WB @ self._p_BM
 
-        # The way the capsule has come (sense of direction).
-        x[_TRAIL] += min(1.0, dt / c.trail_time) * (p - x[_TRAIL])
-        w = p - x[_TRAIL]
-        if np.linalg.norm(w) > c.way_min_distance:
+        # Sense of direction: breadcrumbs, the crumb nearest the capsule, the way forward.
+        crumbs = x[_CRUMBS:].reshape(-1, 3)
+        n = int(x[_NCRUMB])
+        if np.linalg.norm(p - crumbs[n - 1]) > c.crumb_spacing:
+            if n == len(crumbs):
+                crumbs[:-1] = crumbs[1:].copy()
+                n -= 1
+            crumbs[n] = p
+            n += 1
+            x[_NCRUMB] = n
+        trail = crumbs[:n]
+        k = int(np.argmin(np.linalg.norm(trail - p, axis=1)))
+        ahead = trail[min(k + 2, n - 1)] if k + 2 <= n - 1 else p
+        w = ahead - trail[max(k - 2, 0)]
+        if np.linalg.norm(w) > 0.5 * c.crumb_spacing:
             x[_WAY] = w / np.linalg.norm(w)
-        way = x[_WAY]
-        behind = -np.sin(np.radians(c.turn_back_deg)) if c.turn_back_deg > 0 else -np.inf
+        way = x[_WAY].copy()
+        older = trail[:max(k - 1, 0)]
+
+        def backward(direction):
+            """Whether `direction` heads into where the capsule came from."""
+            if len(older) == 0:
+                return False
+            q = p + c.look_ahead * direction
+            return bool(np.min(np.linalg.norm(older - q, axis=1)) < c.crumb_radius)
 
         # Speed along the heading.
         v_now = float((p - x[_PREV]) @ x[_H]) / dt
@@ -283,7 +321,7 @@ class LumenFollower(LeafSystem):
         visible = (float(self._visible.Eval(context)[0]) > 0.5 and np.all(np.isfinite(ray))
                    and np.linalg.norm(ray) > 0.5)
         d = R_WC @ (ray / np.linalg.norm(ray)) if visible else None
-        if visible and (d @ way < behind or z_W @ way < behind):
+        if visible and backward(d):
             visible = False  # looking back the way it came: that lumen is the way out
         if visible:
             x[_SEEN] = d
@@ -293,8 +331,8 @@ class LumenFollower(LeafSystem):
         seen = x[_SEEN] if np.linalg.norm(x[_SEEN]) > 0.5 else z_W
 
         def forward_base():
-            """The last lumen seen if it lies forward, else the way the capsule came."""
-            return seen if seen @ way >= behind else way
+            """The last lumen seen if it lies forward, else the way forward."""
+            return way if backward(seen) else seen
 
         mode = x[_MODE]
         x[_MODE_T] += dt
@@ -322,8 +360,8 @@ class LumenFollower(LeafSystem):
                     x[_STALL_T] = 0.0
         elif mode == PUSH:
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
-                switch(CRUISE)
-                x[_LEAD] = c.max_lead
+                switch(CRUISE)  # go on with the lead that got it moving
+                x[_LEAD] = np.clip(x[_LEAD], c.min_lead, c.max_lead)
             elif x[_MODE_T] > c.push_time or lost:
                 switch(BACKOFF)
                 x[_BASE] = forward_base()
@@ -352,7 +390,9 @@ class LumenFollower(LeafSystem):
         elif mode == PUSH:
             swing = x[_SIDE] * np.radians(c.wiggle_deg) * np.sin(
                 2.0 * np.pi * x[_MODE_T] / c.wiggle_period)
-            target, lead = turn(seen, np.array([0.0, 0.0, 1.0]), swing), c.push_lead
+            x[_LEAD] = c.push_lead_low + (c.push_lead - c.push_lead_low) * 0.5 * (
+                1.0 + np.cos(2.0 * np.pi * x[_MODE_T] / c.push_sweep_period))
+            target, lead = turn(seen, np.array([0.0, 0.0, 1.0]), swing), x[_LEAD]
         elif mode == BACKOFF:
             target, lead = x[_H], -c.backoff_lead
         else:

@@ -1,0 +1,219 @@
+"""The autonomous lumen follower: its configuration, the geometry of its EPM command, its
+recovery (back off, search), its hold on bad input, and one short closed-loop run."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from capsule_drake.magnetics import dipole_field
+from capsule_drake.navigation.autonomy import (BACKOFF, CRUISE, SEARCH, LumenFollower,
+                                               LumenFollowerConfig, add_lumen_follower,
+                                               check_lumen_follower_config)
+
+FLOOR = 0.30  # a flat floor for the EPM's centre (m)
+X_BC = RigidTransform([0.0, 0.0, 0.01575])
+P_BM = np.array([0.0, 0.0, -0.003])
+# The capsule looks along world +x, its image's "down" along world -z.
+R_WB = RotationMatrix(np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]))
+P_WB = np.array([0.1, -0.05, 0.08])
+
+
+def _pose(R=R_WB, p=P_WB):
+    q = R.ToQuaternion()
+    return np.array([q.w(), q.x(), q.y(), q.z(), *p])
+
+
+def _follower(config=None):
+    follower = LumenFollower(config or LumenFollowerConfig(), X_BC, P_BM,
+                             lambda x, y, m: FLOOR)
+    simulator = Simulator(follower)
+    context = simulator.get_mutable_context()
+    follower.GetInputPort("capsule_pose").FixValue(context, _pose())
+    follower.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, 1.0])
+    follower.GetInputPort("lumen_visible").FixValue(context, [1.0])
+    simulator.Initialize()
+    return follower, simulator, context
+
+
+def _outputs(follower, context):
+    return (follower.GetOutputPort("epm_command").Eval(context).copy(),
+            follower.GetOutputPort("heading").Eval(context).copy(),
+            follower.GetOutputPort("status").Eval(context).copy())
+
+
+def _p_WM():
+    return P_WB + R_WB.matrix() @ P_BM
+
+
+def test_default_config_passes():
+    check_lumen_follower_config(LumenFollowerConfig())
+
+
+@pytest.mark.parametrize("field, value", [("period", 0.0), ("target_speed", -0.01),
+                                          ("min_lead", -0.1), ("overspeed", 1.0),
+                                          ("max_lead_deg", 120.0), ("push_lead_low", 2.0)])
+def test_bad_config_raises_one_line(field, value):
+    config = dataclasses.replace(LumenFollowerConfig(), **{field: value})
+    with pytest.raises(ValueError) as error:
+        check_lumen_follower_config(config)
+    assert "\n" not in str(error.value)
+    with pytest.raises(ValueError):
+        LumenFollower(config, X_BC, P_BM, lambda x, y, m: FLOOR)
+
+
+def test_max_lead_below_min_lead_raises():
+    with pytest.raises(ValueError, match="max_lead"):
+        check_lumen_follower_config(LumenFollowerConfig(min_lead=0.5, max_lead=0.4))
+
+
+def _check_geometry(command, heading, status, direction):
+    """The EPM on its floor, ahead of the capsule's magnet along `direction` by the lead
+    (a fraction of its height), its field at the magnet along the heading."""
+    p_WE, m_hat = command[:3], command[3:]
+    p_WM = _p_WM()
+    assert p_WE[2] == pytest.approx(FLOOR, abs=1e-12)
+    assert np.linalg.norm(m_hat) == pytest.approx(1.0)
+    offset = p_WE[:2] - p_WM[:2]
+    lead_m = status[1] * (FLOOR - p_WM[2])
+    assert lead_m > 0.0
+    np.testing.assert_allclose(offset, lead_m * direction[:2], atol=1e-6)
+    # A second route to the field: the dipole formula of capsule_drake.magnetics.
+    B = dipole_field(970.0 * m_hat, p_WM - p_WE)
+    assert np.degrees(np.arccos(np.clip(B @ heading / np.linalg.norm(B), -1, 1))) < 1e-4
+
+
+FAST = LumenFollowerConfig(max_epm_speed=10.0)  # no rate limit in the geometry tests
+
+
+def test_command_geometry_straight_ahead():
+    follower, simulator, context = _follower(FAST)
+    simulator.AdvanceTo(0.5)
+    command, heading, status = _outputs(follower, context)
+    np.testing.assert_allclose(heading, [1.0, 0.0, 0.0], atol=1e-9)
+    assert status[0] == CRUISE
+    _check_geometry(command, heading, status, np.array([1.0, 0.0, 0.0]))
+
+
+def test_command_geometry_follows_a_lumen_to_the_left():
+    follower, simulator, context = _follower(FAST)
+    # 30 degrees to the image's left (-x in the camera): world +y for this capsule.
+    angle = np.radians(30.0)
+    follower.GetInputPort("lumen_ray").FixValue(context, [-np.sin(angle), 0.0, np.cos(angle)])
+    simulator.AdvanceTo(5.0)
+    command, heading, status = _outputs(follower, context)
+    expected = np.array([np.cos(angle), np.sin(angle), 0.0])
+    np.testing.assert_allclose(heading, expected, atol=1e-3)
+    _check_geometry(command, heading, status, heading)
+    # The lead grows while the (here immobile) capsule does not move.
+    assert status[1] > LumenFollowerConfig().min_lead
+
+
+def test_command_moves_at_most_max_epm_speed():
+    config = LumenFollowerConfig()
+    follower, simulator, context = _follower(config)
+    start = _outputs(follower, context)[0]
+    simulator.AdvanceTo(0.5)
+    moved = np.linalg.norm(_outputs(follower, context)[0][:2] - start[:2])
+    assert 0.0 < moved <= config.max_epm_speed * 0.5 + 1e-9
+
+
+def test_heading_stays_within_max_lead_of_the_axis():
+    follower, simulator, context = _follower()
+    angle = np.radians(80.0)
+    follower.GetInputPort("lumen_ray").FixValue(context, [np.sin(angle), 0.0, np.cos(angle)])
+    simulator.AdvanceTo(4.0)
+    _, heading, _ = _outputs(follower, context)
+    axis = R_WB.matrix()[:, 2]
+    assert np.degrees(np.arccos(heading @ axis)) == pytest.approx(
+        LumenFollowerConfig().max_lead_deg, abs=0.5)
+
+
+def test_lumen_lost_backs_off_then_searches():
+    config = FAST
+    follower, simulator, context = _follower(config)
+    simulator.AdvanceTo(1.0)
+    follower.GetInputPort("lumen_visible").FixValue(context, [0.0])
+    simulator.AdvanceTo(1.0 + config.lost_after + 0.5)
+    command, heading, status = _outputs(follower, context)
+    assert status[0] == BACKOFF
+    simulator.AdvanceTo(1.0 + config.lost_after + 2.5)
+    command, heading, status = _outputs(follower, context)
+    # The EPM behind the capsule's magnet: it pulls the capsule back.
+    assert (command[:2] - _p_WM()[:2]) @ heading[:2] < -0.02
+    simulator.AdvanceTo(1.0 + config.lost_after + config.backoff_time + 1.0)
+    _, first, status = _outputs(follower, context)
+    assert status[0] == SEARCH
+    simulator.AdvanceTo(context.get_time() + 0.25 * config.search_period)
+    _, second, status = _outputs(follower, context)
+    assert status[0] == SEARCH
+    assert np.degrees(np.arccos(np.clip(first @ second, -1, 1))) > 10.0  # it sweeps
+    # Seen again: it goes on.
+    follower.GetInputPort("lumen_visible").FixValue(context, [1.0])
+    simulator.AdvanceTo(context.get_time() + 0.2)
+    assert _outputs(follower, context)[2][0] == CRUISE
+
+
+def test_a_lumen_behind_the_way_it_came_is_not_followed():
+    follower, simulator, context = _follower()
+    # The lumen straight behind the camera (the way out: into its breadcrumbs).
+    follower.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, -1.0])
+    simulator.AdvanceTo(3.0)
+    _, heading, status = _outputs(follower, context)
+    assert status[3] > 2.0  # counted as not seen
+    assert heading @ R_WB.matrix()[:, 2] > 0.7
+
+
+def test_non_finite_pose_holds_the_command():
+    follower, simulator, context = _follower()
+    simulator.AdvanceTo(1.0)
+    before = _outputs(follower, context)[0]
+    follower.GetInputPort("capsule_pose").FixValue(context, np.full(7, np.nan))
+    simulator.AdvanceTo(2.0)
+    np.testing.assert_array_equal(_outputs(follower, context)[0], before)
+    # A non-finite ray counts as not seen: the command stays finite.
+    follower.GetInputPort("capsule_pose").FixValue(context, _pose())
+    follower.GetInputPort("lumen_ray").FixValue(context, [np.nan, 0.0, 1.0])
+    simulator.AdvanceTo(3.0)
+    command, _, status = _outputs(follower, context)
+    assert np.all(np.isfinite(command)) and status[3] > 0.5
+
+
+def test_add_lumen_follower_needs_a_camera():
+    from capsule_drake.scenario import load_scenario
+    from capsule_drake.station import make_station
+    scenario = load_scenario(name="Default", override="{duration: 1.0}")
+    station = make_station(scenario, external_epm_command=True)
+    builder = DiagramBuilder()
+    builder.AddSystem(station)
+    with pytest.raises(ValueError, match="camera"):
+        add_lumen_follower(builder, station, scenario, LumenFollowerConfig())
+
+
+def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
+    from capsule_drake.scenario import load_scenario
+    from capsule_drake.station import colon_for, make_station
+    scenario = load_scenario(name="Default", override=(
+        "{colon: {seed: 0}, duration: 12.0, capsule: {camera: {fps: 5.0}},"
+        " contact: {drag_translational: 2.0, drag_rotational: 6.0e-5}}"))
+    colon = colon_for(scenario)
+    station = make_station(scenario, external_epm_command=True)
+    builder = DiagramBuilder()
+    builder.AddSystem(station)
+    add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen="truth")
+    log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, 0.5)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(scenario.duration)
+    x = log.FindLog(simulator.get_context()).data()
+    s = colon.centerline.closest(x[4:7].T)[0]
+    # Measured: from 5.0 cm to ~12 cm in 12 s (the open-loop drag creeps at 1 cm/s).
+    assert s[-1] - s[0] > 0.04, f"advanced only {100 * (s[-1] - s[0]):.1f} cm"
+    q = x[:4, -1]
+    axis = Quaternion(q / np.linalg.norm(q)).rotation()[:, 2]
+    assert axis @ colon.centerline.tangent_at(s[-1]) > 0.5  # still facing the cecum
