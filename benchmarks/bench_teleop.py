@@ -19,28 +19,19 @@ import time
 import numpy as np
 
 
-def merge(base: dict, extra: dict) -> dict:
-    """base with extra laid over it, nested dicts merged."""
-    out = dict(base)
-    for key, value in extra.items():
-        out[key] = (merge(out[key], value) if isinstance(value, dict)
-                    and isinstance(out.get(key), dict) else value)
-    return out
-
-
 def run(args):
     scenario_name, duration, guidance, seed, text = args
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
 
-    from capsule_drake.scenario import load_scenario
+    from capsule_drake.scenario import layered, load_scenario
     from capsule_drake.station import colon_for, make_station
     from capsule_drake.systems.contact_monitor import ContactMonitor
 
     import yaml
 
-    override = merge(yaml.safe_load(text) or {}, {"duration": duration, "colon": {"seed": seed}})
+    override = layered(yaml.safe_load(text) or {}, {"duration": duration, "colon": {"seed": seed}})
     if not guidance:
         override["pseudo_force"] = None
     override = yaml.safe_dump(override, default_flow_style=True)

@@ -286,6 +286,15 @@ def _load_one(text: str, source: str, child_name: str | None, base: Scenario | N
         raise ScenarioError(f"{source}: {str(e).splitlines()[0]}") from None
 
 
+def layered(base: dict, extra: dict) -> dict:
+    """`base` (a YAML mapping) with `extra` laid over it, nested mappings merged."""
+    out = dict(base)
+    for key, value in extra.items():
+        out[key] = (layered(out[key], value) if isinstance(value, dict)
+                    and isinstance(out.get(key), dict) else value)
+    return out
+
+
 def load_scenario(path: Path | str | None = None, name: str | None = None,
                   override: str | None = None) -> Scenario:
     """Loads scenario `name` from `path` (default: diagrams/default.yaml), then layers the

@@ -30,13 +30,15 @@ from __future__ import annotations
 import concurrent.futures
 import csv
 import dataclasses
-import importlib
 import multiprocessing
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from capsule_drake.plugins import load_function
+from capsule_drake.scenario import layered
 
 BUILT_IN = ("autonomy-truth", "autonomy-detected", "teleop-guided", "teleop-unguided")
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
@@ -88,26 +90,7 @@ class NavigatorContext:
 def load_navigator(name: str):
     """The factory of a user's navigator "package.module:function"; ValueError (one line)
     when it cannot be found."""
-    module_name, _, attribute = name.partition(":")
-    if not module_name or not attribute:
-        raise ValueError(f"navigator {name!r} is not one of {', '.join(BUILT_IN)} or "
-                         "'package.module:function'")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise ValueError(f"navigator {name!r}: cannot import {module_name!r} ({e})") from None
-    factory = getattr(module, attribute, None)
-    if not callable(factory):
-        raise ValueError(f"navigator {name!r}: {module_name!r} has no function {attribute!r}")
-    return factory
-
-
-def _merge(base: dict, extra: dict) -> dict:
-    out = dict(base)
-    for key, value in extra.items():
-        out[key] = (_merge(out[key], value) if isinstance(value, dict)
-                    and isinstance(out.get(key), dict) else value)
-    return out
+    return load_function("navigator", name, f"one of {', '.join(BUILT_IN)}")
 
 
 def task_scenario(task: Task):
@@ -119,14 +102,14 @@ def task_scenario(task: Task):
     extra = yaml.safe_load(task.scenario_text) or {}
     if not isinstance(extra, dict):
         raise ValueError("benchmark scenario text must be a YAML mapping")
-    override = _merge(extra, {"duration": task.duration, "colon": {"seed": task.seed}})
+    override = layered(extra, {"duration": task.duration, "colon": {"seed": task.seed}})
     name = task.scenario
     if task.navigator.startswith("teleop-"):
         name = "Teleop"
         if task.navigator == "teleop-unguided":
             override["pseudo_force"] = None
     elif task.navigator == "autonomy-detected":
-        override = _merge({"capsule": {"lumen_tracker": {}}}, override)
+        override = layered({"capsule": {"lumen_tracker": {}}}, override)
     return load_scenario(name=name, override=yaml.safe_dump(override, default_flow_style=True))
 
 

@@ -530,11 +530,16 @@ class CapsuleCamera(LeafSystem):
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
                                         out=depth.mutable_data[..., 0], renderer=renderer)
 
-    def _draw_at(self, query_object, pose, rgb: np.ndarray):
-        """Draws the colour frame at camera pose [R_WC (9), p_WC (3)] (static scene)."""
+    def _view_at(self, pose):
+        """(X_WC, renderer name) of a camera pose [R_WC (9), p_WC (3)]."""
         X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
         renderer = (self._config.renderer_name if self._renderer_for is None
                     else self._renderer_for(pose[9:]))
+        return X_WC, renderer
+
+    def _draw_at(self, query_object, pose, rgb: np.ndarray):
+        """Draws the colour frame at camera pose [R_WC (9), p_WC (3)] (static scene)."""
+        X_WC, renderer = self._view_at(pose)
         self._renderer.render_rgba(query_object, query_object.inspector().world_frame_id(),
                                    X_WC, out=rgb, renderer=renderer)
 
@@ -545,9 +550,7 @@ class CapsuleCamera(LeafSystem):
             depth.mutable_data[...] = np.inf
             return
         query_object = self._query_object_port.Eval(context)
-        X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
-        renderer = (self._config.renderer_name if self._renderer_for is None
-                    else self._renderer_for(pose[9:]))
+        X_WC, renderer = self._view_at(pose)
         self._renderer.render_range(query_object, query_object.inspector().world_frame_id(),
                                     X_WC, out=depth.mutable_data[..., 0], renderer=renderer)
 

@@ -26,11 +26,12 @@ own detector with the same signature plugs in (see `load_detector`).
 """
 
 import dataclasses
-import importlib
 from typing import Callable
 
 import cv2
 import numpy as np
+
+from capsule_drake.plugins import load_function
 
 PREFILTERS = ("gaussian", "median")
 
@@ -303,17 +304,4 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
         return gaussian_detector(params)
     if name == "median":
         return median_detector(params)
-    module_name, _, attribute = name.partition(":")
-    if not module_name or not attribute:
-        raise ValueError(f"lumen detector {name!r} is not 'gaussian', 'median' or "
-                         "'package.module:function'")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise ValueError(f"lumen detector {name!r}: cannot import {module_name!r} ({e})") \
-            from None
-    function = getattr(module, attribute, None)
-    if not callable(function):
-        raise ValueError(f"lumen detector {name!r}: {module_name!r} has no function "
-                         f"{attribute!r}")
-    return function
+    return load_function("lumen detector", name, "'gaussian', 'median'")
