@@ -11,12 +11,17 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.magnetics import dipole_field
+from capsule_drake.magnetics import cylinder_moment, dipole_field, dipole_force
 from capsule_drake.navigation.autonomy import (BACKOFF, CRUISE, SEARCH, LumenFollower,
                                                LumenFollowerConfig, add_lumen_follower,
-                                               check_lumen_follower_config)
+                                               check_lumen_follower_config,
+                                               epm_pose_for_force)
 
-FLOOR = 0.30  # a flat floor for the EPM's centre (m)
+FLOOR = 0.15  # a flat floor for the EPM's centre (m)
+# The Navigation scenario's magnets (N52 cylinders, 101.6 mm and 11.1 mm) and a 12 g capsule.
+M_EPM = cylinder_moment(0.1016, 0.1016, 1.48)
+M_IPM = cylinder_moment(0.0111, 0.0111, 1.48)
+WEIGHT = 0.012 * 9.81
 X_BC = RigidTransform([0.0, 0.0, 0.01575])
 P_BM = np.array([0.0, 0.0, -0.003])
 # The capsule looks along world +x, its image's "down" along world -z.
@@ -29,9 +34,12 @@ def _pose(R=R_WB, p=P_WB):
     return np.array([q.w(), q.x(), q.y(), q.z(), *p])
 
 
-def _follower(config=None):
-    follower = LumenFollower(config or LumenFollowerConfig(), X_BC, P_BM,
-                             lambda x, y, m: FLOOR)
+def _new_follower(config, floor=FLOOR):
+    return LumenFollower(config, X_BC, P_BM, lambda x, y, m: floor, M_EPM, M_IPM, WEIGHT)
+
+
+def _follower(config=None, floor=FLOOR):
+    follower = _new_follower(config or LumenFollowerConfig(), floor)
     simulator = Simulator(follower)
     context = simulator.get_mutable_context()
     follower.GetInputPort("capsule_pose").FixValue(context, _pose())
@@ -56,36 +64,73 @@ def test_default_config_passes():
 
 
 @pytest.mark.parametrize("field, value", [("period", 0.0), ("target_speed", -0.01),
-                                          ("min_lead", -0.1), ("overspeed", 1.0),
-                                          ("max_lead_deg", 120.0), ("push_lead_low", 2.0)])
+                                          ("min_force", 0.0), ("overspeed", 1.0),
+                                          ("max_lead_deg", 120.0), ("push_force_low", 2.0),
+                                          ("backoff_force", -0.03)])
 def test_bad_config_raises_one_line(field, value):
     config = dataclasses.replace(LumenFollowerConfig(), **{field: value})
     with pytest.raises(ValueError) as error:
         check_lumen_follower_config(config)
     assert "\n" not in str(error.value)
     with pytest.raises(ValueError):
-        LumenFollower(config, X_BC, P_BM, lambda x, y, m: FLOOR)
+        _new_follower(config)
 
 
-def test_max_lead_below_min_lead_raises():
-    with pytest.raises(ValueError, match="max_lead"):
-        check_lumen_follower_config(LumenFollowerConfig(min_lead=0.5, max_lead=0.4))
+def test_max_force_below_min_force_raises():
+    with pytest.raises(ValueError, match="max_force"):
+        check_lumen_follower_config(LumenFollowerConfig(min_force=0.5, max_force=0.4))
 
 
-def _check_geometry(command, heading, status, direction):
-    """The EPM on its floor, ahead of the capsule's magnet along `direction` by the lead
-    (a fraction of its height), its field at the magnet along the heading."""
+def test_bad_magnet_moment_raises_one_line():
+    with pytest.raises(ValueError, match="epm_moment"):
+        LumenFollower(LumenFollowerConfig(), X_BC, P_BM, lambda x, y, m: FLOOR, float("nan"),
+                      M_IPM, WEIGHT)
+
+
+def _net_force(command, heading):
+    """A second route to the force: the dipole formula of capsule_drake.magnetics on the
+    capsule's magnet aligned with the heading, plus the capsule's weight."""
     p_WE, m_hat = command[:3], command[3:]
-    p_WM = _p_WM()
-    assert p_WE[2] == pytest.approx(FLOOR, abs=1e-12)
+    force = dipole_force(M_EPM * m_hat, M_IPM * heading, _p_WM() - p_WE)
+    return force + np.array([0.0, 0.0, -WEIGHT])
+
+
+def _check_geometry(command, heading, status):
+    """The pull plus the weight is the status's drive force along the heading (to 1 % of
+    the pull), the EPM's field at the magnet along the heading, the EPM above its floor."""
+    p_WE, m_hat = command[:3], command[3:]
+    assert p_WE[2] > FLOOR
     assert np.linalg.norm(m_hat) == pytest.approx(1.0)
-    offset = p_WE[:2] - p_WM[:2]
-    lead_m = status[1] * (FLOOR - p_WM[2])
-    assert lead_m > 0.0
-    np.testing.assert_allclose(offset, lead_m * direction[:2], atol=1e-6)
-    # A second route to the field: the dipole formula of capsule_drake.magnetics.
-    B = dipole_field(970.0 * m_hat, p_WM - p_WE)
+    B = dipole_field(M_EPM * m_hat, _p_WM() - p_WE)
     assert np.degrees(np.arccos(np.clip(B @ heading / np.linalg.norm(B), -1, 1))) < 1e-4
+    pull = np.linalg.norm(_net_force(command, heading) + [0.0, 0.0, WEIGHT])
+    np.testing.assert_allclose(_net_force(command, heading), status[1] * heading,
+                               atol=0.01 * pull)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_epm_pose_for_force_gives_the_force_asked(seed):
+    rng = np.random.default_rng(seed)
+    p_WM = rng.normal(size=3) * 0.1
+    for _ in range(20):
+        h = rng.normal(size=3)
+        h /= np.linalg.norm(h)
+        # The weight carried plus up to 0.2 N along h: what the follower asks for.
+        force = rng.uniform(-0.05, 0.2) * h + [0.0, 0.0, WEIGHT * rng.uniform(0.5, 2.0)]
+        p_WE, m_hat, distance = epm_pose_for_force(p_WM, h, force, M_EPM, M_IPM)
+        assert p_WE[2] > p_WM[2] and np.linalg.norm(p_WE - p_WM) == pytest.approx(distance)
+        got = dipole_force(M_EPM * m_hat, M_IPM * h, p_WM - p_WE)
+        np.testing.assert_allclose(got, force, atol=0.01 * np.linalg.norm(force))
+        B = dipole_field(M_EPM * m_hat, p_WM - p_WE)
+        assert B @ h / np.linalg.norm(B) > 1.0 - 1e-9
+
+
+def test_epm_pose_for_force_falls_as_the_fourth_power():
+    h = np.array([1.0, 0.0, 0.0])
+    force = np.array([0.02, 0.0, WEIGHT])
+    _, _, near = epm_pose_for_force(np.zeros(3), h, 16.0 * force, M_EPM, M_IPM)
+    _, _, far = epm_pose_for_force(np.zeros(3), h, force, M_EPM, M_IPM)
+    assert far / near == pytest.approx(2.0, rel=1e-9)
 
 
 FAST = LumenFollowerConfig(max_epm_speed=10.0)  # no rate limit in the geometry tests
@@ -97,7 +142,7 @@ def test_command_geometry_straight_ahead():
     command, heading, status = _outputs(follower, context)
     np.testing.assert_allclose(heading, [1.0, 0.0, 0.0], atol=1e-9)
     assert status[0] == CRUISE
-    _check_geometry(command, heading, status, np.array([1.0, 0.0, 0.0]))
+    _check_geometry(command, heading, status)
 
 
 def test_command_geometry_follows_a_lumen_to_the_left():
@@ -109,17 +154,27 @@ def test_command_geometry_follows_a_lumen_to_the_left():
     command, heading, status = _outputs(follower, context)
     expected = np.array([np.cos(angle), np.sin(angle), 0.0])
     np.testing.assert_allclose(heading, expected, atol=1e-3)
-    _check_geometry(command, heading, status, heading)
-    # The lead grows while the (here immobile) capsule does not move.
-    assert status[1] > LumenFollowerConfig().min_lead
+    _check_geometry(command, heading, status)
+    # The drive force grows while the (here immobile) capsule does not move.
+    assert status[1] > LumenFollowerConfig().min_force
+
+
+def test_command_on_the_floor_when_the_force_needs_the_epm_lower():
+    follower, simulator, context = _follower(FAST, floor=0.5)
+    simulator.AdvanceTo(0.5)
+    command, heading, _ = _outputs(follower, context)
+    assert command[2] == pytest.approx(0.5, abs=1e-12)
+    B = dipole_field(M_EPM * command[3:], _p_WM() - command[:3])
+    assert B @ heading / np.linalg.norm(B) > 1.0 - 1e-9
 
 
 def test_command_moves_at_most_max_epm_speed():
     config = LumenFollowerConfig()
     follower, simulator, context = _follower(config)
+    follower.GetInputPort("lumen_ray").FixValue(context, [0.5, 0.0, 0.866])
     start = _outputs(follower, context)[0]
     simulator.AdvanceTo(0.5)
-    moved = np.linalg.norm(_outputs(follower, context)[0][:2] - start[:2])
+    moved = np.linalg.norm(_outputs(follower, context)[0][:3] - start[:3])
     assert 0.0 < moved <= config.max_epm_speed * 0.5 + 1e-9
 
 
@@ -144,8 +199,10 @@ def test_lumen_lost_backs_off_then_searches():
     assert status[0] == BACKOFF
     simulator.AdvanceTo(1.0 + config.lost_after + 2.5)
     command, heading, status = _outputs(follower, context)
-    # The EPM behind the capsule's magnet: it pulls the capsule back.
-    assert (command[:2] - _p_WM()[:2]) @ heading[:2] < -0.02
+    # The pull plus the weight draws the capsule back along the heading.
+    assert status[1] == -config.backoff_force
+    assert _net_force(command, heading) @ heading == pytest.approx(-config.backoff_force,
+                                                                  abs=0.005)
     simulator.AdvanceTo(1.0 + config.lost_after + config.backoff_time + 1.0)
     _, first, status = _outputs(follower, context)
     assert status[0] == SEARCH

@@ -10,21 +10,30 @@ The control law, every `period`:
 - Heading h: the lumen direction in the world (the ray turned by the camera's orientation),
   low-passed, kept within `max_lead_deg` of the capsule's axis (a capsule the tissue holds
   back cannot wind up a large turn) and within `max_pitch_deg` of the horizontal.
-- The EPM goes over the point `lead` ahead of the capsule's magnet along the horizontal
-  projection of h (the lead is a fraction of the EPM's height above the magnet), as low
-  as its clearance from the skin allows (+ `height_margin`), its moment turned so that
-  its field at the capsule's magnet points along h (`field_aligning_moment_direction`),
-  as the teleoperation mapping's lead mode does. The
-  attraction then pulls the capsule forward and the field turns it toward the lumen.
-- Speed: the lead grows while the capsule moves slower than `target_speed` along h and
+- Force, not position: the EPM goes where the magnet's pull on the capsule plus the
+  capsule's weight is a drive force f along h (`epm_pose_for_force`): the pull carries
+  the weight and leaves f to move the capsule, which floats in the insufflated lumen
+  instead of being pinned to a wall. Its moment is turned so that its field at the
+  capsule's magnet points along h (`field_aligning_moment_direction`), so the capsule
+  also turns toward the lumen. The controller knows the two magnets' moments and the
+  capsule's weight (the hardware's data), and nothing of the colon but the patient's skin
+  (a body scan): the EPM stays `height_margin` above its clearance floor; where the force
+  wanted would need it lower (a strong lift), it stays on the floor.
+  Holding the capsule up with the EPM low against the skin (as a position law does) pins
+  it to the top wall with 10-30 times its weight, where the haustral folds stop it; the
+  lumen's drop at the hepatic flexure then cannot be followed, because only gravity can
+  take the capsule down. With the force law, f sets the pull: ~0.03 N moves the capsule at
+  1 cm/s against the colon's resistance, and the EPM sits 20-25 cm above it.
+- Speed: f grows while the capsule moves slower than `target_speed` along h and
   shrinks while it moves faster (quickly above `overspeed` times the target); the command
   moves at most `max_epm_speed`, so a capsule that breaks free does not drag the EPM on.
-- Stall: with the lead at its longest and no progress for `stall_after`, push: the lead
-  sweeps between `push_lead` and `push_lead_low` and the heading wiggles sideways; if
-  the capsule still does not move within `push_time`, back off (the EPM `backoff_lead`
-  behind the capsule for `backoff_time`) and retry.
+- Stall: with f at its largest and no progress for `stall_after`, push: f sweeps between
+  `push_force` and `push_force_low` and the heading wiggles sideways; if the capsule
+  still does not move within `push_time`, back off (f = `backoff_force` backward, for
+  `backoff_time`) and retry.
 - Lumen lost (not seen for `lost_after`): back off, then search: the heading sweeps a cone
-  around the last forward direction the lumen was seen in; when it is seen again, go on.
+  around the last forward direction the lumen was seen in with f = `search_force`; when it
+  is seen again, go on.
 - Sense of direction: the controller drops breadcrumbs along the capsule's path (its own
   memory of the poses it was given). A lumen direction that heads into crumbs older than
   the one the capsule is at is the way out (the capsule has turned back, or the truth's
@@ -43,9 +52,76 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from capsule_drake.epm_path import field_aligning_moment_direction
-from capsule_drake.teleop.mapping import horizontal, lead_at_most, limit_pitch, turn
+from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
+
+GRAVITY = 9.81  # m/s^2
+
+# Directions from the capsule's magnet to the EPM searched by `epm_pose_for_force`: the
+# upper hemisphere (elevation 2-90 deg) on a 2-degree grid, refined around the best.
+_GRID_STEP = np.radians(2.0)
+
+
+def _directions(elevation, azimuth):
+    elevation, azimuth = np.meshgrid(elevation, azimuth)
+    return np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                     np.sin(elevation)], axis=-1).reshape(-1, 3)
+
+
+_HEMISPHERE = _directions(np.arange(1, 46) * _GRID_STEP, np.arange(0, 180) * _GRID_STEP)
+_MU0_4PI = 1e-7
+
+
+def aligned_unit_forces(u, h, epm_moment, ipm_moment):
+    """Forces (N) on a capsule magnet of moment `ipm_moment` along the unit vector h, from an
+    EPM of moment `epm_moment` one metre away in each unit direction u (rows; capsule ->
+    EPM), the EPM's moment turned so that its field at the capsule is along h. Forces scale
+    as 1 / distance^4."""
+    n = -np.asarray(u, dtype=float)  # EPM -> capsule
+    m = 1.5 * n * (n @ h)[:, None] - h
+    m = epm_moment * m / np.linalg.norm(m, axis=1, keepdims=True)
+    mt = ipm_moment * np.asarray(h, dtype=float)
+    ms_n = np.sum(m * n, axis=1)
+    mt_n = n @ mt
+    ms_mt = m @ mt
+    return 3.0 * _MU0_4PI * (m * mt_n[:, None] + mt[None, :] * ms_n[:, None]
+                              + n * (ms_mt - 5.0 * ms_n * mt_n)[:, None])
+
+
+def epm_pose_for_force(p_WM, h, force, epm_moment, ipm_moment):
+    """The EPM's centre p_WE above the capsule's magnet at p_WM, and its unit moment, such
+    that the dipole force on the capsule's magnet (aligned with h, the EPM's field at it
+    along h) is `force` (N, world). The force's direction fixes the direction from the
+    magnet to the EPM (searched over the upper hemisphere), its size the distance (forces
+    fall as 1 / distance^4). A force no EPM above can give (downward) gets the nearest
+    direction. Returns (p_WE, m_hat_W, distance)."""
+    h = np.asarray(h, dtype=float)
+    force = np.asarray(force, dtype=float)
+    size = float(np.linalg.norm(force))
+    if size < 1e-12:
+        raise ValueError("epm_pose_for_force needs a non-zero force")
+
+    def best(directions):
+        G = aligned_unit_forces(directions, h, epm_moment, ipm_moment)
+        g = np.linalg.norm(G, axis=1)
+        i = int(np.argmax((G @ force) / g))
+        return directions[i], g[i]
+
+    u, _ = best(_HEMISPHERE)
+    # Refine: a finer grid around the coarse best, twice.
+    step = _GRID_STEP
+    for _ in range(2):
+        elevation = np.arcsin(np.clip(u[2], -1.0, 1.0))
+        azimuth = np.arctan2(u[1], u[0])
+        offsets = np.linspace(-step, step, 9)
+        u, g = best(_directions(np.clip(elevation + offsets, 0.0, np.pi / 2),
+                                azimuth + offsets))
+        step /= 4.0
+    distance = (g / size) ** 0.25
+    p_WE = np.asarray(p_WM, dtype=float) + distance * u
+    m_hat = field_aligning_moment_direction(-u, h)
+    return p_WE, m_hat, distance
 
 # Modes of the controller (the `status` output's first element).
 CRUISE, PUSH, BACKOFF, SEARCH = 0.0, 1.0, 2.0, 3.0
@@ -59,16 +135,15 @@ class LumenFollowerConfig:
     period: float = 0.05
     # Speed the capsule is driven at along its heading (m/s).
     target_speed: float = 0.01
-    # Leads are fractions of the EPM's height above the capsule's magnet (the horizontal pull
-    # peaks near 0.6 of the height, where it also about equals the vertical attraction).
-    # Rate at which the lead grows per unit of speed shortfall (1 per m).
-    lead_gain: float = 10.0
-    # Shortest and longest lead of the EPM ahead of the capsule's magnet in cruise.
-    min_lead: float = 0.2
-    max_lead: float = 0.7
-    # Above overspeed * target_speed the lead shrinks at brake_rate (1/s).
+    # The drive force f (N): the magnet's pull plus the capsule's weight, along the heading.
+    # Rate at which f grows per unit of speed shortfall (N per m/s, per s).
+    force_gain: float = 2.0
+    # Smallest and largest f in cruise (N; the capsule weighs 0.12 N).
+    min_force: float = 0.01
+    max_force: float = 0.12
+    # Above overspeed * target_speed, f shrinks at brake_rate (N/s).
     overspeed: float = 2.0
-    brake_rate: float = 0.5
+    brake_rate: float = 0.05
     # Time constant of the capsule's speed estimate (s).
     speed_time: float = 1.0
     # Time constant with which the heading follows the lumen direction (s).
@@ -76,37 +151,35 @@ class LumenFollowerConfig:
     # The heading stays within this angle of the capsule's axis (deg) and of the
     # horizontal (deg).
     max_lead_deg: float = 40.0
-    max_pitch_deg: float = 45.0
-    # Height of the EPM's centre above the lowest its clearance from the skin allows (m).
+    max_pitch_deg: float = 60.0
+    # Least height of the EPM's centre above the lowest its clearance from the skin allows (m).
     height_margin: float = 0.0
     # Fastest the EPM's commanded position moves over the patient (m/s).
     max_epm_speed: float = 0.03
-    # Stall: lead at >= 90 % of max_lead and speed below stall_speed_fraction *
+    # Stall: f at >= 90 % of max_force and speed below stall_speed_fraction *
     # target_speed for stall_after (s) -> push.
     stall_speed_fraction: float = 0.2
     stall_after: float = 6.0
-    # Push: the lead sweeps from push_lead down to push_lead_low and back once per
-    # push_sweep_period (s) (a climbing lumen wants the vertical attraction of a short lead
-    # to lift the capsule off the floor, a level one the pull of a long lead), for
-    # push_time (s), while the heading wiggles sideways (deg, period s); progress along the
-    # heading of unstick_distance (m) counts as unstuck.
-    push_lead: float = 1.0
-    push_lead_low: float = 0.0
+    # Push: f sweeps from push_force down to push_force_low and back once per
+    # push_sweep_period (s), for push_time (s), while the heading wiggles sideways (deg,
+    # period s); progress along the heading of unstick_distance (m) counts as unstuck.
+    push_force: float = 0.2
+    push_force_low: float = 0.0
     push_sweep_period: float = 12.0
     push_time: float = 12.0
     wiggle_deg: float = 25.0
     wiggle_period: float = 4.0
     unstick_distance: float = 0.01
-    # Back off: the EPM this far behind the capsule's magnet, for this long (s).
-    backoff_lead: float = 0.3
+    # Back off: f = backoff_force (N) backward along the heading, for backoff_time (s).
+    backoff_force: float = 0.03
     backoff_time: float = 3.0
     # Lumen not seen for lost_after (s) -> back off, then search: the heading sweeps a cone
-    # of half-angle search_cone_deg (deg) once per search_period (s) with the EPM
-    # search_lead ahead; after search_time (s) without the lumen, back off again.
+    # of half-angle search_cone_deg (deg) once per search_period (s) with f =
+    # search_force (N); after search_time (s) without the lumen, back off again.
     lost_after: float = 1.0
     search_cone_deg: float = 35.0
     search_period: float = 8.0
-    search_lead: float = 0.1
+    search_force: float = 0.01
     search_time: float = 16.0
     # Sense of direction: the controller drops a breadcrumb wherever the capsule has moved
     # crumb_spacing (m) from the last one (at most max_crumbs; the oldest go first). A
@@ -126,16 +199,19 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
                  "crumb_radius"):
         if not getattr(config, name) > 0.0:
             raise ValueError(f"lumen follower {name} must be > 0, got {getattr(config, name)}")
-    for name in ("lead_gain", "min_lead", "brake_rate", "height_margin",
+    for name in ("force_gain", "brake_rate", "height_margin",
                  "stall_speed_fraction", "stall_after", "push_time", "wiggle_deg",
-                 "unstick_distance", "backoff_lead", "backoff_time", "lost_after",
-                 "search_cone_deg", "search_lead", "search_time"):
+                 "unstick_distance", "backoff_time", "lost_after",
+                 "search_cone_deg", "search_time"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"lumen follower {name} must be >= 0, got {getattr(config, name)}")
-    if not config.max_lead >= config.min_lead:
-        raise ValueError("lumen follower max_lead must be >= min_lead")
-    if not config.push_lead >= config.push_lead_low >= 0.0:
-        raise ValueError("lumen follower needs push_lead >= push_lead_low >= 0")
+    for name in ("min_force", "backoff_force", "search_force"):
+        if not getattr(config, name) > 0.0:
+            raise ValueError(f"lumen follower {name} must be > 0 N, got {getattr(config, name)}")
+    if not config.max_force >= config.min_force:
+        raise ValueError("lumen follower max_force must be >= min_force")
+    if not config.push_force >= config.push_force_low >= 0.0:
+        raise ValueError("lumen follower needs push_force >= push_force_low >= 0")
     if not config.push_sweep_period > 0.0:
         raise ValueError("lumen follower push_sweep_period must be > 0")
     if not config.max_crumbs >= 3:
@@ -150,7 +226,7 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
 # Layout of the discrete state.
 _CMD = slice(0, 6)      # the EPM command [p_WE, m_hat_W]
 _H = slice(6, 9)        # heading (world, unit)
-_LEAD = 9               # lead (fraction of the EPM's height above the magnet)
+_F = 9                  # drive force f (N)
 _NCRUMB = 10            # number of breadcrumbs
 # 11, 12: unused
 _V = 13                 # filtered speed along the heading (m/s)
@@ -187,9 +263,9 @@ class LumenFollower(LeafSystem):
     the lumen in the camera frame (x right, y down, z forward). lumen_visible: 1 when the
     lumen is in view. epm_command: [p_WE (3), m_hat_W (3)], the EPM's centre and moment
     direction (for the station's `epm.command`). heading: the commanded heading h_W (unit).
-    status: [mode (0 cruise, 1 push, 2 back off, 3 search), lead (fraction of the EPM's
-    height above the capsule's magnet), speed along the heading
-    (m/s), time since the lumen was seen (s)].
+    status: [mode (0 cruise, 1 push, 2 back off, 3 search), drive force f (N, along the
+    heading; negative backing off), speed along the heading (m/s), time since the lumen
+    was seen (s)].
 
     Args:
         config: LumenFollowerConfig.
@@ -197,12 +273,21 @@ class LumenFollower(LeafSystem):
         p_BM: the capsule magnet's position in the body (where the field is aimed).
         floor: function (x, y, m_hat) -> lowest allowed EPM centre height (e.g.
             `EpmGuard.lowest_centre_height`).
+        epm_moment, ipm_moment: the magnets' dipole moments (A m^2).
+        weight: the capsule's weight (N).
     """
 
-    def __init__(self, config: LumenFollowerConfig, X_BC, p_BM, floor):
+    def __init__(self, config: LumenFollowerConfig, X_BC, p_BM, floor, epm_moment: float,
+                 ipm_moment: float, weight: float):
         super().__init__()
         check_lumen_follower_config(config)
+        for name, value in (("epm_moment", epm_moment), ("ipm_moment", ipm_moment),
+                            ("weight", weight)):
+            if not (np.isfinite(value) and value > 0.0):
+                raise ValueError(f"lumen follower {name} must be > 0, got {value}")
         self._config = config
+        self._moments = (float(epm_moment), float(ipm_moment))
+        self._weight = float(weight)
         self._R_BC = np.asarray(X_BC.rotation().matrix())
         self._p_BM = np.asarray(p_BM, dtype=float)
         self._floor = floor
@@ -223,20 +308,28 @@ class LumenFollower(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
 
-    def command_for(self, p_WE_xy, heading, p_WM):
-        """[p_WE, m_hat_W]: the EPM over (x, y) at `height_margin` above its floor, its
-        moment aligning the field at the capsule's magnet p_WM with `heading`."""
-        p = np.array([p_WE_xy[0], p_WE_xy[1], 0.0])
-        m = np.array([0.0, 0.0, 1.0])
-        for _ in range(3):  # the floor depends a little on the moment's tilt
-            p[2] = self._floor(p[0], p[1], m) + self._config.height_margin
+    def command_for(self, drive, heading, p_WM, previous=None):
+        """[p_WE, m_hat_W]: the EPM where its pull on the capsule's magnet at p_WM plus the
+        capsule's weight is `drive` newtons along `heading`, at least `height_margin` above
+        its floor, moved from `previous` (a command) by at most max_epm_speed * period; its
+        moment aligns the field at the magnet with `heading`."""
+        c = self._config
+        force = drive * heading + np.array([0.0, 0.0, self._weight])
+        p, m, _ = epm_pose_for_force(p_WM, heading, force, *self._moments)
+        if previous is not None:
+            move = p - previous[:3]
+            reach = c.max_epm_speed * c.period
+            if np.linalg.norm(move) > reach:
+                p = previous[:3] + move * (reach / np.linalg.norm(move))
+        for _ in range(2):  # the floor depends a little on the moment's tilt
+            p[2] = max(p[2], self._floor(p[0], p[1], m) + c.height_margin)
             u = p_WM - p
             m = field_aligning_moment_direction(u / np.linalg.norm(u), heading)
         return np.concatenate([p, m])
 
     def _calc_status(self, context, output):
         x = context.get_discrete_state(self._state).value()
-        output.SetFromVector([x[_MODE], x[_LEAD], x[_V], x[_LOST_T]])
+        output.SetFromVector([x[_MODE], x[_F], x[_V], x[_LOST_T]])
 
     def _pose_of(self, context):
         pose = np.asarray(self._pose.Eval(context), dtype=float)
@@ -268,8 +361,8 @@ class LumenFollower(LeafSystem):
         x[_WAY] = z_W
         x[_SIDE] = 1.0
         x[_INIT] = 1.0
-        x[_LEAD] = self._config.min_lead
-        x[_CMD] = self.command_for(p_WM[:2], z_W, p_WM)
+        x[_F] = self._config.min_force
+        x[_CMD] = self.command_for(x[_F], z_W, p_WM)
 
     def _update(self, context, discrete_state):
         c = self._config
@@ -346,11 +439,11 @@ class LumenFollower(LeafSystem):
                 switch(BACKOFF)
                 x[_BASE] = forward_base()
             else:
-                x[_LEAD] += c.lead_gain * (c.target_speed - x[_V]) * dt
+                x[_F] += c.force_gain * (c.target_speed - x[_V]) * dt
                 if x[_V] > c.overspeed * c.target_speed:
-                    x[_LEAD] -= c.brake_rate * dt
-                x[_LEAD] = np.clip(x[_LEAD], c.min_lead, c.max_lead)
-                stalled = (x[_LEAD] >= 0.9 * c.max_lead
+                    x[_F] -= c.brake_rate * dt
+                x[_F] = np.clip(x[_F], c.min_force, c.max_force)
+                stalled = (x[_F] >= 0.9 * c.max_force
                            and x[_V] < c.stall_speed_fraction * c.target_speed)
                 x[_STALL_T] = x[_STALL_T] + dt if stalled else 0.0
                 if x[_STALL_T] > c.stall_after:
@@ -360,8 +453,8 @@ class LumenFollower(LeafSystem):
                     x[_STALL_T] = 0.0
         elif mode == PUSH:
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
-                switch(CRUISE)  # go on with the lead that got it moving
-                x[_LEAD] = np.clip(x[_LEAD], c.min_lead, c.max_lead)
+                switch(CRUISE)  # go on with the force that got it moving
+                x[_F] = np.clip(x[_F], c.min_force, c.max_force)
             elif x[_MODE_T] > c.push_time or lost:
                 switch(BACKOFF)
                 x[_BASE] = forward_base()
@@ -372,29 +465,29 @@ class LumenFollower(LeafSystem):
                     switch(SEARCH)
                 else:
                     switch(CRUISE)
-                    x[_LEAD] = c.min_lead
+                    x[_F] = c.min_force
                     x[_STALL_T] = 0.0
         elif mode == SEARCH:
             if x[_LOST_T] == 0.0:
                 switch(CRUISE)
-                x[_LEAD] = c.min_lead
+                x[_F] = c.min_force
                 x[_STALL_T] = 0.0
             elif x[_MODE_T] > c.search_time:
                 switch(BACKOFF)
                 x[_BASE] = way
 
-        # The heading wanted and the lead of the mode.
+        # The heading wanted and the drive force of the mode.
         mode = x[_MODE]
         if mode == CRUISE:
-            target, lead = seen, x[_LEAD]
+            target, drive = seen, x[_F]
         elif mode == PUSH:
             swing = x[_SIDE] * np.radians(c.wiggle_deg) * np.sin(
                 2.0 * np.pi * x[_MODE_T] / c.wiggle_period)
-            x[_LEAD] = c.push_lead_low + (c.push_lead - c.push_lead_low) * 0.5 * (
+            x[_F] = c.push_force_low + (c.push_force - c.push_force_low) * 0.5 * (
                 1.0 + np.cos(2.0 * np.pi * x[_MODE_T] / c.push_sweep_period))
-            target, lead = turn(seen, np.array([0.0, 0.0, 1.0]), swing), x[_LEAD]
+            target, drive = turn(seen, np.array([0.0, 0.0, 1.0]), swing), x[_F]
         elif mode == BACKOFF:
-            target, lead = x[_H], -c.backoff_lead
+            target, drive = x[_H], -c.backoff_force
         else:
             base = x[_BASE] / np.linalg.norm(x[_BASE])
             e1 = np.cross([0.0, 0.0, 1.0], base)
@@ -404,7 +497,7 @@ class LumenFollower(LeafSystem):
             a = np.radians(c.search_cone_deg)
             target = np.cos(a) * base + np.sin(a) * (x[_SIDE] * np.cos(phase) * e1
                                                      + np.sin(phase) * e2)
-            lead = c.search_lead
+            drive = c.search_force
         h = x[_H] + (target - x[_H]) * min(1.0, dt / c.heading_time)
         if np.linalg.norm(h) < 1e-6:
             h = z_W
@@ -412,15 +505,10 @@ class LumenFollower(LeafSystem):
         h = limit_pitch(h, np.radians(c.max_pitch_deg))
         x[_H] = h
 
-        # The EPM over the point `lead` heights ahead of the capsule's magnet, moving at most
-        # max_epm_speed.
-        height = max(float(x[2] - p_WM[2]), 0.0)
-        xy = p_WM[:2] + lead * height * horizontal(h)[:2]
-        move = xy - x[0:2]
-        reach = c.max_epm_speed * dt
-        if np.linalg.norm(move) > reach:
-            xy = x[0:2] + move * (reach / np.linalg.norm(move))
-        x[_CMD] = self.command_for(xy, h, p_WM)
+        # The EPM where the pull plus the weight is `drive` along h.
+        if mode in (BACKOFF, SEARCH):
+            x[_F] = drive  # reported in the status
+        x[_CMD] = self.command_for(drive, h, p_WM, previous=x[_CMD])
         discrete_state.set_value(self._state, x)
 
 
@@ -483,7 +571,7 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
     lumen tracker's ray and visibility; needs `capsule.lumen_tracker`).
     """
     # Imported here: station imports much of the package.
-    from capsule_drake.station import colon_for
+    from capsule_drake.station import CAPSULE_BODY, colon_for
     from capsule_drake.systems.epm_arm import EpmGuard
     from capsule_drake.teleop.operator import LumenRayFromTruth
 
@@ -500,8 +588,10 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
     colon = colon_for(scenario)
     guard = EpmGuard(colon.abdomen, scenario.epm.magnet, scenario.epm.clearance,
                      np.zeros(3), np.inf)
+    mass = plant.GetBodyByName(CAPSULE_BODY, capsule).default_mass()
     follower = builder.AddNamedSystem(name, LumenFollower(
-        config, X_BC, p_BM, guard.lowest_centre_height))
+        config, X_BC, p_BM, guard.lowest_centre_height, scenario.epm.magnet.moment(),
+        scenario.capsule.ipm.moment(), mass * GRAVITY))
     pose = builder.AddNamedSystem(f"{name}.pose", Demultiplexer([7, 6]))
     builder.Connect(station.GetOutputPort("capsule.state"), pose.get_input_port())
     builder.Connect(pose.get_output_port(0), follower.GetInputPort("capsule_pose"))
