@@ -132,9 +132,9 @@ def _seeds(text: str) -> list[int]:
 
 
 def _benchmark(args) -> int:
-    from capsule_drake.navigation.benchmark import (BUILT_IN, COLUMNS, Task, format_table,
-                                                    load_navigator, run_suite, segment_table,
-                                                    summary, write_outputs)
+    from capsule_drake.navigation.benchmark import (BUILT_IN, COLUMNS, RowWriter, Task,
+                                                    format_table, load_navigator, run_suite,
+                                                    segment_table, summary, write_outputs)
 
     seeds = _seeds(args.seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
@@ -158,9 +158,11 @@ def _benchmark(args) -> int:
                                args.scenario_text))
         except ValueError as e:
             raise ScenarioError(str(e)) from None
-    out_dir = args.out or Path("runs") / f"benchmark-{time.strftime('%Y%m%d-%H%M%S')}"
+    out_dir = Path(args.out or Path("runs") / f"benchmark-{time.strftime('%Y%m%d-%H%M%S')}")
+    # Rows as the runs finish, in the order they finish; runs.csv is written at the end.
+    partial = RowWriter(out_dir / "runs-as-finished.csv")
     results = run_suite(tasks, workers=args.workers, engine=args.engine,
-                        address=args.address, progress=not args.quiet)
+                        address=args.address, progress=not args.quiet, on_result=partial)
     print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
     print()
     rows = summary(results)

@@ -6,8 +6,9 @@ import csv
 import numpy as np
 import pytest
 
-from capsule_drake.navigation.benchmark import (COLUMNS, Task, format_table, load_navigator,
-                                                run_suite, run_task, summary, write_outputs)
+from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
+                                                load_navigator, run_suite, run_task, summary,
+                                                write_outputs)
 
 # Short runs without the camera worker: a few simulated seconds each.
 TEXT = "{capsule: {camera: {fps: 2.0, latency: 0.0}}}"
@@ -19,8 +20,21 @@ def _tasks():
 
 
 @pytest.fixture(scope="module")
-def local_results():
-    return run_suite(_tasks(), workers=2, engine="local", progress=False)
+def finished_rows(tmp_path_factory):
+    return tmp_path_factory.mktemp("partial") / "runs-as-finished.csv"
+
+
+@pytest.fixture(scope="module")
+def local_results(finished_rows):
+    return run_suite(_tasks(), workers=2, engine="local", progress=False,
+                     on_result=RowWriter(finished_rows))
+
+
+def test_each_run_is_written_as_it_finishes(local_results, finished_rows):
+    with open(finished_rows) as f:
+        written = list(csv.DictReader(f))
+    assert sorted(int(r["seed"]) for r in written) == [0, 1]
+    assert list(written[0]) == list(COLUMNS)
 
 
 def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, tmp_path):

@@ -237,12 +237,17 @@ def run_task(task: Task) -> dict:
 
     simulator.set_monitor(at_cecum)
     start = time.perf_counter()
-    simulator.Initialize()
     stopped = None
     try:
+        simulator.Initialize()
         simulator.AdvanceTo(task.duration)
     except RuntimeError as e:  # a run that fails is a result, not the end of the suite
         stopped = f"simulation error: {str(e).splitlines()[0]}"
+    finally:
+        # The render worker is a process: end it with the run, not when a pool process
+        # that runs the next task gets round to collecting this diagram.
+        if camera is not None and camera.worker is not None:
+            camera.worker.close()
     wall_time = time.perf_counter() - start
     context = simulator.get_context()
     data = {name: log.FindLog(context) for name, log in logs.items()}
@@ -315,11 +320,14 @@ class _Bar:
 
 
 def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
-              address: str | None = None, progress: bool = True) -> list[dict]:
+              address: str | None = None, progress: bool = True,
+              on_result=None) -> list[dict]:
     """Runs the tasks in parallel; returns their results in the tasks' order.
 
     engine "local": a pool of `workers` processes on this machine. "dask": a Dask cluster,
     `address` of an existing scheduler or else a local cluster of `workers` processes.
+    on_result: called with each result as its run finishes (e.g. `RowWriter`), so a long
+    suite that is interrupted keeps the runs it finished.
     """
     if engine not in ("local", "dask"):
         raise ValueError(f"benchmark engine {engine!r} is not 'local' or 'dask'")
@@ -332,6 +340,8 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
             for future in concurrent.futures.as_completed(futures):
                 k = futures[future]
                 results[k] = future.result()
+                if on_result is not None:
+                    on_result(results[k])
                 bar.step(f"{tasks[k].navigator} seed {tasks[k].seed}")
         return results
     from dask.distributed import Client, LocalCluster, as_completed
@@ -346,11 +356,27 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
             for future in as_completed(futures):
                 k = index[future.key]
                 results[k] = future.result()
+                if on_result is not None:
+                    on_result(results[k])
                 bar.step(f"{tasks[k].navigator} seed {tasks[k].seed}")
     finally:
         if cluster is not None:
             cluster.close()
     return results
+
+
+class RowWriter:
+    """Appends each finished run's row to a CSV file at once (header first)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "w", newline="") as f:
+            csv.DictWriter(f, fieldnames=COLUMNS).writeheader()
+
+    def __call__(self, result: dict) -> None:
+        with open(self.path, "a", newline="") as f:
+            csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore").writerow(result["row"])
 
 
 def summary(results: list[dict]) -> list[dict]:
