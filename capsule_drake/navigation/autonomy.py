@@ -55,6 +55,7 @@ from capsule_drake.epm_path import field_aligning_moment_direction
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
+POSE_SOURCES = ("truth", "sensors")
 
 GRAVITY = 9.81  # m/s^2
 
@@ -560,7 +561,8 @@ class LumenRayFromPoint(LeafSystem):
 
 
 def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
-                       lumen: str = "truth", name: str = "lumen_follower") -> LumenFollower:
+                       lumen: str = "truth", name: str = "lumen_follower",
+                       pose: str = "truth") -> LumenFollower:
     """Adds a LumenFollower to `builder` (which holds `station`) and wires it: the capsule's
     pose from `capsule.state`, the lumen from the station, its command to `epm.command`.
 
@@ -569,6 +571,10 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
     accounts for tissue hiding the lumen), "truth_point" (the lumen truth's world point as a
     ray, seen whenever it is in front of the lens, even behind a fold) or "detected" (the
     lumen tracker's ray and visibility; needs `capsule.lumen_tracker`).
+    pose: "truth" (the capsule's simulated pose) or "sensors" (the orientation from the
+    AHRS, the position from the magnetometer and the EPM's pose by `MagneticLocalizer`,
+    starting from the capsule's known start pose; needs `capsule.imu`, `capsule.ahrs` and
+    `capsule.magnetometer`).
     """
     # Imported here: station imports much of the package.
     from capsule_drake.station import CAPSULE_BODY, colon_for
@@ -577,6 +583,12 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
 
     if lumen not in LUMEN_SOURCES:
         raise ValueError(f"lumen source {lumen!r} is not one of {LUMEN_SOURCES}")
+    if pose not in POSE_SOURCES:
+        raise ValueError(f"pose source {pose!r} is not one of {POSE_SOURCES}")
+    if pose == "sensors" and None in (scenario.capsule.imu, scenario.capsule.ahrs,
+                                      scenario.capsule.magnetometer):
+        raise ValueError("pose 'sensors' needs capsule.imu, capsule.ahrs and "
+                         "capsule.magnetometer")
     if scenario.capsule.camera is None:
         raise ValueError("the lumen follower needs capsule.camera (it follows the lumen seen)")
     if lumen == "detected" and scenario.capsule.lumen_tracker is None:
@@ -592,9 +604,24 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
     follower = builder.AddNamedSystem(name, LumenFollower(
         config, X_BC, p_BM, guard.lowest_centre_height, scenario.epm.magnet.moment(),
         scenario.capsule.ipm.moment(), mass * GRAVITY))
-    pose = builder.AddNamedSystem(f"{name}.pose", Demultiplexer([7, 6]))
-    builder.Connect(station.GetOutputPort("capsule.state"), pose.get_input_port())
-    builder.Connect(pose.get_output_port(0), follower.GetInputPort("capsule_pose"))
+    demux = builder.AddNamedSystem(f"{name}.pose", Demultiplexer([7, 6]))
+    builder.Connect(station.GetOutputPort("capsule.state"), demux.get_input_port())
+    pose_port = demux.get_output_port(0)
+    if pose == "sensors":
+        from capsule_drake.navigation.localization import MagneticLocalizer
+        from capsule_drake.station import capsule_start_pose
+        X_WB0 = capsule_start_pose(colon, scenario.capsule.start_s)
+        q = X_WB0.rotation().ToQuaternion()
+        localizer = builder.AddNamedSystem(f"{name}.localizer", MagneticLocalizer(
+            scenario.capsule.magnetometer.X_BS(), scenario.epm.magnet.moment(),
+            X_WB0.translation(), q_WB0=[q.w(), q.x(), q.y(), q.z()]))
+        builder.Connect(station.GetOutputPort("capsule.magnetometer.B_S"),
+                        localizer.GetInputPort("B_S"))
+        builder.Connect(station.GetOutputPort("capsule.ahrs.q_WB"),
+                        localizer.GetInputPort("q_WB"))
+        builder.Connect(station.GetOutputPort("epm.pose"), localizer.GetInputPort("epm_pose"))
+        pose_port = localizer.GetOutputPort("capsule_pose")
+    builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
     if lumen == "truth":
         camera = station.GetSubsystemByName("capsule.camera")
         seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromTruth(camera.lens))
@@ -607,7 +634,8 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
         camera = station.GetSubsystemByName("capsule.camera")
         seen = builder.AddNamedSystem(f"{name}.lumen_seen",
                                       LumenRayFromPoint(X_BC, camera.lens.max_theta))
-        builder.Connect(pose.get_output_port(0), seen.GetInputPort("capsule_pose"))
+        # The ray as the camera sees it: from the capsule's true pose.
+        builder.Connect(demux.get_output_port(0), seen.GetInputPort("capsule_pose"))
         builder.Connect(station.GetOutputPort("capsule.lumen.lumen_point_W"),
                         seen.GetInputPort("point_W"))
         ray, visible = seen.GetOutputPort("ray"), seen.GetOutputPort("visible")

@@ -98,9 +98,12 @@ class MagneticLocalizer(LeafSystem):
         epm_moment: the EPM's moment magnitude (A m^2).
         p_WB0: the capsule's starting position (the first guess).
         config: LocalizerConfig.
+        q_WB0: the capsule's starting orientation (wxyz), the estimate until the first
+            update (default identity).
     """
 
-    def __init__(self, X_BS, epm_moment: float, p_WB0, config: LocalizerConfig | None = None):
+    def __init__(self, X_BS, epm_moment: float, p_WB0, config: LocalizerConfig | None = None,
+                 q_WB0=(1.0, 0.0, 0.0, 0.0)):
         super().__init__()
         self._config = config or LocalizerConfig()
         self._R_BS = np.asarray(X_BS.rotation().matrix())
@@ -110,7 +113,9 @@ class MagneticLocalizer(LeafSystem):
         self._q = self.DeclareVectorInputPort("q_WB", 4)
         self._epm = self.DeclareVectorInputPort("epm_pose", 6)
         # [q_WB (4), p_WB (3), valid]
-        initial = np.concatenate([[1.0, 0.0, 0.0, 0.0], np.asarray(p_WB0, dtype=float), [0.0]])
+        q_WB0 = np.asarray(q_WB0, dtype=float)
+        initial = np.concatenate([q_WB0 / np.linalg.norm(q_WB0), np.asarray(p_WB0, dtype=float),
+                                  [0.0]])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareVectorOutputPort(
             "capsule_pose", 7,
