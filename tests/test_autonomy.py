@@ -12,7 +12,8 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.magnetics import cylinder_moment, dipole_field, dipole_force
-from capsule_drake.navigation.autonomy import (BACKOFF, CRUISE, SEARCH, LumenFollower,
+from capsule_drake.navigation.autonomy import (BACKOFF, COAST, CRUISE, PUSH, SEARCH,
+                                               LumenFollower,
                                                LumenFollowerConfig, add_lumen_follower,
                                                check_lumen_follower_config,
                                                epm_pose_for_force)
@@ -189,21 +190,21 @@ def test_heading_stays_within_max_lead_of_the_axis():
         LumenFollowerConfig().max_lead_deg, abs=0.5)
 
 
-def test_lumen_lost_backs_off_then_searches():
+def test_lumen_lost_coasts_then_searches():
     config = FAST
     follower, simulator, context = _follower(config)
     simulator.AdvanceTo(1.0)
     follower.GetInputPort("lumen_visible").FixValue(context, [0.0])
     simulator.AdvanceTo(1.0 + config.lost_after + 0.5)
     command, heading, status = _outputs(follower, context)
-    assert status[0] == BACKOFF
+    assert status[0] == COAST
     simulator.AdvanceTo(1.0 + config.lost_after + 2.5)
     command, heading, status = _outputs(follower, context)
-    # The pull plus the weight draws the capsule back along the heading.
-    assert status[1] == -config.backoff_force
-    assert _net_force(command, heading) @ heading == pytest.approx(-config.backoff_force,
+    # The pull plus the weight drives the capsule on along the heading it held.
+    assert status[1] == config.coast_force
+    assert _net_force(command, heading) @ heading == pytest.approx(config.coast_force,
                                                                   abs=0.005)
-    simulator.AdvanceTo(1.0 + config.lost_after + config.backoff_time + 1.0)
+    simulator.AdvanceTo(1.0 + config.lost_after + config.coast_time + 1.0)
     _, first, status = _outputs(follower, context)
     assert status[0] == SEARCH
     simulator.AdvanceTo(context.get_time() + 0.25 * config.search_period)
@@ -214,6 +215,25 @@ def test_lumen_lost_backs_off_then_searches():
     follower.GetInputPort("lumen_visible").FixValue(context, [1.0])
     simulator.AdvanceTo(context.get_time() + 0.2)
     assert _outputs(follower, context)[2][0] == CRUISE
+
+
+def test_a_stall_pushes_then_backs_off():
+    """The lumen in view, the (here immobile) capsule not moving: the force grows to its
+    largest, then a push, then a back off that draws the capsule backward."""
+    config = FAST
+    follower, simulator, context = _follower(config)
+    modes = []
+    t = 0.0
+    while t < 40.0 and BACKOFF not in modes:
+        t += 0.5
+        simulator.AdvanceTo(t)
+        modes.append(_outputs(follower, context)[2][0])
+    assert PUSH in modes and BACKOFF in modes and modes.index(PUSH) < modes.index(BACKOFF)
+    simulator.AdvanceTo(t + 1.0)
+    command, heading, status = _outputs(follower, context)
+    assert status[0] == BACKOFF and status[1] == -config.backoff_force
+    assert _net_force(command, heading) @ heading == pytest.approx(-config.backoff_force,
+                                                                  abs=0.005)
 
 
 def test_a_lumen_behind_the_way_it_came_is_not_followed():

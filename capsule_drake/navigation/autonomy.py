@@ -31,9 +31,13 @@ The control law, every `period`:
   `push_force` and `push_force_low` and the heading wiggles sideways; if the capsule
   still does not move within `push_time`, back off (f = `backoff_force` backward, for
   `backoff_time`) and retry.
-- Lumen lost (not seen for `lost_after`): back off, then search: the heading sweeps a cone
-  around the last forward direction the lumen was seen in with f = `search_force`; when it
-  is seen again, go on.
+- Lumen lost (not seen for `lost_after`): coast (f = `coast_force` on along the heading
+  held, for `coast_time`: in a bend the lumen goes out of sight behind the wall and comes
+  back round it), then search: the heading sweeps a cone around the last forward direction
+  the lumen was seen in with f = `search_force`; then coast again. When it is seen again,
+  go on. (Backing off when the lumen is lost, the first design, returned the capsule to
+  where the lumen was in view, from which it drove into the same bend again: 5 of 10
+  colons held in the sigmoid's hairpins.)
 - Sense of direction: the controller drops breadcrumbs along the capsule's path (its own
   memory of the poses it was given). A lumen direction that heads into crumbs older than
   the one the capsule is at is the way out (the capsule has turned back, or the truth's
@@ -125,7 +129,7 @@ def epm_pose_for_force(p_WM, h, force, epm_moment, ipm_moment):
     return p_WE, m_hat, distance
 
 # Modes of the controller (the `status` output's first element).
-CRUISE, PUSH, BACKOFF, SEARCH = 0.0, 1.0, 2.0, 3.0
+CRUISE, PUSH, BACKOFF, SEARCH, COAST = 0.0, 1.0, 2.0, 3.0, 4.0
 
 
 @dataclasses.dataclass
@@ -174,9 +178,12 @@ class LumenFollowerConfig:
     # Back off: f = backoff_force (N) backward along the heading, for backoff_time (s).
     backoff_force: float = 0.03
     backoff_time: float = 3.0
-    # Lumen not seen for lost_after (s) -> back off, then search: the heading sweeps a cone
+    # Coast: f = coast_force (N) on along the heading held, for coast_time (s).
+    coast_force: float = 0.03
+    coast_time: float = 3.0
+    # Lumen not seen for lost_after (s) -> coast, then search: the heading sweeps a cone
     # of half-angle search_cone_deg (deg) once per search_period (s) with f =
-    # search_force (N); after search_time (s) without the lumen, back off again.
+    # search_force (N); after search_time (s) without the lumen, coast again.
     lost_after: float = 1.0
     search_cone_deg: float = 35.0
     search_period: float = 8.0
@@ -202,11 +209,11 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
             raise ValueError(f"lumen follower {name} must be > 0, got {getattr(config, name)}")
     for name in ("force_gain", "brake_rate", "height_margin",
                  "stall_speed_fraction", "stall_after", "push_time", "wiggle_deg",
-                 "unstick_distance", "backoff_time", "lost_after",
+                 "unstick_distance", "backoff_time", "coast_time", "lost_after",
                  "search_cone_deg", "search_time"):
         if not getattr(config, name) >= 0.0:
             raise ValueError(f"lumen follower {name} must be >= 0, got {getattr(config, name)}")
-    for name in ("min_force", "backoff_force", "search_force"):
+    for name in ("min_force", "backoff_force", "coast_force", "search_force"):
         if not getattr(config, name) > 0.0:
             raise ValueError(f"lumen follower {name} must be > 0 N, got {getattr(config, name)}")
     if not config.max_force >= config.min_force:
@@ -264,7 +271,7 @@ class LumenFollower(LeafSystem):
     the lumen in the camera frame (x right, y down, z forward). lumen_visible: 1 when the
     lumen is in view. epm_command: [p_WE (3), m_hat_W (3)], the EPM's centre and moment
     direction (for the station's `epm.command`). heading: the commanded heading h_W (unit).
-    status: [mode (0 cruise, 1 push, 2 back off, 3 search), drive force f (N, along the
+    status: [mode (0 cruise, 1 push, 2 back off, 3 search, 4 coast), drive force f (N, along the
     heading; negative backing off), speed along the heading (m/s), time since the lumen
     was seen (s)].
 
@@ -437,7 +444,7 @@ class LumenFollower(LeafSystem):
 
         if mode == CRUISE:
             if lost:
-                switch(BACKOFF)
+                switch(COAST)
                 x[_BASE] = forward_base()
             else:
                 x[_F] += c.force_gain * (c.target_speed - x[_V]) * dt
@@ -456,7 +463,10 @@ class LumenFollower(LeafSystem):
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
                 switch(CRUISE)  # go on with the force that got it moving
                 x[_F] = np.clip(x[_F], c.min_force, c.max_force)
-            elif x[_MODE_T] > c.push_time or lost:
+            elif lost:
+                switch(COAST)
+                x[_BASE] = forward_base()
+            elif x[_MODE_T] > c.push_time:
                 switch(BACKOFF)
                 x[_BASE] = forward_base()
                 x[_SIDE] = -x[_SIDE]
@@ -468,13 +478,20 @@ class LumenFollower(LeafSystem):
                     switch(CRUISE)
                     x[_F] = c.min_force
                     x[_STALL_T] = 0.0
+        elif mode == COAST:
+            if x[_LOST_T] == 0.0:
+                switch(CRUISE)
+                x[_F] = c.min_force
+                x[_STALL_T] = 0.0
+            elif x[_MODE_T] > c.coast_time:
+                switch(SEARCH)
         elif mode == SEARCH:
             if x[_LOST_T] == 0.0:
                 switch(CRUISE)
                 x[_F] = c.min_force
                 x[_STALL_T] = 0.0
             elif x[_MODE_T] > c.search_time:
-                switch(BACKOFF)
+                switch(COAST)
                 x[_BASE] = way
 
         # The heading wanted and the drive force of the mode.
@@ -489,6 +506,8 @@ class LumenFollower(LeafSystem):
             target, drive = turn(seen, np.array([0.0, 0.0, 1.0]), swing), x[_F]
         elif mode == BACKOFF:
             target, drive = x[_H], -c.backoff_force
+        elif mode == COAST:
+            target, drive = x[_H], c.coast_force
         else:
             base = x[_BASE] / np.linalg.norm(x[_BASE])
             e1 = np.cross([0.0, 0.0, 1.0], base)
@@ -507,7 +526,7 @@ class LumenFollower(LeafSystem):
         x[_H] = h
 
         # The EPM where the pull plus the weight is `drive` along h.
-        if mode in (BACKOFF, SEARCH):
+        if mode in (BACKOFF, SEARCH, COAST):
             x[_F] = drive  # reported in the status
         x[_CMD] = self.command_for(drive, h, p_WM, previous=x[_CMD])
         discrete_state.set_value(self._state, x)
