@@ -738,16 +738,23 @@ def make_station(scenario: Scenario, meshcat=None, *, apply_magnet_force: bool =
         builder.ExportInput(command_input, "epm.command")
 
     X_C_ipm = plant.GetFrameByName("ipm", capsule_instance).GetFixedPoseInBodyFrame()
+
+    def cylinder(geometry):
+        return list(geometry.dimensions) if geometry.shape == "cylinder" else []
+
     magnets = [
         MagnetSpec(name="ipm", body=CAPSULE_BODY, model_instance="capsule",
                    p_BM=list(X_C_ipm.translation()),
                    axis_B=list(X_C_ipm.rotation().col(2)),
-                   moment=scenario.capsule.ipm.moment()),
+                   moment=scenario.capsule.ipm.moment(),
+                   cylinder=cylinder(scenario.capsule.ipm)),
         MagnetSpec(name="epm", body=EPM_BODY, model_instance=mount.model_name,
                    p_BM=[0.0, 0.0, 0.0], axis_B=[0.0, 0.0, 1.0],
-                   moment=scenario.epm.magnet.moment()),
+                   moment=scenario.epm.magnet.moment(),
+                   cylinder=cylinder(scenario.epm.magnet)),
     ]
-    magnet_force = builder.AddNamedSystem("magnet_force", MagneticForce(plant, magnets))
+    magnet_force = builder.AddNamedSystem("magnet_force", MagneticForce(
+        plant, magnets, field_model=scenario.magnet_model))
     builder.Connect(plant.get_body_poses_output_port(),
                     magnet_force.get_body_poses_input_port())
     if apply_magnet_force:
