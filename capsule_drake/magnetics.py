@@ -31,6 +31,7 @@ agrees with the generic path.
 """
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -58,6 +59,12 @@ def _cross(a, b):
             a[0] * b[1] - a[1] * b[0],
         ]
     )
+
+
+def _cross_float(a, b):
+    """a x b for float 3-vectors, as an array (np.cross costs ~20 us)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def _guarded_offset(p, min_distance):
@@ -336,19 +343,25 @@ _STENCIL = np.vstack([np.zeros(3), np.eye(3), -np.eye(3)]) * FINITE_DIFFERENCE_S
 
 def _frame_along(axis):
     """A rotation matrix whose third column is the unit vector `axis`."""
-    z = np.asarray(axis, dtype=float)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
+    zx, zy, zz = (float(v) for v in axis)
+    # x = helper x z, with the helper a world axis far from z.
+    if abs(zx) < 0.9:  # helper (1, 0, 0)
+        x = (0.0, -zz, zy)
+    else:  # helper (0, 1, 0)
+        x = (zz, 0.0, -zx)
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    xx, xy, xz = x[0] / n, x[1] / n, x[2] / n
+    return np.array([[xx, zy * xz - zz * xy, zx],
+                     [xy, zz * xx - zx * xz, zy],
+                     [xz, zx * xy - zy * xx, zz]])
 
 
 def cylinder_field(m_source, offsets, diameter: float, length: float) -> np.ndarray:
     """Field (T) of a cylinder magnetised along its axis, with moment m_source (A m^2,
     along the axis; its size sets the polarisation m mu0 / V), at `offsets` (n x 3, m)
-    from its centre (world frame). magpylib's closed form (Caciagli et al., J. Magn. Magn.
-    Mater. 456, 2018)."""
-    from magpylib.func import cylinder_field as _field
+    from its centre (world frame). The closed form of Derby & Olbert (Am. J. Phys. 78,
+    2010), as magpylib's core implements it."""
+    from magpylib.core import magnet_cylinder_axial_Bfield
 
     m_source = np.asarray(m_source, dtype=float)
     moment = float(np.linalg.norm(m_source))
@@ -356,10 +369,16 @@ def cylinder_field(m_source, offsets, diameter: float, length: float) -> np.ndar
     if moment == 0.0:
         return np.zeros_like(offsets)
     R = _frame_along(m_source / moment)
-    volume = math.pi * (0.5 * diameter) ** 2 * length
-    B_local = _field(field="B", observers=offsets @ R, dimensions=(diameter, length),
-                     polarizations=(0.0, 0.0, MU0 * moment / volume), squeeze=False)
-    return np.asarray(B_local).reshape(-1, 3) @ R.T
+    radius = 0.5 * diameter
+    polarisation = MU0 * moment / (math.pi * radius * radius * length)
+    local = offsets @ R
+    rho = np.hypot(local[:, 0], local[:, 1])
+    B_rho, _, B_z = magnet_cylinder_axial_Bfield(
+        z0=np.full(len(local), 0.5 * length / radius), r=rho / radius, z=local[:, 2] / radius)
+    # The radial component along (x, y) / rho; zero on the axis.
+    scale = polarisation * np.divide(B_rho, rho, out=np.zeros_like(rho), where=rho > 0.0)
+    B_local = np.column_stack([scale * local[:, 0], scale * local[:, 1], polarisation * B_z])
+    return B_local @ R.T
 
 
 def _cylinder_quadrature(axis, diameter: float, length: float, rings: int, around: int,
@@ -369,6 +388,13 @@ def _cylinder_quadrature(axis, diameter: float, length: float, rings: int, aroun
     coordinate (`layers`) and in the squared radius (`rings`, so equal area), `around`
     equally spaced angles (staggered ring to ring). rings=1, around=4, layers=2 is exact to
     third degree."""
+    points, weights = _local_cylinder_quadrature(diameter, length, rings, around, layers)
+    return points @ _frame_along(axis).T, weights
+
+
+@functools.lru_cache(maxsize=32)
+def _local_cylinder_quadrature(diameter, length, rings, around, layers):
+    """`_cylinder_quadrature` in the cylinder's frame (axis z)."""
     gz, wz = np.polynomial.legendre.leggauss(layers)
     gs, ws = np.polynomial.legendre.leggauss(rings)
     points, weights = [], []
@@ -379,7 +405,7 @@ def _cylinder_quadrature(axis, diameter: float, length: float, rings: int, aroun
                 angle = 2.0 * math.pi * (j + 0.5 * (k % 2)) / around
                 points.append([r * math.cos(angle), r * math.sin(angle), 0.5 * length * z])
                 weights.append(0.5 * w_z * w_s / around)
-    return np.array(points) @ _frame_along(axis).T, np.array(weights)
+    return np.array(points), np.array(weights)
 
 
 # Quadrature of the capsule's magnet: 8 points where it is clear of the source by more than
@@ -436,9 +462,12 @@ def cylinder_pair_interaction_float(m_source, m_target, p, diameter: float, leng
         2.0 * FINITE_DIFFERENCE_STEP)
     force = forces.sum(axis=0)
     field = weights @ B[:, 0]
-    torque = np.cross(m_t, field) + np.cross(points, forces).sum(axis=0)
+    # m_t x field + sum of r_i x F_i, then the source's -T - p x F.
+    lever = np.einsum("ij,ij->j", np.roll(points, -1, axis=1), np.roll(forces, -2, axis=1)) - \
+        np.einsum("ij,ij->j", np.roll(points, -2, axis=1), np.roll(forces, -1, axis=1))
+    torque = _cross_float(m_t, field) + lever
     back = dipole_field(m_t, -p, min_distance)
-    source_torque = -torque - np.cross(p, force)
+    source_torque = -torque - _cross_float(p, force)
     return DipolePairInteraction(tuple(field.tolist()), tuple(np.asarray(back, float).tolist()),
                                  tuple(force.tolist()), tuple(torque.tolist()),
                                  tuple((-force).tolist()), tuple(source_torque.tolist()))
