@@ -53,6 +53,10 @@ def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, t
         written = list(csv.DictReader(f))
     assert [int(r["seed"]) for r in written] == [0, 1] and list(written[0]) == list(COLUMNS)
     assert paths["progress"].stat().st_size > 10_000 and paths["segments"].exists()
+    import json
+    with open(paths["results"]) as f:
+        saved = json.load(f)
+    assert [r["row"]["seed"] for r in saved] == [0, 1] and len(saved[0]["curve"][0]) > 2
     table = format_table(summary(local_results), ["navigator", "runs", "reached_cecum"])
     assert "plugins.navigators:creep" in table and "0/2" in table
 

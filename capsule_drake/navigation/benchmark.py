@@ -30,6 +30,7 @@ from __future__ import annotations
 import concurrent.futures
 import csv
 import dataclasses
+import json
 import multiprocessing
 import sys
 import time
@@ -297,7 +298,9 @@ def _metrics(task, colon, data, camera, stopped) -> dict:
         "centring_error_deg": round(centring, 1) if np.isfinite(centring) else np.nan,
         "epm_path_m": round(float(np.sum(np.linalg.norm(np.diff(epm, axis=1), axis=0))), 3),
         "coverage": round(coverage, 4) if np.isfinite(coverage) else np.nan,
-        "segments_passed": [name for name, (_, end) in segments.items() if furthest >= end],
+        # Through each segment; the cecum, a blind end, counts when the run reached it.
+        "segments_passed": [name for name, (_, end) in segments.items()
+                            if furthest >= end or (name == list(segments)[-1] and len(reached))],
     }
 
 
@@ -365,6 +368,15 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     return results
 
 
+def _json_default(value):
+    """numpy scalars and arrays in results as plain JSON."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
 class RowWriter:
     """Appends each finished run's row to a CSV file at once (header first)."""
 
@@ -427,7 +439,12 @@ def write_outputs(results: list[dict], out_dir: Path) -> dict[str, Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"runs": out_dir / "runs.csv", "summary": out_dir / "summary.csv",
-             "progress": out_dir / "progress.png", "segments": out_dir / "segments.png"}
+             "progress": out_dir / "progress.png", "segments": out_dir / "segments.png",
+             "results": out_dir / "results.json"}
+    # Everything the table and plots are made from (rows, progress curves, segments), so
+    # they can be redrawn or analysed further without rerunning the suite.
+    with open(paths["results"], "w") as f:
+        json.dump(results, f, default=_json_default)
     with open(paths["runs"], "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
         writer.writeheader()
