@@ -15,16 +15,14 @@ Run: python benchmarks/bench_magnet_model.py [--poses 40] [--plot PATH]
 
 import argparse
 
-import magpylib
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.framework import DiagramBuilder
-from scipy.spatial.transform import Rotation
 
 from capsule_drake.magnetics import (cylinder_moment, cylinder_pair_interaction_float,
-                                     dipole_pair_interaction_float)
+                                     dipole_pair_interaction_float, meshed_reference_wrench)
 from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
 from timing import median_us  # benchmarks/timing.py
 
@@ -34,18 +32,8 @@ M_EPM, M_IPM = cylinder_moment(D, L, BR), cylinder_moment(d, l, BR)
 DISTANCES = [0.08, 0.09, 0.10, 0.12, 0.15, 0.20, 0.25]
 
 
-def reference(a, c, p):
-    source = magpylib.magnet.Cylinder(
-        dimension=(D, L), polarization=(0, 0, BR),
-        orientation=Rotation.align_vectors([a], [[0, 0, 1]])[0])
-    target = magpylib.magnet.Cylinder(
-        dimension=(d, l), polarization=(0, 0, BR), position=p,
-        orientation=Rotation.align_vectors([c], [[0, 0, 1]])[0])
-    return magpylib.getFT(source, target, meshing=(24, 8, 12), eps=1e-6)
-
-
 def errors(a, c, p):
-    F, T = reference(a, c, p)
+    F, T = meshed_reference_wrench(M_EPM * a, M_IPM * c, p, (D, L), (d, l))
     out = []
     for r in (dipole_pair_interaction_float(M_EPM * a, M_IPM * c, p),
               cylinder_pair_interaction_float(M_EPM * a, M_IPM * c, p, D, L,

@@ -261,27 +261,29 @@ def test_non_finite_pose_holds_the_command():
     assert np.all(np.isfinite(command)) and status[3] > 0.5
 
 
-def test_add_lumen_follower_needs_a_camera():
+def _station(name, override):
+    """A scenario, its station taking an external EPM command, and a builder holding it."""
     from capsule_drake.scenario import load_scenario
     from capsule_drake.station import make_station
-    scenario = load_scenario(name="Default", override="{duration: 1.0}")
+    scenario = load_scenario(name=name, override=override)
     station = make_station(scenario, external_epm_command=True)
     builder = DiagramBuilder()
     builder.AddSystem(station)
+    return scenario, station, builder
+
+
+def test_add_lumen_follower_needs_a_camera():
+    scenario, station, builder = _station("Default", "{duration: 1.0}")
     with pytest.raises(ValueError, match="camera"):
         add_lumen_follower(builder, station, scenario, LumenFollowerConfig())
 
 
 def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
-    from capsule_drake.scenario import load_scenario
-    from capsule_drake.station import colon_for, make_station
-    scenario = load_scenario(name="Default", override=(
+    from capsule_drake.station import colon_for
+    scenario, station, builder = _station("Default", (
         "{colon: {seed: 0}, duration: 12.0, capsule: {camera: {fps: 5.0}},"
         " contact: {drag_translational: 2.0, drag_rotational: 6.0e-5}}"))
     colon = colon_for(scenario)
-    station = make_station(scenario, external_epm_command=True)
-    builder = DiagramBuilder()
-    builder.AddSystem(station)
     add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen="truth")
     log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, 0.5)
     diagram = builder.Build()
@@ -297,12 +299,7 @@ def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
 
 
 def test_add_lumen_follower_pose_source_errors_are_one_line():
-    from capsule_drake.scenario import load_scenario
-    from capsule_drake.station import make_station
-    scenario = load_scenario(name="Navigation", override="{duration: 1.0}")
-    station = make_station(scenario, external_epm_command=True)
-    builder = DiagramBuilder()
-    builder.AddSystem(station)
+    scenario, station, builder = _station("Navigation", "{duration: 1.0}")
     with pytest.raises(ValueError, match="pose source 'gps'"):
         add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), pose="gps")
     with pytest.raises(ValueError, match="needs capsule.imu, capsule.ahrs and capsule.magn"):
@@ -312,15 +309,11 @@ def test_add_lumen_follower_pose_source_errors_are_one_line():
 def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
     """The pose from the AHRS and the magnetic localiser instead of the truth: the capsule
     advances, and the estimate the follower acts on stays near the truth over 15 s."""
-    from capsule_drake.scenario import load_scenario
-    from capsule_drake.station import colon_for, make_station
-    scenario = load_scenario(name="Navigation", override=(
+    from capsule_drake.station import colon_for
+    scenario, station, builder = _station("Navigation", (
         "{colon: {seed: 0}, duration: 15.0, capsule: {camera: {latency: 0.0},"
         " imu: {}, ahrs: {}, magnetometer: {}}}"))
     colon = colon_for(scenario)
-    station = make_station(scenario, external_epm_command=True)
-    builder = DiagramBuilder()
-    builder.AddSystem(station)
     add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen="truth",
                        pose="sensors")
     log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, 0.5)

@@ -4,15 +4,13 @@ pair's action and reaction, and the "finite" field model in MagneticForce and a 
 
 import math
 
-import magpylib
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-from scipy.spatial.transform import Rotation
 
 from capsule_drake.magnetics import (cylinder_field, cylinder_moment,
                                      cylinder_pair_interaction_float, dipole_field,
-                                     dipole_pair_interaction_float)
+                                     dipole_pair_interaction_float, meshed_reference_wrench)
 from capsule_drake.scenario import ScenarioError, load_scenario
 
 # The Navigation scenario's magnets: N52 cylinders of 101.6 mm and 11.1 mm (D = L), 1.48 T.
@@ -52,13 +50,7 @@ def test_cylinder_field_far_away_is_the_dipole_field():
 
 def _meshed_reference(a, c, p):
     """magpylib's force and torque on the capsule's cylinder magnet, meshed into cells."""
-    source = magpylib.magnet.Cylinder(
-        dimension=(D, L), polarization=(0, 0, BR),
-        orientation=Rotation.align_vectors([a], [[0, 0, 1]])[0])
-    target = magpylib.magnet.Cylinder(
-        dimension=(d, l), polarization=(0, 0, BR), position=p,
-        orientation=Rotation.align_vectors([c], [[0, 0, 1]])[0])
-    return magpylib.getFT(source, target, meshing=(24, 8, 12), eps=1e-6)
+    return meshed_reference_wrench(M_EPM * a, M_IPM * c, p, (D, L), (d, l))
 
 
 @pytest.mark.parametrize("distance", [0.08, 0.10, 0.12, 0.15, 0.20, 0.25])

@@ -442,6 +442,12 @@ class LumenFollower(LeafSystem):
         def switch(new_mode):
             x[_MODE], x[_MODE_T] = new_mode, 0.0
 
+        def resume():
+            """Back to cruise from the smallest force."""
+            switch(CRUISE)
+            x[_F] = c.min_force
+            x[_STALL_T] = 0.0
+
         if mode == CRUISE:
             if lost:
                 switch(COAST)
@@ -475,21 +481,15 @@ class LumenFollower(LeafSystem):
                 if x[_LOST_T] > 0.0:
                     switch(SEARCH)
                 else:
-                    switch(CRUISE)
-                    x[_F] = c.min_force
-                    x[_STALL_T] = 0.0
+                    resume()
         elif mode == COAST:
             if x[_LOST_T] == 0.0:
-                switch(CRUISE)
-                x[_F] = c.min_force
-                x[_STALL_T] = 0.0
+                resume()
             elif x[_MODE_T] > c.coast_time:
                 switch(SEARCH)
         elif mode == SEARCH:
             if x[_LOST_T] == 0.0:
-                switch(CRUISE)
-                x[_F] = c.min_force
-                x[_STALL_T] = 0.0
+                resume()
             elif x[_MODE_T] > c.search_time:
                 switch(COAST)
                 x[_BASE] = way
