@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.systems.channel import (
     ChannelConfig, DelayChannel, PassivityConfig, PassivityController, TeleopChannel,
     TeleopChannelConfig, check_channel_config, check_passivity_config, packet_fate,
     passivity_step, predicted_work)
+from capsule_drake.teleop.delay_bench import press_and_hold, run_delay_bench
 
 PERIOD = 0.001
 
@@ -184,82 +184,11 @@ def test_passivity_observer_integrates_the_work_of_the_held_force():
     np.testing.assert_allclose(energies[1:], -np.cumsum(work), rtol=1e-12, atol=1e-15)
 
 
-class _HandOnStylus(LeafSystem):
-    """1-DoF haptic device held by a hand, along x of the device frame: the hand and the
-    stylus as one mass (kg), gripped by a spring-damper (N/m, N s/m) toward the hand target
-    (the person's intention), with the device's Coulomb friction (N, smoothed over 1 mm/s).
-    State [x, v, work]: work (J) integrates the rendered force times the velocity, the
-    energy the channel delivered to the hand, independently of the passivity observer."""
-
-    def __init__(self, mass, grip_stiffness, grip_damping, friction, target):
-        LeafSystem.__init__(self)
-        self._params = (mass, grip_stiffness, grip_damping, friction)
-        self._target = target
-        self.DeclareContinuousState(3)
-        self._force_port = self.DeclareVectorInputPort("force", 3)
-        self.DeclareVectorOutputPort(
-            "position", 3, lambda c, o: o.SetFromVector(
-                [c.get_continuous_state_vector()[0], 0.0, 0.0]), {self.xc_ticket()})
-        self.DeclareVectorOutputPort(
-            "velocity", 3, lambda c, o: o.SetFromVector(
-                [c.get_continuous_state_vector()[1], 0.0, 0.0]), {self.xc_ticket()})
-        self.DeclareVectorOutputPort(
-            "state", 3, lambda c, o: o.SetFromVector(
-                c.get_continuous_state_vector().CopyToVector()), {self.xc_ticket()})
-
-    def DoCalcTimeDerivatives(self, context, derivatives):
-        mass, k, b, friction = self._params
-        x, v, _ = context.get_continuous_state_vector().CopyToVector()
-        force = self._force_port.Eval(context)[0]
-        grip = k * (self._target(context.get_time()) - x) - b * v
-        a = (force + grip - friction * math.tanh(v / 1e-3)) / mass
-        derivatives.get_mutable_vector().SetFromVector([v, a, force * v])
-
-
-class _VirtualWall(LeafSystem):
-    """Robot side: a virtual wall at x = 0 of the received stylus position, pushing back
-    with stiffness (N/m), like the pseudo-force's wall term."""
-
-    def __init__(self, stiffness):
-        LeafSystem.__init__(self)
-        self._position_port = self.DeclareVectorInputPort("position", 3)
-        self.DeclareVectorOutputPort("force", 3, lambda c, o: o.SetFromVector(
-            [-stiffness * max(self._position_port.Eval(c)[0], 0.0), 0.0, 0.0]))
-
-
 def _teleop_loop(delay, enabled, target, x0, wall_stiffness, duration, jitter=0.0, loss=0.0):
-    """Hand + device <-> TeleopChannel <-> virtual wall; returns (t, x, v, work, energy,
+    """The one-DoF delay bench (capsule_drake.teleop.delay_bench): (t, x, v, work, energy,
     force_change, rendered force) sampled at 1 kHz."""
-    builder = DiagramBuilder()
-    hand = builder.AddSystem(_HandOnStylus(0.3, 200.0, 3.0, 0.05, target))
-    link = ChannelConfig(delay=delay, jitter=jitter, loss=loss)
-    config = TeleopChannelConfig(
-        forward=link, backward=dataclasses.replace(link, seed=1),
-        passivity=PassivityConfig(enabled=enabled))
-    channel = builder.AddSystem(TeleopChannel(3, config))
-    wall = builder.AddSystem(_VirtualWall(wall_stiffness))
-    builder.Connect(hand.GetOutputPort("position"), channel.GetInputPort("stylus_in"))
-    builder.Connect(hand.GetOutputPort("position"), channel.GetInputPort("stylus_position"))
-    builder.Connect(hand.GetOutputPort("velocity"), channel.GetInputPort("stylus_velocity"))
-    builder.Connect(channel.GetOutputPort("stylus_out"), wall.get_input_port())
-    builder.Connect(wall.get_output_port(), channel.GetInputPort("force_in"))
-    builder.Connect(channel.GetOutputPort("force_out"), hand.get_input_port())
-    logs = [LogVectorOutput(port, builder, PERIOD) for port in (
-        hand.GetOutputPort("state"), channel.GetOutputPort("energy"),
-        channel.GetOutputPort("force_change"), channel.GetOutputPort("force_out"))]
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    hand.GetMyMutableContextFromRoot(context).SetContinuousState([x0, 0.0, 0.0])
-    simulator.AdvanceTo(duration)
-    state, energy, change, force = (log.FindLog(context).data() for log in logs)
-    t = logs[0].FindLog(context).sample_times()
-    return t, state[0], state[1], state[2], energy[0], change[0], force[0]
-
-
-def _press_and_hold(t):
-    """Hand target: from 2 mm outside the wall, in at 2 mm/s to 3 mm inside, then held."""
-    return min(-0.002 + 0.002 * t, 0.003)
+    return tuple(run_delay_bench(delay, enabled, target, x0, wall_stiffness, duration,
+                                 jitter, loss))
 
 
 def test_passivity_control_stabilises_a_stiff_wall_behind_100_ms_round_trip():
@@ -276,7 +205,7 @@ def test_passivity_control_stabilises_a_stiff_wall_behind_100_ms_round_trip():
     the hand never receives net energy (its work <= 0 at all times). The same with 5 ms
     jitter and 5 % loss each way: 0.007 mm in the last second, energy >= 0.
     """
-    t, x, _, work, energy, _, force = _teleop_loop(0.05, False, _press_and_hold, -0.002,
+    t, x, _, work, energy, _, force = _teleop_loop(0.05, False, press_and_hold, -0.002,
                                                    800.0, 10.0)
     first, last = np.ptp(x[t < 1.0]), np.ptp(x[t >= 9.0])
     assert last > 3.0 * first, (first, last)
@@ -289,7 +218,7 @@ def test_passivity_control_stabilises_a_stiff_wall_behind_100_ms_round_trip():
 
     for jitter, loss in ((0.0, 0.0), (0.005, 0.05)):
         t, x, _, work, energy, change, force = _teleop_loop(
-            0.05, True, _press_and_hold, -0.002, 800.0, 10.0, jitter, loss)
+            0.05, True, press_and_hold, -0.002, 800.0, 10.0, jitter, loss)
         for signal in (x, work, energy, change, force):
             assert np.all(np.isfinite(signal))
         assert energy.min() >= -1e-9  # J
