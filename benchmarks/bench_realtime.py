@@ -1,6 +1,7 @@
 """Real-time factor of a scenario and what its 1 ms step spends its time on.
 
-    .venv/bin/python benchmarks/bench_realtime.py [--scenario NAME] [--sim-seconds 10] [--repeats 3]
+    .venv/bin/python benchmarks/bench_realtime.py [--scenario NAME] [--scenario-text YAML]
+        [--sim-seconds 10] [--repeats 3]
 
 Physics and magnet only (no rendering, no Meshcat), the full-length colon, 1 ms step.
 Prints the median real-time factor over repeats of the scenario from diagrams/default.yaml,
@@ -76,11 +77,13 @@ def magnet_share_ms(scenario, sim_seconds: float, chunk: float = 0.05) -> float:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="Default")
+    parser.add_argument("--scenario-text", default=None,
+                        help="YAML layered on the scenario, e.g. '{magnet_model: finite}'")
     parser.add_argument("--sim-seconds", type=float, default=10.0)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
 
-    scenario = load_scenario(name=args.scenario)
+    scenario = load_scenario(name=args.scenario, override=args.scenario_text)
     start = time.perf_counter()
     colon_for(scenario)
     colon_seconds = time.perf_counter() - start
