@@ -332,7 +332,7 @@ def _add_capsule_sensors(builder, plant, scenario: Scenario, magnets, X_WB0):
             builder.ExportOutput(ahrs.get_gyro_bias_output_port(), "capsule.ahrs.gyro_bias")
     if config.magnetometer is not None:
         magnetometer = builder.AddNamedSystem("capsule.magnetometer", Magnetometer(
-            plant, capsule, magnets, config.magnetometer))
+            plant, capsule, magnets, config.magnetometer, field_model=scenario.magnet_model))
         builder.Connect(plant.get_body_poses_output_port(),
                         magnetometer.get_body_poses_input_port())
         add_random_sources(builder, magnetometer.get_noise_input_ports(), magnetometer.period())

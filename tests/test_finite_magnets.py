@@ -172,3 +172,29 @@ def test_finite_magnet_model_scenario_runs_and_checks_its_shapes():
     assert "epm.magnet is a cuboid" in str(error.value) and "\n" not in str(error.value)
     with pytest.raises(ScenarioError, match="magnet_model must be"):
         load_scenario(name="Default", override="{magnet_model: exact}")
+
+
+def test_magnetometer_reads_the_finite_field_with_the_finite_model():
+    """With magnet_model finite the magnetometer reads the EPM's exact cylinder field at the
+    sensor (the same field the force uses), not the dipole's."""
+    from capsule_drake.station import CAPSULE_BODY, EPM_BODY, make_station
+
+    for model, field in (("dipole", lambda m, p: dipole_field(m, p)),
+                         ("finite", lambda m, p: cylinder_field(m, [p], D, L)[0])):
+        scenario = load_scenario(name="Default", override=(
+            f"{{magnet_model: {model}, duration: 0.0, capsule: {{magnetometer: {{}}}}}}"))
+        station = make_station(scenario)
+        poses = station.GetOutputPort("body_poses").Eval(station.CreateDefaultContext())
+        plant = station.GetSubsystemByName("plant")
+        X_WS = poses[int(plant.GetBodyByName(CAPSULE_BODY).index())] @ \
+            scenario.capsule.magnetometer.X_BS()
+        X_WE = poses[int(plant.GetBodyByName(EPM_BODY).index())]
+        m_E = M_EPM * X_WE.rotation().col(2)
+        expected = X_WS.rotation().inverse() @ field(
+            m_E, X_WS.translation() - X_WE.translation())
+        reading = station.GetSubsystemByName("capsule.magnetometer").calc_true_field(poses)
+        np.testing.assert_allclose(reading, expected, rtol=1e-9)
+        if model == "finite":
+            dipole = X_WS.rotation().inverse() @ dipole_field(
+                m_E, X_WS.translation() - X_WE.translation())
+            assert np.linalg.norm(reading - dipole) > 1e-3 * np.linalg.norm(dipole)

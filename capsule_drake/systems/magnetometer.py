@@ -1,7 +1,8 @@
 """Three-axis magnetometer on a plant body: the field of the external magnets, with noise.
 
 The ideal value is the sum of the point-dipole fields (``capsule_drake.magnetics.dipole_field``,
-Mahoney & Abbott, IJRR 2016) of the source magnets at the sensor point S, expressed in the
+Mahoney & Abbott, IJRR 2016; with field_model "finite", a cylinder source's exact field,
+``magnetics.cylinder_field``) of the source magnets at the sensor point S, expressed in the
 sensor frame. Magnets on the sensor's own body are left out: their field at the sensor is
 constant in the body frame (for a capsule, the internal permanent magnet's self-field), and a
 real capsule measures it once and subtracts it (hard-iron calibration). That subtraction works
@@ -24,7 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.magnetics import DEFAULT_MIN_DISTANCE, dipole_field
+from capsule_drake.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
 from capsule_drake.systems.imu import ChannelNoise
 
 
@@ -69,16 +70,21 @@ class MagnetometerConfig:
 
 
 def field_in_sensor_frame(X_WS: RigidTransform, sources, min_distance=DEFAULT_MIN_DISTANCE):
-    """Sum of the dipole fields of ``sources`` at S, expressed in S (T).
+    """Sum of the fields of ``sources`` at S, expressed in S (T).
 
     Args:
         X_WS: the sensor frame's pose in world.
-        sources: iterable of ``(p_WM, m_W)``: magnet centre (m) and moment (A m^2) in world.
+        sources: iterable of ``(p_WM, m_W)`` or ``(p_WM, m_W, cylinder)``: magnet centre (m)
+            and moment (A m^2) in world; with a cylinder [diameter, length], its exact field
+            (``magnetics.cylinder_field``), else the dipole's.
     """
     p_WS = X_WS.translation()
     B_W = np.zeros(3)
-    for p_WM, m_W in sources:
-        B_W += dipole_field(m_W, p_WS - p_WM, min_distance)
+    for p_WM, m_W, *shape in sources:
+        if shape and shape[0]:
+            B_W += cylinder_field(m_W, [p_WS - p_WM], *shape[0])[0]
+        else:
+            B_W += dipole_field(m_W, p_WS - p_WM, min_distance)
     return X_WS.rotation().inverse().multiply(B_W)
 
 
@@ -119,8 +125,11 @@ class Magnetometer(LeafSystem):
     """
 
     def __init__(self, plant, body, sources, config: MagnetometerConfig | None = None,
-                 min_distance: float = DEFAULT_MIN_DISTANCE):
+                 min_distance: float = DEFAULT_MIN_DISTANCE, field_model: str = "dipole"):
         LeafSystem.__init__(self)
+        if field_model not in ("dipole", "finite"):
+            raise ValueError(f"Magnetometer field_model must be 'dipole' or 'finite', "
+                             f"got {field_model!r}")
         if not plant.is_finalized():
             raise ValueError("Magnetometer needs a finalized MultibodyPlant")
         self._config = copy.deepcopy(config) if config is not None else MagnetometerConfig()
@@ -129,7 +138,7 @@ class Magnetometer(LeafSystem):
         self._min_distance = float(min_distance)
         self._body_index = int(body.index())
         self._X_BS = self._config.X_BS()
-        self._sources = []  # (name, body index, p_BM, m_B)
+        self._sources = []  # (name, body index, p_BM, m_B, cylinder or ())
         self._excluded = []
         for spec in sources:
             if spec.model_instance:
@@ -144,9 +153,10 @@ class Magnetometer(LeafSystem):
             norm = np.linalg.norm(axis)
             if norm == 0.0:
                 raise ValueError(f"Magnet {spec.name!r}: axis_B must be nonzero")
+            cylinder = tuple(spec.cylinder) if field_model == "finite" else ()
             self._sources.append((spec.name, int(source_body.index()),
                                   np.asarray(spec.p_BM, float).reshape(3),
-                                  axis * (float(spec.moment) / norm)))
+                                  axis * (float(spec.moment) / norm), cylinder))
         self._body_poses_port = self.DeclareAbstractInputPort(
             "body_poses", AbstractValue.Make([RigidTransform()]))
         gaussian = RandomDistribution.kGaussian
@@ -198,9 +208,9 @@ class Magnetometer(LeafSystem):
         """The ideal reading (T, sensor frame) for a list of body poses."""
         X_WS = body_poses[self._body_index] @ self._X_BS
         sources = []
-        for _, index, p_BM, m_B in self._sources:
+        for _, index, p_BM, m_B, cylinder in self._sources:
             X_WB = body_poses[index]
-            sources.append((X_WB @ p_BM, X_WB.rotation() @ m_B))
+            sources.append((X_WB @ p_BM, X_WB.rotation() @ m_B, cylinder))
         return field_in_sensor_frame(X_WS, sources, self._min_distance)
 
     def _update(self, context, discrete_state):
