@@ -1,0 +1,111 @@
+"""Importing a user's colon mesh: bad files get one line naming the file and the problem;
+repairs turn the normals toward the lumen, fill small holes and leave a tube's ends open."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from capsule_drake.anatomy.importer import (MeshImportError, check_colon_mesh, load_colon_mesh,
+                                            repair_colon_mesh)
+
+
+def _open_tube(radius=0.025, length=0.2, rings=40, around=32, bend=0.5):
+    """A bent open tube (m), faces wound so that the normals point into the lumen."""
+    s = np.linspace(0.0, length, rings)
+    centre = np.column_stack([s, bend * s ** 2, np.zeros_like(s)])
+    tangent = np.column_stack([np.ones_like(s), 2 * bend * s, np.zeros_like(s)])
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0], np.zeros_like(s)])
+    binormal = np.cross(tangent, normal)
+    theta = 2 * np.pi * np.arange(around) / around
+    vertices = (centre[:, None, :] + radius * (np.cos(theta)[None, :, None] * normal[:, None, :]
+                                               + np.sin(theta)[None, :, None] * binormal[:, None, :]))
+    vertices = vertices.reshape(-1, 3)
+    faces = []
+    for i in range(rings - 1):
+        for j in range(around):
+            a, b = i * around + j, i * around + (j + 1) % around
+            c, d = a + around, b + around
+            faces += [[a, c, b], [b, c, d]]
+    return trimesh.Trimesh(vertices, np.array(faces), process=False)
+
+
+def _inward(mesh):
+    """Share of the face area whose normal points toward the tube's axis."""
+    return float(np.mean(np.einsum(
+        "ij,ij->i", mesh.face_normals, _axis_offsets(mesh)) < 0.0))
+
+
+def _axis_offsets(mesh):
+    c = mesh.triangles_center
+    s = c[:, 0]
+    return c - np.column_stack([s, 0.5 * s ** 2, np.zeros_like(s)])
+
+
+def _error(tmp_path, name, content):
+    path = tmp_path / name
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif isinstance(content, str):
+        path.write_text(content)
+    else:
+        content.export(path)
+    with pytest.raises(MeshImportError) as error:
+        check_colon_mesh(load_colon_mesh(path), str(path))
+    message = str(error.value)
+    assert "\n" not in message and str(path) in message
+    return message
+
+
+def test_the_tube_is_a_valid_colon_and_its_normals_point_inward():
+    tube = _open_tube()
+    check_colon_mesh(tube)
+    assert _inward(tube) > 0.99
+
+
+def test_bad_files_get_one_line_naming_the_problem(tmp_path):
+    with pytest.raises(MeshImportError, match="no such file"):
+        load_colon_mesh(tmp_path / "missing.obj")
+    assert "unsupported format" in _error(tmp_path, "colon.txt", "v 0 0 0\n")
+    empty = _error(tmp_path, "empty.obj", "")
+    assert "empty" in empty or "no triangles" in empty
+    garbage = _error(tmp_path, "garbage.stl", b"\x00\x01 not a mesh at all \xff" * 10)
+    assert "not a readable mesh" in garbage or "no triangles" in garbage or "empty" in garbage
+    cloud = trimesh.PointCloud(np.random.default_rng(0).normal(size=(500, 3)) * 0.05)
+    assert "point cloud (500 points" in _error(tmp_path, "cloud.ply", cloud)
+    huge = _open_tube()
+    huge.apply_scale(1000.0)  # exported in millimetres
+    message = _error(tmp_path, "huge.stl", huge)
+    assert "not a colon in metres" in message and "millimetres, scale it by 0.001" in message
+    sheet = trimesh.creation.box(extents=[0.3, 0.2, 0.001])
+    assert "flat sheet" in _error(tmp_path, "sheet.obj", sheet)
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".stl", ".ply", ".glb"])
+def test_every_format_loads_the_same_tube(tmp_path, suffix):
+    tube = _open_tube()
+    path = tmp_path / f"tube{suffix}"
+    tube.export(path)
+    loaded = load_colon_mesh(path)
+    check_colon_mesh(loaded, str(path))
+    assert loaded.area == pytest.approx(tube.area, rel=1e-4)
+
+
+def test_repair_turns_normals_inward_fills_small_holes_and_keeps_the_ends_open():
+    tube = _open_tube()
+    outward = tube.copy()
+    outward.invert()
+    assert _inward(outward) < 0.01
+    # A small hole (two faces gone) and a duplicate face.
+    faces = np.delete(outward.faces, [400, 401], axis=0)
+    faces = np.vstack([faces, faces[:1]])
+    damaged = trimesh.Trimesh(outward.vertices, faces, process=False)
+    repaired, report = repair_colon_mesh(damaged)
+    assert report.flipped_normals and _inward(repaired) > 0.99
+    assert report.filled_holes == 1 and report.open_ends == 2
+    assert report.removed_duplicate_faces == 1
+    assert repaired.area == pytest.approx(tube.area, rel=1e-3)
+    assert any("toward the lumen" in line for line in report.lines())
+    # A sound tube is left as it is.
+    again, report = repair_colon_mesh(tube)
+    assert not report.flipped_normals and report.filled_holes == 0 and report.open_ends == 2
