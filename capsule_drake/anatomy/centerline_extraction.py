@@ -1,0 +1,196 @@
+"""The centreline of a tubular mesh: arc length and local radius, for imported colons.
+
+Two steps:
+1. Rings. Geodesic distance over the mesh's edge graph from one end (a tube's open boundary
+   loop, or for a closed mesh the vertex farthest from another far vertex) grows along the
+   tube; vertices binned by it form rings around the lumen, and the rings' centroids are a
+   first centreline. It follows any bend, but its rings tilt where the inner wall is
+   shorter than the outer.
+2. Sections. The mesh is cut by the plane through each centreline point normal to the
+   centreline's tangent; the cut's loop around that point (the one nearest it, in a bend
+   the plane may cut the tube twice) has an area centroid, the new point, and an area, the
+   local radius sqrt(A / pi). Repeated, the points settle on the lumen's centre.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy.interpolate import make_smoothing_spline
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+
+def _edge_graph(mesh: trimesh.Trimesh):
+    edges = mesh.edges_unique
+    lengths = mesh.edges_unique_length
+    n = len(mesh.vertices)
+    return coo_matrix((np.concatenate([lengths, lengths]),
+                       (np.concatenate([edges[:, 0], edges[:, 1]]),
+                        np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n)).tocsr()
+
+
+def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
+    """One end of the tube: its boundary loop nearest the farthest-apart vertex pair's first
+    vertex, or that vertex alone for a closed mesh."""
+    far = int(np.argmax(dijkstra(graph, indices=0)))
+    end = int(np.argmax(dijkstra(graph, indices=far)))
+    from capsule_drake.anatomy.importer import _boundary_loops
+
+    loops = _boundary_loops(mesh)
+    if loops:
+        distance = dijkstra(graph, indices=far)
+        return min(loops, key=lambda loop: float(np.min(distance[loop])))
+    del end
+    return np.array([far])
+
+
+def ring_centreline(mesh: trimesh.Trimesh, step: float):
+    """Step 1: ring centroids every `step` (m) of geodesic distance from one end."""
+    graph = _edge_graph(mesh)
+    start = _start_vertices(mesh, graph)
+    distance = np.min(dijkstra(graph, indices=start), axis=0) if len(start) > 1 else \
+        dijkstra(graph, indices=int(start[0]))
+    finite = np.isfinite(distance)
+    vertices = np.asarray(mesh.vertices)[finite]
+    distance = distance[finite]
+    bins = np.floor(distance / step).astype(int)
+    points = []
+    for k in range(bins.max() + 1):
+        ring = vertices[bins == k]
+        if len(ring) >= 3:
+            points.append(ring.mean(axis=0))
+    return np.array(points)
+
+
+def _resample(points: np.ndarray, step: float, smoothing: float | None = None) -> np.ndarray:
+    """Points every `step` of arc length along a smoothed polyline through `points`."""
+    d = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    keep = np.concatenate([[True], d > 1e-9])
+    points = points[keep]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    if len(points) < 5:
+        return points
+    spline = [make_smoothing_spline(s, points[:, k], lam=smoothing) for k in range(3)]
+    fine = np.linspace(0.0, s[-1], max(int(s[-1] / (0.2 * step)), 10))
+    dense = np.column_stack([f(fine) for f in spline])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    stations = np.arange(0.0, arc[-1], step)
+    return np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(3)])
+
+
+def _polygon(loop: np.ndarray):
+    """(area, centroid) of a closed 2-D polyline by the shoelace formula."""
+    x, y = loop[:, 0], loop[:, 1]
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cross = x * y1 - x1 * y
+    area = 0.5 * cross.sum()
+    if abs(area) < 1e-14:
+        return 0.0, loop.mean(axis=0)
+    cx = ((x + x1) * cross).sum() / (6.0 * area)
+    cy = ((y + y1) * cross).sum() / (6.0 * area)
+    return abs(area), np.array([cx, cy])
+
+
+def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
+    """(centroid, area) of the plane section's closed loop around (or nearest) `origin`, or
+    None."""
+    from matplotlib.path import Path as PlanePath
+
+    section = mesh.section(plane_origin=origin, plane_normal=normal)
+    if section is None:
+        return None
+    planar, to_3d = section.to_2D()
+    local_origin = trimesh.transform_points([origin], np.linalg.inv(to_3d))[0, :2]
+    best = None
+    for loop in planar.discrete:
+        if len(loop) < 4 or np.linalg.norm(loop[0] - loop[-1]) > 1e-6:
+            continue  # open: the mesh's end, not a loop around the lumen
+        area, centre = _polygon(loop[:-1])
+        if area <= 0.0:
+            continue
+        inside = PlanePath(loop).contains_point(local_origin)
+        distance = 0.0 if inside else float(np.linalg.norm(centre - local_origin))
+        if best is None or distance < best[0] or (distance == best[0] == 0.0 and area < best[2]):
+            best = (distance, centre, area)
+    if best is None:
+        return None
+    centre3 = trimesh.transform_points([[best[1][0], best[1][1], 0.0]], to_3d)[0]
+    return centre3, best[2]
+
+
+def _open_caps(mesh: trimesh.Trimesh, points: np.ndarray) -> trimesh.Trimesh:
+    """A closed tube with its end caps removed: near each end of a first centreline, the
+    faces that face along it (a cap's normals lie along the axis, a wall's across it)."""
+    centres, normals = mesh.triangles_center, mesh.face_normals
+    drop = np.zeros(len(centres), dtype=bool)
+    for end, inner in ((points[0], points[min(4, len(points) - 1)]),
+                       (points[-1], points[max(-5, -len(points))])):
+        axis = end - inner
+        axis /= np.linalg.norm(axis)
+        offset = centres - end
+        along = offset @ axis
+        radial = np.linalg.norm(offset - along[:, None] * axis, axis=1)
+        reach = np.percentile(radial[np.abs(along) < 0.01], 90) if np.any(
+            np.abs(along) < 0.01) else 0.05
+        drop |= ((np.abs(normals @ axis) > np.cos(np.radians(35.0))) & (along > -0.5 * reach)
+                 & (radial < 1.5 * reach))
+    opened = mesh.copy()
+    opened.update_faces(~drop)
+    opened.remove_unreferenced_vertices()
+    return opened
+
+
+def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:
+    from capsule_drake.anatomy.importer import _boundary_loops
+
+    return [np.asarray(mesh.vertices)[loop].mean(axis=0) for loop in _boundary_loops(mesh)
+            if len(loop) >= 3]
+
+
+def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: int = 3,
+                       progress=None):
+    """(s, points, radius): the centreline of a tubular mesh every `step` (m), from the end
+    found first (geodesically farthest), with the local radius sqrt(section area / pi). A
+    closed tube's end caps are cut off first (they would bend the rings near the ends), and
+    the centreline runs from end loop to end loop. `progress`, if given, is called with
+    (iteration, iterations)."""
+    from capsule_drake.anatomy.importer import _boundary_loops
+
+    first = _resample(ring_centreline(mesh, step), step)
+    if not _boundary_loops(mesh):
+        mesh = _open_caps(mesh, first)
+        first = _resample(ring_centreline(mesh, step), step)
+    points = first
+    radius = np.full(len(points), np.nan)
+    for iteration in range(iterations):
+        if progress is not None:
+            progress(iteration, iterations)
+        tangents = np.gradient(points, axis=0)
+        tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+        new, radius = [], []
+        for p, t in zip(points, tangents):
+            cut = _section_centre(mesh, p, t)
+            if cut is None:
+                continue
+            centre, area = cut
+            if np.linalg.norm(centre - p) > 4.0 * step:  # a stray loop: keep the point
+                centre = p
+            new.append(centre)
+            radius.append(np.sqrt(area / np.pi))
+        points = np.array(new)
+        radius = np.array(radius)
+        if iteration < iterations - 1:
+            points = _resample(points, step)
+    # Out to the ends: the centroids of the end loops nearest each end of the centreline.
+    ends = _end_loop_centres(mesh)
+    if len(ends) >= 2:
+        ends = np.array(ends)
+        head = ends[np.argmin(np.linalg.norm(ends - points[0], axis=1))]
+        tail = ends[np.argmin(np.linalg.norm(ends - points[-1], axis=1))]
+        if np.linalg.norm(head - points[0]) > 1e-6:
+            points, radius = np.vstack([head, points]), np.concatenate([[radius[0]], radius])
+        if np.linalg.norm(tail - points[-1]) > 1e-6:
+            points, radius = np.vstack([points, tail]), np.concatenate([radius, [radius[-1]]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    return s, points, radius
