@@ -75,7 +75,8 @@ def _resample(points: np.ndarray, step: float, smoothing: float | None = None) -
     fine = np.linspace(0.0, s[-1], max(int(s[-1] / (0.2 * step)), 10))
     dense = np.column_stack([f(fine) for f in spline])
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
-    stations = np.arange(0.0, arc[-1], step)
+    count = max(int(np.ceil(arc[-1] / step)), 1)
+    stations = np.linspace(0.0, arc[-1], count + 1)  # both ends kept
     return np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(3)])
 
 
@@ -119,28 +120,6 @@ def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarra
     return centre3, best[2]
 
 
-def _open_caps(mesh: trimesh.Trimesh, points: np.ndarray) -> trimesh.Trimesh:
-    """A closed tube with its end caps removed: near each end of a first centreline, the
-    faces that face along it (a cap's normals lie along the axis, a wall's across it)."""
-    centres, normals = mesh.triangles_center, mesh.face_normals
-    drop = np.zeros(len(centres), dtype=bool)
-    for end, inner in ((points[0], points[min(4, len(points) - 1)]),
-                       (points[-1], points[max(-5, -len(points))])):
-        axis = end - inner
-        axis /= np.linalg.norm(axis)
-        offset = centres - end
-        along = offset @ axis
-        radial = np.linalg.norm(offset - along[:, None] * axis, axis=1)
-        reach = np.percentile(radial[np.abs(along) < 0.01], 90) if np.any(
-            np.abs(along) < 0.01) else 0.05
-        drop |= ((np.abs(normals @ axis) > np.cos(np.radians(35.0))) & (along > -0.5 * reach)
-                 & (radial < 1.5 * reach))
-    opened = mesh.copy()
-    opened.update_faces(~drop)
-    opened.remove_unreferenced_vertices()
-    return opened
-
-
 def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:
     from capsule_drake.anatomy.importer import _boundary_loops
 
@@ -148,49 +127,99 @@ def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:
             if len(loop) >= 3]
 
 
+def _march(mesh: trimesh.Trimesh, points: list, step: float, fine: float):
+    """Extends `points` (the last ones inside the tube) past their end, a section every
+    `step` and then every `fine` (m), each centred on its loop, until the plane leaves the
+    tube (an open end) or its loop shrinks to less than a third of the last (a cap)."""
+    points = list(points)
+    area = None
+    for size in (step, fine):
+        for _ in range(2000):
+            t = points[-1] - points[-3]
+            t = t / np.linalg.norm(t)
+            guess = points[-1] + size * t
+            cut = _section_centre(mesh, guess, t)
+            if cut is None:
+                break
+            centre, new_area = cut
+            if np.linalg.norm(centre - guess) > max(size, 0.5 * step) or (
+                    area is not None and new_area < area / 3.0):
+                break
+            points.append(centre)
+            area = new_area
+    return points
+
+
 def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: int = 3,
                        progress=None):
     """(s, points, radius): the centreline of a tubular mesh every `step` (m), from the end
-    found first (geodesically farthest), with the local radius sqrt(section area / pi). A
-    closed tube's end caps are cut off first (they would bend the rings near the ends), and
-    the centreline runs from end loop to end loop. `progress`, if given, is called with
-    (iteration, iterations)."""
-    from capsule_drake.anatomy.importer import _boundary_loops
+    found first (geodesically farthest), with the local radius sqrt(section area / pi).
 
-    first = _resample(ring_centreline(mesh, step), step)
-    if not _boundary_loops(mesh):
-        mesh = _open_caps(mesh, first)
-        first = _resample(ring_centreline(mesh, step), step)
-    points = first
-    radius = np.full(len(points), np.nan)
+    Near the ends the rings are unreliable (a closed tube's cap, the geodesic source), so
+    1.5 radii of centreline are cut from each end and grown back by marching: a section
+    every `step`, then every millimetre, each centred on its loop, to where the tube ends
+    (an open end's loop centroid is added) or closes (a cap: the loop collapses).
+    `progress`, if given, is called with (iteration, iterations)."""
+    points = _resample(ring_centreline(mesh, step), step)
     for iteration in range(iterations):
         if progress is not None:
             progress(iteration, iterations)
-        tangents = np.gradient(points, axis=0)
-        tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
-        new, radius = [], []
-        for p, t in zip(points, tangents):
-            cut = _section_centre(mesh, p, t)
-            if cut is None:
-                continue
-            centre, area = cut
-            if np.linalg.norm(centre - p) > 4.0 * step:  # a stray loop: keep the point
-                centre = p
-            new.append(centre)
-            radius.append(np.sqrt(area / np.pi))
-        points = np.array(new)
-        radius = np.array(radius)
-        if iteration < iterations - 1:
+        points = _refine(mesh, points, step)[0]
+        if len(points) > 10:
             points = _resample(points, step)
-    # Out to the ends: the centroids of the end loops nearest each end of the centreline.
+    # Cut the ends back to where the tube is whole: at least 1.5 radii, and past where the
+    # sections still grow inward (a cap cut obliquely), then grow them back.
+    radii = _refine(mesh, points, step, keep_ends=True)[1]
+    base = int(np.ceil(1.5 * float(np.median(radii)) / step))
+
+    def cut_from(r):
+        window = r[:min(len(r), 4 * base)]
+        grown = np.flatnonzero(window >= 0.9 * window.max())
+        return max(base, int(grown[0]) + 1 if len(grown) else base)
+
+    head, tail = cut_from(radii), cut_from(radii[::-1])
+    if len(points) > head + tail + 6:
+        points = points[head:len(points) - tail]
+    points = _march(mesh, points, step, 0.001)
+    points = _march(mesh, list(points[::-1]), step, 0.001)[::-1]
+    points = np.array(points)
     ends = _end_loop_centres(mesh)
     if len(ends) >= 2:
         ends = np.array(ends)
         head = ends[np.argmin(np.linalg.norm(ends - points[0], axis=1))]
         tail = ends[np.argmin(np.linalg.norm(ends - points[-1], axis=1))]
-        if np.linalg.norm(head - points[0]) > 1e-6:
-            points, radius = np.vstack([head, points]), np.concatenate([[radius[0]], radius])
-        if np.linalg.norm(tail - points[-1]) > 1e-6:
-            points, radius = np.vstack([points, tail]), np.concatenate([radius, [radius[-1]]])
+        points = np.vstack([head, points, tail])
+    points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
+    points, radius = _refine(mesh, points, step, keep_ends=True, max_move=0.5 * step)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     return s, points, radius
+
+
+def _refine(mesh, points, step, keep_ends=False, max_move=None):
+    """Each point moved to the centroid of its section normal to the centreline; returns
+    (points, radii). With keep_ends, the end points stay (their sections are the tube's
+    ends) and take their neighbours' radii."""
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    new, radius = [], []
+    for k, (p, t) in enumerate(zip(points, tangents)):
+        if keep_ends and k in (0, len(points) - 1):
+            new.append(p)
+            radius.append(np.nan)
+            continue
+        cut = _section_centre(mesh, p, t)
+        if cut is None:
+            if keep_ends:
+                new.append(p)
+                radius.append(np.nan)
+            continue
+        centre, area = cut
+        if np.linalg.norm(centre - p) > (4.0 * step if max_move is None else max_move):
+            centre = p  # a stray loop: keep the point
+        new.append(centre)
+        radius.append(np.sqrt(area / np.pi))
+    radius = np.array(radius)
+    if np.isnan(radius).any() and not np.isnan(radius).all():
+        good = np.flatnonzero(~np.isnan(radius))
+        radius = np.interp(np.arange(len(radius)), good, radius[good])
+    return np.array(new), radius
