@@ -135,14 +135,19 @@ def _march(mesh: trimesh.Trimesh, points: list, step: float, fine: float):
     area = None
     for size in (step, fine):
         for _ in range(2000):
-            t = points[-1] - points[-3]
+            # The direction over the last ~2 cm: section centroids scatter by millimetres
+            # in a wide, uneven lumen, too much for a short baseline.
+            back = next((q for q in reversed(points[:-1])
+                         if np.linalg.norm(points[-1] - q) >= 0.02), points[0])
+            t = points[-1] - back
             t = t / np.linalg.norm(t)
             guess = points[-1] + size * t
             cut = _section_centre(mesh, guess, t)
             if cut is None:
                 break
             centre, new_area = cut
-            if np.linalg.norm(centre - guess) > max(size, 0.5 * step) or (
+            # A loop far off the march (another part of the tube) or collapsing (a cap).
+            if np.linalg.norm(centre - guess) > 0.3 * np.sqrt(new_area / np.pi) or (
                     area is not None and new_area < area / 3.0):
                 break
             points.append(centre)
@@ -191,6 +196,14 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         points = np.vstack([head, points, tail])
     points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
     points, radius = _refine(mesh, points, step, keep_ends=True, max_move=0.5 * step)
+    # The section centroids follow the folds by a millimetre or two; the lumen's centre
+    # line does not: a smoothing spline (its weight by generalised cross-validation).
+    if len(points) > 10:
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        ends = points[0].copy(), points[-1].copy()
+        points = _resample(points, step)
+        points[0], points[-1] = ends  # where the tube ends, not where the spline does
+        radius = np.interp(np.linspace(0.0, s[-1], len(points)), s, radius)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     return s, points, radius
 
