@@ -165,3 +165,28 @@ def test_round_trip_recovers_the_procedural_centreline_within_2_mm(procedural_ro
     # and taeniae take some area).
     nominal = original.radius_at(original.closest(points)[0])
     assert np.median(radius / nominal) == pytest.approx(0.95, abs=0.07)
+
+
+def test_import_colon_command(tmp_path, capsys):
+    """capsule-sim import-colon: a millimetre mesh is refused with the scale that fixes it
+    (exit 2, one line); with --scale it is repaired and written, its centreline loadable."""
+    from capsule_drake.anatomy.centerline import Centerline
+    from capsule_drake.cli import main
+
+    tube = _open_tube()
+    tube.invert()
+    tube.apply_scale(1000.0)
+    path = tmp_path / "tube_mm.stl"
+    tube.export(path)
+    out = tmp_path / "imported"
+    assert main(["import-colon", str(path), "--out", str(out), "--quiet"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "scale it by 0.001" in error[0]
+    assert main(["import-colon", str(path), "--out", str(out), "--scale", "0.001",
+                 "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "turned the normals toward the lumen" in printed
+    centreline = Centerline.load(out / "centerline.npz")
+    assert centreline.length == pytest.approx(0.2013, abs=0.002)
+    assert np.median(centreline.radius) == pytest.approx(0.0249, abs=2e-4)
+    assert _inward(load_colon_mesh(out / "wall.obj")) > 0.99
