@@ -22,7 +22,7 @@ from pydrake.multibody.math import SpatialForce_
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (AddMultibodyPlant, ExternallyAppliedSpatialForce_,
                                      MultibodyPlantConfig)
-from pydrake.multibody.tree import BodyIndex, QuaternionFloatingJoint
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem_
 from pydrake.systems.scalar_conversion import TemplateSystem
 
@@ -96,16 +96,15 @@ def capsule_magnet_diagram(ipm_moment: float, epm_moment: float, time_step: floa
                            drag_translational: float = 2.0, drag_rotational: float = 6e-5):
     """(diagram, plant): the free capsule, gravity, the floating joint's damping (the
     colon's resistance, N s/m and N m s), and the EPM's wrench from the input `epm_pose`."""
-    from capsule_drake.station import CAPSULE_BODY, PACKAGE, configure_parser
+    from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_damped_capsule_joint,
+                                       configure_parser)
 
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(
         time_step=time_step, use_sampled_output_ports=False), builder)
     configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
     capsule = plant.GetBodyByName(CAPSULE_BODY)
-    plant.AddJoint(QuaternionFloatingJoint(
-        "capsule_floating", plant.world_frame(), capsule.body_frame(),
-        angular_damping=drag_rotational, translational_damping=drag_translational))
+    add_damped_capsule_joint(plant, drag_translational, drag_rotational)
     plant.Finalize()
     X_B_ipm = plant.GetFrameByName("ipm").GetFixedPoseInBodyFrame()
     wrench = builder.AddNamedSystem("epm_wrench", EpmWrench(

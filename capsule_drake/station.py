@@ -282,10 +282,16 @@ def add_capsule_drag(plant, scenario: Scenario):
     colon is); otherwise Finalize gives it a free one. Call before Finalize."""
     c = scenario.contact
     if c.drag_translational > 0.0 or c.drag_rotational > 0.0:
-        capsule = plant.GetBodyByName(CAPSULE_BODY)
-        plant.AddJoint(QuaternionFloatingJoint(
-            "capsule_floating", plant.world_frame(), capsule.body_frame(),
-            angular_damping=c.drag_rotational, translational_damping=c.drag_translational))
+        add_damped_capsule_joint(plant, c.drag_translational, c.drag_rotational)
+
+
+def add_damped_capsule_joint(plant, translational: float, angular: float):
+    """The capsule's floating joint "capsule_floating", damped against the world
+    (N s/m, N m s). Call before Finalize."""
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    return plant.AddJoint(QuaternionFloatingJoint(
+        "capsule_floating", plant.world_frame(), capsule.body_frame(),
+        angular_damping=angular, translational_damping=translational))
 
 
 def set_capsule_contact(plant, scene_graph, scenario: Scenario):

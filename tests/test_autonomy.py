@@ -11,12 +11,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
+from capsule_drake.analysis import epm_pose_for_force
 from capsule_drake.magnetics import cylinder_moment, dipole_field, dipole_force
 from capsule_drake.navigation.autonomy import (BACKOFF, COAST, CRUISE, PUSH, SEARCH,
-                                               LumenFollower,
-                                               LumenFollowerConfig, add_lumen_follower,
-                                               check_lumen_follower_config,
-                                               epm_pose_for_force)
+                                               LumenFollower, LumenFollowerConfig,
+                                               add_lumen_follower,
+                                               check_lumen_follower_config)
 
 FLOOR = 0.15  # a flat floor for the EPM's centre (m)
 # The Navigation scenario's magnets (N52 cylinders, 101.6 mm and 11.1 mm) and a 12 g capsule.

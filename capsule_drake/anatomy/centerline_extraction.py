@@ -31,17 +31,15 @@ def _edge_graph(mesh: trimesh.Trimesh):
 
 
 def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
-    """One end of the tube: its boundary loop nearest the farthest-apart vertex pair's first
-    vertex, or that vertex alone for a closed mesh."""
+    """One end of the tube: the boundary loop nearest the vertex geodesically farthest from
+    vertex 0, or that vertex alone for a closed mesh."""
     far = int(np.argmax(dijkstra(graph, indices=0)))
-    end = int(np.argmax(dijkstra(graph, indices=far)))
     from capsule_drake.anatomy.importer import _boundary_loops
 
     loops = _boundary_loops(mesh)
     if loops:
         distance = dijkstra(graph, indices=far)
         return min(loops, key=lambda loop: float(np.min(distance[loop])))
-    del end
     return np.array([far])
 
 
@@ -173,7 +171,8 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         if len(points) > 10:
             points = _resample(points, step)
     # Cut the ends back to where the tube is whole: at least 1.5 radii, and past where the
-    # sections still grow inward (a cap cut obliquely), then grow them back.
+    # sections still grow inward (a cap cut obliquely), then grow them back. (The radii of
+    # the evenly resampled points: the cut counts points.)
     radii = _refine(mesh, points, step, keep_ends=True)[1]
     base = int(np.ceil(1.5 * float(np.median(radii)) / step))
 

@@ -194,9 +194,8 @@ def _normals_point_outward(mesh: trimesh.Trimesh) -> bool:
     centres = mesh.triangles_center
     normals = mesh.face_normals
     areas = mesh.area_faces
-    # Local axis points: the mean of the faces in bins along the first principal direction
-    # of each of up to 32 clusters along the mesh (k-means on the centres would do; bins of
-    # a greedy ordering suffice for a tube).
+    # Local axis points: the area-weighted mean of up to 32 consecutive stretches of faces,
+    # ordered along the mesh's course.
     order = _order_along(centres)
     votes = 0.0
     for chunk in np.array_split(order, max(1, min(32, len(order) // 50))):

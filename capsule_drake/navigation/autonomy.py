@@ -55,6 +55,7 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from capsule_drake.analysis import epm_pose_for_force
 from capsule_drake.epm_path import field_aligning_moment_direction
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
@@ -62,71 +63,6 @@ LUMEN_SOURCES = ("truth", "truth_point", "detected")
 POSE_SOURCES = ("truth", "sensors")
 
 GRAVITY = 9.81  # m/s^2
-
-# Directions from the capsule's magnet to the EPM searched by `epm_pose_for_force`: the
-# upper hemisphere (elevation 2-90 deg) on a 2-degree grid, refined around the best.
-_GRID_STEP = np.radians(2.0)
-
-
-def _directions(elevation, azimuth):
-    elevation, azimuth = np.meshgrid(elevation, azimuth)
-    return np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
-                     np.sin(elevation)], axis=-1).reshape(-1, 3)
-
-
-_HEMISPHERE = _directions(np.arange(1, 46) * _GRID_STEP, np.arange(0, 180) * _GRID_STEP)
-_MU0_4PI = 1e-7
-
-
-def aligned_unit_forces(u, h, epm_moment, ipm_moment):
-    """Forces (N) on a capsule magnet of moment `ipm_moment` along the unit vector h, from an
-    EPM of moment `epm_moment` one metre away in each unit direction u (rows; capsule ->
-    EPM), the EPM's moment turned so that its field at the capsule is along h. Forces scale
-    as 1 / distance^4."""
-    n = -np.asarray(u, dtype=float)  # EPM -> capsule
-    m = 1.5 * n * (n @ h)[:, None] - h
-    m = epm_moment * m / np.linalg.norm(m, axis=1, keepdims=True)
-    mt = ipm_moment * np.asarray(h, dtype=float)
-    ms_n = np.sum(m * n, axis=1)
-    mt_n = n @ mt
-    ms_mt = m @ mt
-    return 3.0 * _MU0_4PI * (m * mt_n[:, None] + mt[None, :] * ms_n[:, None]
-                              + n * (ms_mt - 5.0 * ms_n * mt_n)[:, None])
-
-
-def epm_pose_for_force(p_WM, h, force, epm_moment, ipm_moment):
-    """The EPM's centre p_WE above the capsule's magnet at p_WM, and its unit moment, such
-    that the dipole force on the capsule's magnet (aligned with h, the EPM's field at it
-    along h) is `force` (N, world). The force's direction fixes the direction from the
-    magnet to the EPM (searched over the upper hemisphere), its size the distance (forces
-    fall as 1 / distance^4). A force no EPM above can give (downward) gets the nearest
-    direction. Returns (p_WE, m_hat_W, distance)."""
-    h = np.asarray(h, dtype=float)
-    force = np.asarray(force, dtype=float)
-    size = float(np.linalg.norm(force))
-    if size < 1e-12:
-        raise ValueError("epm_pose_for_force needs a non-zero force")
-
-    def best(directions):
-        G = aligned_unit_forces(directions, h, epm_moment, ipm_moment)
-        g = np.linalg.norm(G, axis=1)
-        i = int(np.argmax((G @ force) / g))
-        return directions[i], g[i]
-
-    u, _ = best(_HEMISPHERE)
-    # Refine: a finer grid around the coarse best, twice.
-    step = _GRID_STEP
-    for _ in range(2):
-        elevation = np.arcsin(np.clip(u[2], -1.0, 1.0))
-        azimuth = np.arctan2(u[1], u[0])
-        offsets = np.linspace(-step, step, 9)
-        u, g = best(_directions(np.clip(elevation + offsets, 0.0, np.pi / 2),
-                                azimuth + offsets))
-        step /= 4.0
-    distance = (g / size) ** 0.25
-    p_WE = np.asarray(p_WM, dtype=float) + distance * u
-    m_hat = field_aligning_moment_direction(-u, h)
-    return p_WE, m_hat, distance
 
 # Modes of the controller (the `status` output's first element).
 CRUISE, PUSH, BACKOFF, SEARCH, COAST = 0.0, 1.0, 2.0, 3.0, 4.0
