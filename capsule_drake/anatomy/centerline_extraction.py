@@ -163,6 +163,9 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     every `step`, then every millimetre, each centred on its loop, to where the tube ends
     (an open end's loop centroid is added) or closes (a cap: the loop collapses).
     `progress`, if given, is called with (iteration, iterations)."""
+    from capsule_drake.anatomy.importer import geometry_of
+
+    mesh = geometry_of(mesh)
     points = _resample(ring_centreline(mesh, step), step)
     for iteration in range(iterations):
         if progress is not None:

@@ -24,6 +24,9 @@ MIN_EXTENT = 0.01
 MAX_EXTENT = 3.0
 # A lumen needs depth: the smallest principal extent at least this share of the largest.
 MIN_THICKNESS_RATIO = 0.02
+# A boundary loop this short [m] is a hole to fill; a colon's open end is at least ~6 cm
+# around (1 cm radius).
+MAX_HOLE_PERIMETER = 0.03
 
 
 class MeshImportError(ValueError):
@@ -40,6 +43,8 @@ class RepairReport:
     filled_holes: int = 0
     flipped_normals: bool = False
     open_ends: int = 0  # boundary loops left open (a tube's two ends)
+    decimated_from: int = 0  # faces before decimation (0: not decimated)
+    decimated_to: int = 0
 
     def lines(self) -> list[str]:
         out = []
@@ -53,6 +58,8 @@ class RepairReport:
             out.append(f"filled {self.filled_holes} small holes")
         if self.flipped_normals:
             out.append("turned the normals toward the lumen")
+        if self.decimated_from:
+            out.append(f"decimated from {self.decimated_from} to {self.decimated_to} faces")
         out.append(f"{self.open_ends} open ends left open")
         return out
 
@@ -125,38 +132,143 @@ def _unit_guess(extent: float):
     return None
 
 
-def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64):
+def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
+                      max_hole_perimeter: float = MAX_HOLE_PERIMETER,
+                      max_faces: int | None = None):
     """Repairs a copy of `mesh`: duplicate and degenerate faces removed, winding made
-    consistent, holes of up to `max_hole_edges` boundary edges filled (a tube's open ends
-    are larger and stay open), normals turned toward the lumen (inward: the wall is seen and
-    touched from inside). Returns (mesh, RepairReport)."""
-    mesh = mesh.copy()
+    consistent, holes of up to `max_hole_edges` boundary edges and `max_hole_perimeter`
+    (m) around filled (a tube's open ends, 6 cm and more around, stay open), normals turned toward the lumen (the wall is seen and touched
+    from inside), and decimated to `max_faces` triangles if it has more.
+
+    The checks run on the geometry alone (vertices merged by position: a texture's seams
+    split vertices, which would look like open edges). A texture, if the mesh has one, is
+    kept: every surviving face keeps its texture coordinates; a filled hole's faces take
+    those of a vertex at the same place; after decimation each new vertex takes those of
+    the nearest original vertex. Returns (mesh, RepairReport)."""
     report = RepairReport()
-    faces = len(mesh.faces)
-    mesh.update_faces(mesh.unique_faces())
-    report.removed_duplicate_faces = faces - len(mesh.faces)
-    faces = len(mesh.faces)
-    mesh.update_faces(mesh.nondegenerate_faces())
-    report.removed_degenerate_faces = faces - len(mesh.faces)
-    mesh.remove_unreferenced_vertices()
-    mesh.merge_vertices()
-    if not mesh.is_winding_consistent:
-        trimesh.repair.fix_winding(mesh)
+    texture = _texture_of(mesh)
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    source_faces = np.asarray(mesh.faces, dtype=np.int64)
+    geometry, representative, merged = merge_by_position(vertices, source_faces)
+    keep = np.zeros(len(source_faces), dtype=bool)
+    keep[geometry.unique_faces()] = True
+    report.removed_duplicate_faces = len(source_faces) - int(keep.sum())
+    nondegenerate = geometry.nondegenerate_faces()
+    report.removed_degenerate_faces = int(np.sum(keep & ~nondegenerate))
+    keep &= nondegenerate
+    kept = np.flatnonzero(keep)
+    geometry.update_faces(keep)
+    if not geometry.is_winding_consistent:
+        trimesh.repair.fix_winding(geometry)
         report.fixed_winding = True
-    loops = _boundary_loops(mesh)
-    small = [loop for loop in loops if len(loop) <= max_hole_edges]
+    small = [loop for loop in _boundary_loops(geometry)
+             if 3 <= len(loop) <= max_hole_edges
+             and _perimeter(geometry.vertices, loop) <= max_hole_perimeter]
     if small:
-        before = len(_boundary_loops(mesh))
-        trimesh.repair.fill_holes(mesh)
-        report.filled_holes = before - len(_boundary_loops(mesh))
-    report.open_ends = len(_boundary_loops(mesh))
-    if _normals_point_outward(mesh):
-        # Reversed winding, as a new mesh (the same vertices, so a texture's coordinates
-        # stay): in-place inversion after the checks above left stale cached normals.
-        mesh = trimesh.Trimesh(mesh.vertices, np.asarray(mesh.faces)[:, ::-1],
-                               visual=mesh.visual, process=False)
+        geometry = trimesh.Trimesh(geometry.vertices,
+                                   np.concatenate([geometry.faces, _fans(geometry, small)]),
+                                   process=False)
+        report.filled_holes = len(small)
+    report.open_ends = len(_boundary_loops(geometry))
+    faces = np.asarray(geometry.faces)
+    if _normals_point_outward(geometry):
+        faces = faces[:, ::-1]
         report.flipped_normals = True
-    return mesh, report
+    if texture is None:
+        out = trimesh.Trimesh(geometry.vertices, faces, process=False)
+    else:
+        # Each kept face in its original (textured) vertices, reversed where the geometry's
+        # face now runs the other way round; added faces through a representative vertex.
+        textured = source_faces[kept]
+        reversed_ = ~_same_cyclic_order(merged[textured], faces[:len(kept)])
+        textured[reversed_] = textured[reversed_][:, ::-1]
+        added = representative[faces[len(kept):]]
+        out = _textured(vertices, np.concatenate([textured, added]), *texture)
+    out.remove_unreferenced_vertices()
+    if max_faces is not None and len(out.faces) > max_faces:
+        report.decimated_from = len(out.faces)
+        out = _decimate(out, max_faces, texture)
+        report.decimated_to = len(out.faces)
+    return out, report
+
+
+def _perimeter(vertices, loop) -> float:
+    ring = np.asarray(vertices)[loop]
+    return float(np.sum(np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1)))
+
+
+def _fans(mesh: trimesh.Trimesh, loops: list[np.ndarray]) -> np.ndarray:
+    """Faces closing each boundary loop: a fan from its first vertex, wound like the faces
+    around it (each boundary edge runs the other way in the new face)."""
+    directed = {tuple(edge) for edge in np.asarray(mesh.faces)[:, [0, 1, 1, 2, 2, 0]]
+                .reshape(-1, 2)}
+    out = []
+    for loop in loops:
+        fan = np.column_stack([np.full(len(loop) - 2, loop[0]), loop[1:-1], loop[2:]])
+        if (int(loop[0]), int(loop[1])) in directed:
+            fan = fan[:, ::-1]
+        out.append(fan)
+    return np.concatenate(out)
+
+
+def merge_by_position(vertices: np.ndarray, faces: np.ndarray, decimals: int = 9):
+    """The mesh with vertices at the same place merged: (geometry Trimesh, representative
+    (M,) an original vertex of each merged one, merged (V,) the merged index of each
+    original vertex). Faces keep their order."""
+    _, first, inverse = np.unique(np.round(vertices, decimals), axis=0,
+                                  return_index=True, return_inverse=True)
+    # Merged vertices in the order of their first appearance: a mesh without duplicates
+    # keeps its vertex order.
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    representative = first[order]
+    merged = rank[inverse.reshape(-1)]
+    geometry = trimesh.Trimesh(vertices[representative], merged[faces], process=False)
+    return geometry, representative, merged
+
+
+def geometry_of(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The mesh's geometry alone, vertices merged by position (texture seams closed)."""
+    geometry, _, _ = merge_by_position(np.asarray(mesh.vertices, dtype=float),
+                                       np.asarray(mesh.faces, dtype=np.int64))
+    geometry.remove_unreferenced_vertices()
+    return geometry
+
+
+def _same_cyclic_order(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per row, whether face b is face a or a rotation of it (not reversed)."""
+    return np.any([np.all(np.roll(a, k, axis=1) == b, axis=1) for k in range(3)], axis=0)
+
+
+def _texture_of(mesh: trimesh.Trimesh):
+    """(uv (V, 2), material) if the mesh has per-vertex texture coordinates, else None."""
+    visual = getattr(mesh, "visual", None)
+    uv = getattr(visual, "uv", None)
+    if visual is None or getattr(visual, "kind", None) != "texture" or uv is None \
+            or len(uv) != len(mesh.vertices):
+        return None
+    return np.asarray(uv, dtype=float), visual.material
+
+
+def _textured(vertices, faces, uv, material) -> trimesh.Trimesh:
+    return trimesh.Trimesh(vertices, faces, process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=uv, material=material))
+
+
+def _decimate(mesh: trimesh.Trimesh, max_faces: int, texture) -> trimesh.Trimesh:
+    """Quadric decimation to at most `max_faces` (fast_simplification through trimesh), the
+    texture coordinates carried over from the nearest original vertex."""
+    from scipy.spatial import cKDTree
+
+    geometry = geometry_of(mesh)
+    small = geometry.simplify_quadric_decimation(face_count=max_faces)
+    small = trimesh.Trimesh(small.vertices, small.faces, process=False)
+    if texture is None:
+        return small
+    _, nearest = cKDTree(np.asarray(mesh.vertices)).query(np.asarray(small.vertices))
+    return _textured(np.asarray(small.vertices), np.asarray(small.faces),
+                     np.asarray(mesh.visual.uv)[nearest], texture[1])
 
 
 def _boundary_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
@@ -188,9 +300,15 @@ def _boundary_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
 
 
 def _normals_point_outward(mesh: trimesh.Trimesh) -> bool:
-    """Whether the face normals point away from the lumen: for a tube, away from its axis.
-    Judged against the nearest point of the mesh's principal axis, area-weighted, per
-    stretch along it (a curved colon is near-straight over short stretches)."""
+    """Whether the face normals point away from the lumen.
+
+    A closed wall with thickness (a solid ring: watertight, Euler number 0) faces the lumen
+    where its normals leave the tissue: it is inside out if its volume is negative. Any
+    other tube faces the lumen where its normals point toward its axis; that is judged
+    against the nearest point of the mesh's principal axis, area-weighted, per stretch
+    along it (a curved colon is near-straight over short stretches)."""
+    if mesh.is_watertight and mesh.euler_number == 0:
+        return bool(mesh.volume < 0.0)
     centres = mesh.triangles_center
     normals = mesh.face_normals
     areas = mesh.area_faces
