@@ -371,6 +371,9 @@ def validate(scenario: Scenario) -> None:
         check_colon_params(scenario.colon)
     except ValueError as e:
         raise ScenarioError(f"scenario: {e}") from None
+    need(scenario.contact.model != "convex_pieces" or scenario.colon.source == "procedural",
+         "contact.model convex_pieces needs the procedural colon (its pieces are cut from "
+         f"the analytic wall), not colon.source {scenario.colon.source!r}")
     need(scenario.capsule.start_s >= 0, "capsule.start_s must be >= 0")
     if scenario.capsule.camera is not None:
         try:

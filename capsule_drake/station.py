@@ -71,6 +71,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer, TrajectorySource, ZeroOrderHold
 
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
+from capsule_drake.anatomy.imported import imported_colon_assets
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.epm_path import (along_colon_trajectory, hold_above_trajectory,
                                     pose_trajectory)
@@ -126,7 +127,10 @@ def colon_for(scenario: Scenario):
     if key not in _COLONS:
         if len(_COLONS) >= 4:
             _COLONS.pop(next(iter(_COLONS)))
-        _COLONS[key] = build_colon(scenario.colon)
+        if scenario.colon.source == "procedural":
+            _COLONS[key] = build_colon(scenario.colon)
+        else:
+            _COLONS[key] = imported_colon_assets(scenario.colon)[0]
     return _COLONS[key]
 
 
@@ -208,7 +212,8 @@ def add_colon_visuals(plant, scenario: Scenario, perception: bool = True):
         mucosa.set_perception_properties(PerceptionProperties())
     plant.RegisterVisualGeometry(world, mucosa)
     torso = GeometryInstance(RigidTransform(), Mesh(str(assets.torso_obj)), "torso")
-    torso.set_illustration_properties(MakePhongIllustrationProperties(TORSO_RGBA))
+    rgba = getattr(colon_for(scenario).abdomen, "display_rgba", None) or TORSO_RGBA
+    torso.set_illustration_properties(MakePhongIllustrationProperties(rgba))
     plant.RegisterVisualGeometry(world, torso)
 
 

@@ -91,9 +91,11 @@ def _polygon(loop: np.ndarray):
     return abs(area), np.array([cx, cy])
 
 
-def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
-    """(centroid, area) of the plane section's closed loop around (or nearest) `origin`, or
-    None."""
+def section_loop(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
+    """The plane section's closed loop around `origin` (the smallest containing it), or the
+    nearest one if none does: (loop (K, 3) world points, area centroid (3,), area), or None.
+    In a bend the plane may cut the tube twice; a wall with thickness gives an inner and an
+    outer loop (the inner one, the lumen, is the smaller)."""
     from matplotlib.path import Path as PlanePath
 
     section = mesh.section(plane_origin=origin, plane_normal=normal)
@@ -111,11 +113,18 @@ def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarra
         inside = PlanePath(loop).contains_point(local_origin)
         distance = 0.0 if inside else float(np.linalg.norm(centre - local_origin))
         if best is None or distance < best[0] or (distance == best[0] == 0.0 and area < best[2]):
-            best = (distance, centre, area)
+            best = (distance, centre, area, loop[:-1])
     if best is None:
         return None
     centre3 = trimesh.transform_points([[best[1][0], best[1][1], 0.0]], to_3d)[0]
-    return centre3, best[2]
+    loop3 = trimesh.transform_points(np.column_stack([best[3], np.zeros(len(best[3]))]), to_3d)
+    return loop3, centre3, best[2]
+
+
+def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
+    """(centroid, area) of `section_loop`, or None."""
+    cut = section_loop(mesh, origin, normal)
+    return None if cut is None else (cut[1], cut[2])
 
 
 def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:

@@ -30,28 +30,15 @@ MUCOSA_TEXTURE = "colon_mucosa.png"
 """File name of the mucosa texture, next to the visual OBJ (its MTL refers to it)."""
 
 
-class Colon:
-    """One patient's colon: centreline, analytic wall and abdomen.
+class TubeColon:
+    """What every colon answers, from its `centerline`, its `wall_radius(s, theta)` and its
+    `abdomen` (the surface the EPM keeps clear of): the procedural `Colon` and an imported
+    one (anatomy/imported.py) alike."""
 
-    Attributes:
-        params: the `ColonParams` it was built from (not mutated).
-        centerline: the `Centerline` from the anus (s = 0) to the cecal pole.
-        wall: the `HaustralWall` (folds, taeniae, rectal valves).
-        abdomen: the `Abdomen` (anterior skin surface).
-        target_lengths: sampled length of each segment [m] (the course matches them).
-    """
+    centerline: Centerline
 
-    def __init__(self, params: ColonParams, centerline: Centerline, wall: HaustralWall,
-                 abdomen: Abdomen, target_lengths: dict[str, float]):
-        self.params = params
-        self.centerline = centerline
-        self.wall = wall
-        self.abdomen = abdomen
-        self.target_lengths = target_lengths
-
-    def wall_radius(self, s, theta) -> np.ndarray:
-        """Distance [m] from the centreline to the mucosa at arc length s [m], angle theta."""
-        return self.wall.wall_radius(s, theta)
+    def wall_radius(self, s, theta) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
 
     def excursion(self, points_W) -> np.ndarray:
         """How far each world point lies beyond the wall [m] (> 0: inside the tissue).
@@ -89,6 +76,36 @@ class Colon:
         """name -> arc length [m] of each segment."""
         return {k: b - a for k, (a, b) in self.centerline.segment_ranges().items()}
 
+    def max_wall_radius(self, s) -> np.ndarray:
+        """Largest distance [m] from the centreline to the mucosa around arc length(s) s."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        theta = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+        return np.max(self.wall_radius(s[:, None], theta[None, :]), axis=1)
+
+
+class Colon(TubeColon):
+    """One patient's colon: centreline, analytic wall and abdomen.
+
+    Attributes:
+        params: the `ColonParams` it was built from (not mutated).
+        centerline: the `Centerline` from the anus (s = 0) to the cecal pole.
+        wall: the `HaustralWall` (folds, taeniae, rectal valves).
+        abdomen: the `Abdomen` (anterior skin surface).
+        target_lengths: sampled length of each segment [m] (the course matches them).
+    """
+
+    def __init__(self, params: ColonParams, centerline: Centerline, wall: HaustralWall,
+                 abdomen: Abdomen, target_lengths: dict[str, float]):
+        self.params = params
+        self.centerline = centerline
+        self.wall = wall
+        self.abdomen = abdomen
+        self.target_lengths = target_lengths
+
+    def wall_radius(self, s, theta) -> np.ndarray:
+        """Distance [m] from the centreline to the mucosa at arc length s [m], angle theta."""
+        return self.wall.wall_radius(s, theta)
+
     def visual_mesh(self):
         """Closed wall at visual resolution (trimesh), normals into the lumen."""
         p = self.params
@@ -120,12 +137,6 @@ class Colon:
         return textured_tube(self, stations, p.camera_points_around,
                              m.texels_per_metre / m.texels_along,
                              m.texels_per_metre / m.texels_around)
-
-    def max_wall_radius(self, s) -> np.ndarray:
-        """Largest distance [m] from the centreline to the mucosa around arc length(s) s."""
-        s = np.atleast_1d(np.asarray(s, dtype=float))
-        theta = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
-        return np.max(self.wall_radius(s[:, None], theta[None, :]), axis=1)
 
     def texture_seed(self) -> list[int]:
         """Seed of the mucosa texture: the patient seed's own stream (the wall uses [seed, 1])."""
@@ -223,6 +234,10 @@ def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
     `default_cache_root()`. They are written to a temporary directory and renamed into
     place, so concurrent processes never see a half-written set.
     """
+    if params.source != "procedural":
+        from .imported import imported_colon_assets
+
+        return imported_colon_assets(params, cache_dir)[1]
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
     final = root / params_hash(params)
     chunks = params.collision_chunks
