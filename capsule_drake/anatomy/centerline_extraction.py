@@ -213,7 +213,14 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
         ends = points[0].copy(), points[-1].copy()
         points = _resample(points, step)
-        points[0], points[-1] = ends  # where the tube ends, not where the spline does
+        # Where the tube ends, not where the spline does: the end points go out to the
+        # tube's ends along the spline's end tangents (moved sideways onto the end
+        # section's centre they would kink the line, and the kink is a curvature spike).
+        for index, inner, end in ((0, 1, ends[0]), (-1, -2, ends[1])):
+            tangent = points[index] - points[inner]
+            tangent /= np.linalg.norm(tangent)
+            points[index] = points[inner] + max(float((end - points[inner]) @ tangent),
+                                                1e-4) * tangent
         radius = np.interp(np.linspace(0.0, s[-1], len(points)), s, radius)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     return s, points, radius

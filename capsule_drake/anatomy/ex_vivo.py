@@ -52,8 +52,8 @@ def segment_mesh(seed: int = 0, mucosa: MucosaParams | None = None):
     m, n = AROUND, ALONG
     theta = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
     # Ragged cuts: each end's axial position varies around the tube.
-    cut0 = 0.003 * _smooth_noise(rng, (1, m), 3.0)[0] + 0.0015 * rng.standard_normal(m)
-    cut1 = 0.003 * _smooth_noise(rng, (1, m), 3.0)[0] + 0.0015 * rng.standard_normal(m)
+    cut0 = 0.003 * _smooth_noise(rng, (1, m), 3.0)[0] + 0.0005 * rng.standard_normal(m)
+    cut1 = 0.003 * _smooth_noise(rng, (1, m), 3.0)[0] + 0.0005 * rng.standard_normal(m)
     u = np.linspace(0.0, 1.0, n)[:, None]
     x = (cut0[None, :]) * (1 - u) + (LENGTH + cut1[None, :]) * u  # (n, m) axial position
     # The axis: a gentle S in the tray's plane, resting on its floor.
@@ -90,9 +90,12 @@ def segment_mesh(seed: int = 0, mucosa: MucosaParams | None = None):
     grid_out = outer[:, seam].reshape(-1, 3)
     cols = m + 1
     uu = np.arange(cols) / m
-    vv = np.linspace(0.0, 1.0, n)
-    uv_in = np.stack(np.meshgrid(0.5 * uu, vv), axis=-1).reshape(-1, 2)
-    uv_out = np.stack(np.meshgrid(0.5 + 0.5 * uu, vv), axis=-1).reshape(-1, 2)
+    # v follows each vertex's axial position (the rings are not planar near the cuts).
+    lo, hi = float(x.min()), float(x.max())
+    vv = ((x[:, seam] - lo) / (hi - lo)).reshape(-1)
+    uu_grid = np.tile(uu, n)
+    uv_in = np.column_stack([0.5 * uu_grid, vv])
+    uv_out = np.column_stack([0.5 + 0.5 * uu_grid, vv])
     i = np.arange(n - 1)[:, None] * cols
     j = np.arange(m)[None, :]
     a, b = i + j, i + j + 1
@@ -110,7 +113,7 @@ def segment_mesh(seed: int = 0, mucosa: MucosaParams | None = None):
         ring_in = inner[ring, seam]
         ring_out = outer[ring, seam]
         rim_vertices += [ring_in, ring_out]
-        rim_uv += [np.column_stack([0.5 * uu, np.full(cols, 0.0 if ring == 0 else 1.0)])] * 2
+        rim_uv += [np.column_stack([0.5 * uu, (x[ring, seam] - lo) / (hi - lo)])] * 2
         p, q = base + np.arange(m), base + cols + np.arange(m)
         if sign < 0:
             rim_faces += [np.stack([p, q, p + 1], -1), np.stack([p + 1, q, q + 1], -1)]
@@ -127,8 +130,7 @@ def segment_mesh(seed: int = 0, mucosa: MucosaParams | None = None):
     if merged.volume < 0:
         faces = faces[:, ::-1]
         solid = trimesh.Trimesh(vertices, faces, process=False)
-    s = np.concatenate([np.repeat(vv * LENGTH, cols)] * 2
-                       + [np.full(cols, 0.0)] * 2 + [np.full(cols, LENGTH)] * 2)
+    s = np.concatenate([vv * (hi - lo)] * 2 + [x[0, seam] - lo] * 2 + [x[-1, seam] - lo] * 2)
     mesh = TexturedMesh(vertices, np.asarray(solid.vertex_normals), uv, faces, s)
     return mesh, _atlas(rng, mucosa, seed)
 
@@ -137,7 +139,11 @@ def _atlas(rng, mucosa: MucosaParams, seed: int) -> np.ndarray:
     """Texture atlas 1024 x 1024: left half the mucosa (inner wall), right half serosa."""
     size = 1024
     mucosa_rgb = mucosa_texture(mucosa, [seed, 12]).rgb
-    left = cv2.resize(mucosa_rgb, (size // 2, size), interpolation=cv2.INTER_AREA)
+    # The segment's length of the tileable texture at its own scale (rows along); its
+    # width goes once around (the procedural colon's scale around, within ~15 %).
+    rows = int(np.ceil(LENGTH * mucosa.texels_per_metre))
+    strip = np.concatenate([mucosa_rgb] * int(np.ceil(rows / len(mucosa_rgb))))[:rows]
+    left = cv2.resize(strip, (size // 2, size), interpolation=cv2.INTER_AREA)
     fat = np.clip(_smooth_noise(rng, (size, size // 2), 12.0), 0, None)[..., None]
     mottle = _smooth_noise(rng, (size, size // 2), 3.0)[..., None]
     serosa = np.array([0.85, 0.62, 0.58]) + 0.12 * fat * (np.array([0.95, 0.88, 0.62])
