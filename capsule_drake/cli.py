@@ -120,14 +120,21 @@ def _parser() -> argparse.ArgumentParser:
         "import-colon", help="a user's colon mesh: check, repair, extract its centreline",
         description="Read a colon mesh (OBJ, STL, PLY, GLB; metres), refuse with one line what "
                     "cannot be a colon, repair what can be repaired (duplicate and degenerate "
-                    "faces, winding, small holes, normals toward the lumen), extract its "
-                    "centreline with arc length and local radius, and write DIR/wall.obj, "
-                    "DIR/centerline.npz and DIR/import.json with a summary of the repairs.")
+                    "faces, winding, small holes, normals toward the lumen, decimation to a "
+                    "triangle budget; a texture is kept), extract its centreline with arc "
+                    "length and local radius (s = 0 at the narrower end), tabulate the wall "
+                    "around it, and write DIR/wall.obj, DIR/centerline.npz, "
+                    "DIR/wall_radius.npz and DIR/import.json with a summary of the repairs. "
+                    "A scenario runs on it with colon: {source: DIR}.")
     imp.add_argument("mesh", type=Path, help="the mesh file")
     imp.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     imp.add_argument("--scale", type=float, default=1.0,
                      help="multiply the coordinates by this first (e.g. 0.001 from mm)")
-    imp.add_argument("--quiet", action="store_true", help="no progress line")
+    imp.add_argument("--max-faces", type=int, default=150000, metavar="N",
+                     help="decimate to at most N triangles (default 150000)")
+    imp.add_argument("--reverse", action="store_true",
+                     help="start the centreline at the wider end instead of the narrower")
+    imp.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -379,62 +386,44 @@ def _run(args) -> int:
 
 
 def _import_colon(args) -> int:
-    import json
-
     import numpy as np
 
-    from capsule_drake.anatomy.centerline import Centerline, rotation_minimising_frame
-    from capsule_drake.anatomy.centerline_extraction import extract_centerline
-    from capsule_drake.anatomy.importer import (MeshImportError, check_colon_mesh,
-                                                load_colon_mesh, repair_colon_mesh)
+    from capsule_drake.anatomy.imported import import_colon_mesh, write_import
+    from capsule_drake.anatomy.importer import MeshImportError
+
+    stages = ["reading", "repairing", "centreline", "wall table"]
 
     def say(text):
-        if not args.quiet:
-            print(f"\r{text:<60}", end="", file=sys.stderr, flush=True)
+        if args.quiet:
+            return
+        stage = next((k for k, name in enumerate(stages) if text.startswith(name)), 0)
+        done = int(20 * stage / len(stages))
+        print(f"\r[{'#' * done}{'.' * (20 - done)}] {stage + 1}/{len(stages)} {text:<32}",
+              end="", file=sys.stderr, flush=True)
 
     if not (args.scale > 0.0 and np.isfinite(args.scale)):
         raise ScenarioError(f"--scale must be > 0, got {args.scale}")
+    if args.max_faces < 1000:
+        raise ScenarioError(f"--max-faces must be >= 1000, got {args.max_faces}")
     try:
-        say("[1/4] reading")
-        mesh = load_colon_mesh(args.mesh)
-        if args.scale != 1.0:
-            mesh.apply_scale(args.scale)
-        check_colon_mesh(mesh, str(args.mesh))
-        say("[2/4] repairing")
-        mesh, report = repair_colon_mesh(mesh)
-    except MeshImportError as e:
+        wall = import_colon_mesh(args.mesh, args.scale, args.max_faces, args.reverse,
+                                 progress=say)
+    except (MeshImportError, ValueError) as e:
         if not args.quiet:
             print(file=sys.stderr)
-        raise ScenarioError(str(e)) from None
-    say("[3/4] centreline")
-    s, points, radius = extract_centerline(
-        mesh, progress=lambda k, n: say(f"[3/4] centreline, pass {k + 1} of {n}"))
-    say("[4/4] writing")
-    args.out.mkdir(parents=True, exist_ok=True)
-    mesh.export(args.out / "wall.obj")
-    tangents = np.gradient(points, s, axis=0)
-    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(tangents[0, 2]) < 0.9 else np.array([1.0, 0, 0])
-    normals = rotation_minimising_frame(points, tangents, helper)
-    Centerline(s, points, normals, radius, np.zeros(len(s), dtype=int),
-               ["imported"]).save(args.out / "centerline.npz")
-    summary = {"source": str(args.mesh), "scale": args.scale, "faces": int(len(mesh.faces)),
-               "vertices": int(len(mesh.vertices)), "repairs": report.lines(),
-               "centreline_length_m": round(float(s[-1]), 4),
-               "radius_m": {"min": round(float(np.min(radius)), 4),
-                            "median": round(float(np.median(radius)), 4),
-                            "max": round(float(np.max(radius)), 4)}}
-    (args.out / "import.json").write_text(json.dumps(summary, indent=1) + "\n")
+        raise ScenarioError(str(e).splitlines()[0]) from None
+    summary = write_import(wall, args.out)
     if not args.quiet:
-        print(file=sys.stderr)
-    print(f"imported {args.mesh}: {summary['faces']} faces; centreline "
-          f"{100 * s[-1]:.1f} cm, radius {1000 * summary['radius_m']['min']:.1f}-"
-          f"{1000 * summary['radius_m']['max']:.1f} mm (median "
-          f"{1000 * summary['radius_m']['median']:.1f})")
-    for line in report.lines():
+        print(f"\r[{'#' * 20}] done{' ' * 40}", file=sys.stderr)
+    radius = summary["radius_m"]
+    print(f"imported {args.mesh}: {summary['faces']} faces"
+          f"{' (textured)' if summary['textured'] else ''}; centreline "
+          f"{100 * summary['centreline_length_m']:.1f} cm, radius {1000 * radius['min']:.1f}-"
+          f"{1000 * radius['max']:.1f} mm (median {1000 * radius['median']:.1f})")
+    for line in wall.report.lines():
         print(f"  repaired: {line}")
-    print(f"wrote {args.out / 'wall.obj'}, {args.out / 'centerline.npz'}, "
-          f"{args.out / 'import.json'}")
+    print(f"wrote {args.out}/: wall.obj, centerline.npz, wall_radius.npz, import.json; "
+          f"use it with colon: {{source: {args.out}}}")
     return 0
 
 

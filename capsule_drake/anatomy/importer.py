@@ -60,7 +60,8 @@ class RepairReport:
             out.append("turned the normals toward the lumen")
         if self.decimated_from:
             out.append(f"decimated from {self.decimated_from} to {self.decimated_to} faces")
-        out.append(f"{self.open_ends} open ends left open")
+        out.append(f"{self.open_ends} open ends left open" if self.open_ends else
+                   "no open edges (a closed surface, or a wall with thickness)")
         return out
 
 
