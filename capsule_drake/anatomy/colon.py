@@ -240,15 +240,20 @@ def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
         return imported_colon_assets(params, cache_dir)[1]
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
     final = root / params_hash(params)
-    chunks = params.collision_chunks
+    build_once(final, lambda tmp: write_colon_assets(build_colon(params), tmp))
+    return _asset_paths(final, len(sorted(final.glob("colon_collision_*.obj"))))
+
+
+def build_once(final: Path, write) -> None:
+    """Unless folder `final` is complete (it has centerline.npz), runs write(folder) into a
+    temporary folder beside it and renames that into place, so concurrent processes never
+    see a half-written set."""
     if (final / "centerline.npz").exists():
-        paths = sorted(final.glob("colon_collision_*.obj"))
-        return _asset_paths(final, len(paths))
-    root.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=root))
+        return
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
     try:
-        written = write_colon_assets(build_colon(params), tmp)
-        chunks = len(written.collision_objs)
+        write(tmp)
         try:
             os.rename(tmp, final)
         except OSError:
@@ -258,4 +263,3 @@ def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    return _asset_paths(final, chunks)

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import trimesh
 
-from .mesh import mucosa_mtl, write_textured_obj, TexturedMesh
+from .mesh import TexturedMesh, mucosa_mtl, write_textured_obj
 from .params import MucosaParams
 from .texture import mucosa_texture, periodic_field
 

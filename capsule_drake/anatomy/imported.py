@@ -24,9 +24,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -342,7 +339,7 @@ def imported_colon_assets(params, cache_dir=None):
     """(ImportedColon, ColonAssets) for `params.source` != "procedural": imported (or, for
     "ex_vivo", generated and imported) once, its files cached like the procedural colon's
     (written to a temporary folder and renamed into place)."""
-    from .colon import _asset_paths, default_cache_root
+    from .colon import _asset_paths, build_once, default_cache_root
 
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
     if params.source == "ex_vivo":
@@ -350,19 +347,7 @@ def imported_colon_assets(params, cache_dir=None):
     else:
         files = _source_files(Path(params.source))
     final = root / _digest(params, files)
-    if not (final / "centerline.npz").exists():
-        root.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=root))
-        try:
-            _build_imported(params, tmp)
-            try:
-                os.rename(tmp, final)
-            except OSError:
-                if not (final / "centerline.npz").exists():
-                    raise
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+    build_once(final, lambda tmp: _build_imported(params, tmp))
     key = str(final)
     if key not in _COLONS:
         _COLONS.clear()
