@@ -111,6 +111,8 @@ def test_the_ex_vivo_segment_is_a_textured_thick_wall_with_ragged_ends(ex_vivo):
     inner = (np.abs(dist - colon.wall_radius(s, theta)) < 0.001) & (s > 0.01) \
         & (s < wall.centerline.length - 0.01)
     assert inner.sum() > 0.3 * len(inner)
+    grid = np.linspace(0.0, colon.centerline.length, 2000)
+    assert np.max(colon.centerline.curvature_at(grid) * colon.max_wall_radius(grid)) < 0.9
     toward = wall.centerline.point_at(s[inner]) - mesh.triangles_center[inner]
     assert np.mean(np.einsum("ij,ij->i", toward, mesh.face_normals[inner]) > 0) > 0.99
 
@@ -136,13 +138,19 @@ def test_the_tabulated_wall_matches_the_procedural_wall(tmp_path):
     r = colon.wall_radius(s, theta)
     on_wall = colon.centerline.point_at(s) + r[:, None] * radial
     e = imported.excursion(on_wall)
-    # Measured: median 0.03 mm, 95th percentile 0.15 mm, at most 0.31 mm.
+    # Measured: median 0.03 mm, 95th percentile 0.16 mm, at most 0.30 mm.
     assert np.median(np.abs(e)) < 1e-4 and np.percentile(np.abs(e), 95) < 5e-4
     assert np.abs(e).max() < 1e-3
     # Halfway out, well inside (the excursion is measured from the recovered centreline;
-    # measured at least 0.28 r deep).
+    # measured at least 0.27 r deep: the excursion is a first-order distance along the
+    # wall's normal, shortened where the wall slopes).
     half = colon.centerline.point_at(s) + 0.5 * r[:, None] * radial
-    assert np.all(imported.excursion(half) < -0.25 * r)
+    assert np.all(imported.excursion(half) < -0.2 * r)
+    # The camera windows need the tube coordinates unique, kappa r < 1 everywhere (an end
+    # point set sideways once made a curvature spike of kappa r = 1.5-2 at s = 0).
+    grid = np.linspace(0.0, imported.centerline.length, 4000)
+    bend = imported.centerline.curvature_at(grid) * imported.max_wall_radius(grid)
+    assert bend.max() < 0.9
 
 
 def _inside(scenario_name, override, duration):
