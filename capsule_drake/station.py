@@ -44,6 +44,7 @@ from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
     AddContactMaterial,
     AddRigidHydroelasticProperties,
+    Box,
     Convex,
     GeometryInstance,
     IllustrationProperties,
@@ -197,7 +198,13 @@ def add_colon_wall(plant, scenario: Scenario, colon) -> int:
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
                                         f"colon_wall_{i:02d}", props)
-    return len(chunks)
+    boxes = getattr(colon, "collision_boxes", [])
+    for i, (extents, centre) in enumerate(boxes):
+        props = _contact_properties(scenario)
+        AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(centre), Box(*extents),
+                                        f"colon_surround_{i:02d}", props)
+    return len(chunks) + len(boxes)
 
 
 def add_colon_visuals(plant, scenario: Scenario, perception: bool = True):

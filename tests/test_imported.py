@@ -206,3 +206,27 @@ def test_bad_sources_get_one_line():
         load_scenario(override="{colon: {source: no/such/colon.obj}}")
     with pytest.raises(ScenarioError, match="convex_pieces needs the procedural colon"):
         load_scenario(override="{colon: {source: ex_vivo}, contact: {model: convex_pieces}}")
+
+
+def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
+    """The tray is a collision body: a capsule let go beside the tissue, with the EPM far
+    away, comes to rest lying on the tray's floor."""
+    from pydrake.math import RigidTransform, RollPitchYaw
+    from pydrake.systems.analysis import Simulator
+
+    from capsule_drake.anatomy.ex_vivo import TRAY_FLOOR
+    from capsule_drake.station import CAPSULE_BODY, make_station
+
+    scenario = load_scenario(name="ExVivoSegment", override="{epm: {path: !HoldAbove "
+                                                            "{height: 0.5}}}")
+    diagram = make_station(scenario)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    plant = diagram.GetSubsystemByName("plant")
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    body = plant.GetBodyByName(CAPSULE_BODY)
+    plant.SetFreeBodyPose(plant_context, body, RigidTransform(
+        RollPitchYaw(0.0, np.pi / 2, 0.0), [0.12, 0.075, 0.03]))
+    simulator.AdvanceTo(1.0)
+    z = body.EvalPoseInWorld(plant_context).translation()[2]
+    assert z == pytest.approx(TRAY_FLOOR + 0.0058, abs=0.001)

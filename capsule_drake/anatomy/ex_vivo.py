@@ -153,22 +153,24 @@ def _atlas(rng, mucosa: MucosaParams, seed: int) -> np.ndarray:
     return np.concatenate([left, right], axis=1)
 
 
-def tray_mesh() -> trimesh.Trimesh:
-    """An open stainless tray: floor and four walls, its floor's top at z = TRAY_FLOOR."""
+def tray_boxes() -> list[tuple[np.ndarray, np.ndarray]]:
+    """The open stainless tray as (extents, centre) boxes: its floor (top at z = TRAY_FLOOR)
+    and four walls."""
     length, width, depth = TRAY
     wall = 0.002
-    parts = [trimesh.creation.box(extents=[length, width, TRAY_FLOOR],
-                                  transform=trimesh.transformations.translation_matrix(
-                                      [0, 0, TRAY_FLOOR / 2]))]
-    for sx in (-1, 1):
-        parts.append(trimesh.creation.box(
-            extents=[wall, width, depth], transform=trimesh.transformations.translation_matrix(
-                [sx * (length - wall) / 2, 0, depth / 2])))
-    for sy in (-1, 1):
-        parts.append(trimesh.creation.box(
-            extents=[length, wall, depth], transform=trimesh.transformations.translation_matrix(
-                [0, sy * (width - wall) / 2, depth / 2])))
-    return trimesh.util.concatenate(parts)
+    boxes = [([length, width, TRAY_FLOOR], [0.0, 0.0, TRAY_FLOOR / 2])]
+    boxes += [([wall, width, depth], [sx * (length - wall) / 2, 0.0, depth / 2])
+              for sx in (-1, 1)]
+    boxes += [([length, wall, depth], [0.0, sy * (width - wall) / 2, depth / 2])
+              for sy in (-1, 1)]
+    return [(np.array(e, dtype=float), np.array(c, dtype=float)) for e, c in boxes]
+
+
+def tray_mesh() -> trimesh.Trimesh:
+    """The tray's boxes as one mesh, for display."""
+    return trimesh.util.concatenate([
+        trimesh.creation.box(extents=e, transform=trimesh.transformations.translation_matrix(c))
+        for e, c in tray_boxes()])
 
 
 def write_segment(directory, seed: int = 0, mucosa: MucosaParams | None = None) -> Path:

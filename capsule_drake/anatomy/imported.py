@@ -201,7 +201,12 @@ class ImportedColon(TubeColon):
         centerline: from the narrower end (s = 0) to the other, one segment "imported".
         mesh: the wall (trimesh; its texture, if any, in mesh.visual).
         abdomen: the `FlatSkin` `skin_above` (m) over the wall's highest point.
+        collision_boxes: (extents, centre) boxes around the colon that the capsule can
+            touch (the ex vivo segment's tray: a capsule that leaves the tissue by an open
+            end lands in it).
     """
+
+    collision_boxes: list = []
 
     def __init__(self, mesh: trimesh.Trimesh, centerline: Centerline, table_s, table_theta,
                  table_radius, skin_above: float = 0.02, display_mesh=None,
@@ -363,12 +368,15 @@ def _import_folder(params, directory: Path) -> Path:
 
 def _load_imported(params, directory: Path) -> ImportedColon:
     display = rgba = None
+    boxes = []
     if params.source == "ex_vivo":
-        from .ex_vivo import TRAY_RGBA, tray_mesh
+        from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh
 
-        display, rgba = tray_mesh(), TRAY_RGBA
-    return ImportedColon.load(_import_folder(params, directory), params.mesh_skin_above,
-                              display, rgba, mucosa=params.mucosa, seed=params.seed)
+        display, rgba, boxes = tray_mesh(), TRAY_RGBA, tray_boxes()
+    colon = ImportedColon.load(_import_folder(params, directory), params.mesh_skin_above,
+                               display, rgba, mucosa=params.mucosa, seed=params.seed)
+    colon.collision_boxes = boxes
+    return colon
 
 
 def _build_imported(params, directory: Path) -> None:
