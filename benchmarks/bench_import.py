@@ -1,0 +1,84 @@
+"""Cost of importing a colon mesh, stage by stage, and of simulating on the result.
+
+Imports (capsule_drake.anatomy.imported.import_colon_mesh) two meshes `--repeats` times and
+prints the median wall time of each stage (reading and checking, repairing, centreline,
+wall table) and the total:
+  - the procedural colon (seed 0, the Default scenario's) exported as an OBJ, as a user
+    would bring a segmentation (closed, ~100k faces, 1.46 m);
+  - the shipped ex vivo segment's reconstruction (a textured thick wall, 77k faces).
+Then simulates the Default drag for `--sim` seconds on the procedural colon and on its
+import, and the ExVivoSegment scenario, and prints each real-time factor (simulated over
+wall time, build excluded).
+
+Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10]
+"""
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+
+from capsule_drake.anatomy.ex_vivo import write_segment
+from capsule_drake.anatomy.imported import import_colon_mesh
+from capsule_drake.scenario import load_scenario
+from capsule_drake.station import colon_for, make_station
+
+STAGES = ("reading", "repairing", "centreline", "wall table")
+
+
+def timed_import(path: Path) -> dict[str, float]:
+    """Seconds spent in each stage of one import."""
+    marks = []
+
+    def progress(text):
+        stage = next(name for name in STAGES if text.startswith(name))
+        if not marks or marks[-1][0] != stage:
+            marks.append((stage, time.perf_counter()))
+
+    import_colon_mesh(path, progress=progress)
+    end = time.perf_counter()
+    return {stage: (marks[k + 1][1] if k + 1 < len(marks) else end) - start
+            for k, (stage, start) in enumerate(marks)}
+
+
+def real_time_factor(scenario, seconds: float) -> float:
+    diagram = make_station(dataclasses.replace(scenario, duration=seconds))
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    start = time.perf_counter()
+    simulator.AdvanceTo(seconds)
+    return seconds / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--sim", type=float, default=10.0, help="simulated seconds per run")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        procedural = folder / "procedural_colon.obj"
+        colon_for(load_scenario(name="Default")).visual_mesh().export(procedural)
+        segment = write_segment(folder / "ex_vivo")
+        print(f"{'mesh':<18}" + "".join(f"{s:>12}" for s in STAGES) + f"{'total':>10}  [s]")
+        for name, path in (("procedural (OBJ)", procedural), ("ex vivo segment", segment)):
+            runs = [timed_import(path) for _ in range(args.repeats)]
+            medians = {s: float(np.median([r.get(s, 0.0) for r in runs])) for s in STAGES}
+            total = float(np.median([sum(r.values()) for r in runs]))
+            print(f"{name:<18}" + "".join(f"{medians[s]:>12.2f}" for s in STAGES)
+                  + f"{total:>10.2f}")
+        print(f"\nreal-time factor over {args.sim:g} s (build excluded):")
+        for name, scenario in (
+                ("Default, procedural", load_scenario(name="Default")),
+                ("Default, imported", load_scenario(
+                    name="Default", override=f"{{colon: {{source: {procedural}}}}}")),
+                ("ExVivoSegment", load_scenario(name="ExVivoSegment"))):
+            print(f"  {name:<22} {real_time_factor(scenario, args.sim):.2f}")
+
+
+if __name__ == "__main__":
+    main()
