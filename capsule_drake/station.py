@@ -131,7 +131,11 @@ def colon_for(scenario: Scenario):
         if scenario.colon.source == "procedural":
             _COLONS[key] = build_colon(scenario.colon)
         else:
-            _COLONS[key] = imported_colon_assets(scenario.colon)[0]
+            try:
+                _COLONS[key] = imported_colon_assets(scenario.colon)[0]
+            except (ValueError, FileNotFoundError) as e:  # MeshImportError is a ValueError
+                first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+                raise ScenarioError(f"scenario: colon.source: {first}") from None
     return _COLONS[key]
 
 

@@ -231,3 +231,29 @@ def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
     simulator.AdvanceTo(1.0)
     z = body.EvalPoseInWorld(plant_context).translation()[2]
     assert z == pytest.approx(TRAY_FLOOR + 0.0058, abs=0.001)
+
+
+def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp_path, capsys):
+    """`capsule-sim import-colon` writes a folder a scenario runs on; a source that is not a
+    colon (a point cloud, an empty folder) stops the run with one line, no traceback."""
+    from capsule_drake.anatomy.ex_vivo import write_segment
+    from capsule_drake.cli import main
+    from capsule_drake.station import colon_for, make_station
+
+    mesh = write_segment(tmp_path / "scan")
+    assert main(["import-colon", str(mesh), "--out", str(tmp_path / "colon"), "--quiet"]) == 0
+    scenario = load_scenario(override=f"{{colon: {{source: {tmp_path / 'colon'}}}, "
+                                      "capsule: {start_s: 0.03}}")
+    colon = colon_for(scenario)
+    assert 0.16 < colon.centerline.length < 0.2
+    make_station(scenario)  # builds: collision chunks, visuals
+    capsys.readouterr()
+    cloud = tmp_path / "cloud.ply"
+    trimesh.PointCloud(np.random.default_rng(0).normal(size=(200, 3)) * 0.05).export(cloud)
+    (tmp_path / "empty").mkdir()
+    for source, words in ((cloud, "a point cloud (200 points"),
+                          (tmp_path / "empty", "no wall.obj")):
+        assert main(["run", "--scenario-text", f"{{colon: {{source: {source}}}}}",
+                     "--duration", "0.1", "--quiet"]) == 2
+        error = capsys.readouterr().err.strip().splitlines()
+        assert len(error) == 1 and "colon.source" in error[0] and words in error[0]

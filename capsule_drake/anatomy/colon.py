@@ -209,21 +209,29 @@ def _asset_paths(directory: Path, chunks: int) -> ColonAssets:
 
 def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
     """Write every mesh and the centreline of `colon` into `directory`."""
-    directory.mkdir(parents=True, exist_ok=True)
-    chunks = colon.collision_meshes()
-    assets = _asset_paths(directory, len(chunks))
     mucosa = colon.params.mucosa
-    write_mucosa_texture(directory / MUCOSA_TEXTURE, mucosa, colon.texture_seed())
+    return write_asset_files(
+        directory, colon.collision_meshes(), colon.textured_visual_mesh(),
+        lambda path: write_mucosa_texture(path, mucosa, colon.texture_seed()), mucosa,
+        colon.centerline, colon.abdomen.torso_mesh())
+
+
+def write_asset_files(directory: Path, chunks, visual, write_texture, mucosa, centerline,
+                      torso) -> ColonAssets:
+    """A colon's files in `directory`: the visual OBJ (`visual`, a TexturedMesh) with its
+    material and texture (`write_texture(path)` writes the image), the collision chunks
+    (trimesh list), the centreline and the torso (drawn around the colon)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    assets = _asset_paths(directory, len(chunks))
+    write_texture(directory / MUCOSA_TEXTURE)
     (directory / "colon_visual.mtl").write_text(
         mucosa_mtl(MUCOSA_TEXTURE, mucosa.specular, mucosa.shininess))
-    write_textured_obj(assets.visual_obj, colon.textured_visual_mesh(),
-                       material=("colon_visual.mtl", "mucosa"))
+    write_textured_obj(assets.visual_obj, visual, material=("colon_visual.mtl", "mucosa"))
     for path, mesh in zip(assets.collision_objs, chunks):
         write_obj(path, mesh)
-    colon.centerline.save(assets.centerline_npz)
+    centerline.save(assets.centerline_npz)
     (directory / "torso.mtl").write_text(SKIN_MTL)
-    write_obj(assets.torso_obj, colon.abdomen.torso_mesh(), normals=True,
-              material=("torso.mtl", "skin"))
+    write_obj(assets.torso_obj, torso, normals=True, material=("torso.mtl", "skin"))
     return assets
 
 

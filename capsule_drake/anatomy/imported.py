@@ -335,7 +335,12 @@ def _source_files(source: Path) -> list[Path]:
     """The files an import depends on: a folder's import files, or the mesh file and any
     material and texture files beside it with the same stem."""
     if source.is_dir():
-        return [source / name for name in ("wall.obj", "centerline.npz", "wall_radius.npz")]
+        files = [source / name for name in ("wall.obj", "centerline.npz", "wall_radius.npz")]
+        for path in files:
+            if not path.is_file():
+                raise FileNotFoundError(f"{source}: no {path.name} (not a folder written by "
+                                        "capsule-sim import-colon)")
+        return files
     siblings = sorted(p for p in source.parent.glob(source.stem + "*") if p.is_file())
     return [source] + [p for p in siblings if p != source]
 
@@ -380,8 +385,7 @@ def _load_imported(params, directory: Path) -> ImportedColon:
 
 
 def _build_imported(params, directory: Path) -> None:
-    from .colon import MUCOSA_TEXTURE, _asset_paths
-    from .mesh import SKIN_MTL, mucosa_mtl, write_obj, write_textured_obj
+    from .colon import write_asset_files
 
     folder = _import_folder(params, directory)
     if folder != Path(params.source):
@@ -394,17 +398,12 @@ def _build_imported(params, directory: Path) -> None:
         write_import(import_colon_mesh(mesh_path, params.mesh_scale, params.mesh_max_faces,
                                        params.mesh_reverse), folder)
     colon = _load_imported(params, directory)
-    chunks = colon.collision_meshes(params.collision_chunks)
-    assets = _asset_paths(directory, len(chunks))
     image = colon.texture_image()
-    if not cv2.imwrite(str(directory / MUCOSA_TEXTURE), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {directory / MUCOSA_TEXTURE}")
-    (directory / "colon_visual.mtl").write_text(
-        mucosa_mtl(MUCOSA_TEXTURE, params.mucosa.specular, params.mucosa.shininess))
-    write_textured_obj(assets.visual_obj, colon.camera_mesh(), ("colon_visual.mtl", "mucosa"))
-    for path, mesh in zip(assets.collision_objs, chunks):
-        write_obj(path, mesh)
-    colon.centerline.save(assets.centerline_npz)
-    (directory / "torso.mtl").write_text(SKIN_MTL)
-    write_obj(assets.torso_obj, colon.abdomen.torso_mesh(), normals=True,
-              material=("torso.mtl", "skin"))
+
+    def write_texture(path):
+        if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"could not write {path}")
+
+    write_asset_files(directory, colon.collision_meshes(params.collision_chunks),
+                      colon.camera_mesh(), write_texture, params.mucosa, colon.centerline,
+                      colon.abdomen.torso_mesh())
