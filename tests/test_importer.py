@@ -109,6 +109,14 @@ def test_repair_turns_normals_inward_fills_small_holes_and_keeps_the_ends_open()
     # A sound tube is left as it is.
     again, report = repair_colon_mesh(tube)
     assert not report.flipped_normals and report.filled_holes == 0 and report.open_ends == 2
+    assert report.non_manifold_edges == 0
+    # A fin on one of its edges (a third face on the edge) is reported, not hidden.
+    a, b = tube.faces[500][:2]
+    fin = trimesh.Trimesh(np.vstack([tube.vertices, [[0.1, 0.0, 0.05]]]),
+                          np.vstack([tube.faces, [[a, b, len(tube.vertices)]]]), process=False)
+    _, report = repair_colon_mesh(fin)
+    assert report.non_manifold_edges == 1
+    assert any("1 non-manifold edges" in line for line in report.lines())
 
 
 def test_centreline_of_a_bent_tube_is_its_axis_with_its_radius():

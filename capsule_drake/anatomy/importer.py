@@ -45,6 +45,7 @@ class RepairReport:
     open_ends: int = 0  # boundary loops left open (a tube's two ends)
     decimated_from: int = 0  # faces before decimation (0: not decimated)
     decimated_to: int = 0
+    non_manifold_edges: int = 0  # edges shared by more than two faces (left as they are)
 
     def lines(self) -> list[str]:
         out = []
@@ -58,6 +59,10 @@ class RepairReport:
             out.append(f"filled {self.filled_holes} small holes")
         if self.flipped_normals:
             out.append("turned the normals toward the lumen")
+        if self.non_manifold_edges:
+            out.append(f"found {self.non_manifold_edges} non-manifold edges (shared by more "
+                       "than two faces; left as they are: check the mesh where the lumen "
+                       "looks wrong)")
         if self.decimated_from:
             out.append(f"decimated from {self.decimated_from} to {self.decimated_to} faces")
         out.append(f"{self.open_ends} open ends left open" if self.open_ends else
@@ -171,6 +176,8 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
                                    process=False)
         report.filled_holes = len(small)
     report.open_ends = len(_boundary_loops(geometry))
+    _, uses = np.unique(geometry.edges_sorted, axis=0, return_counts=True)
+    report.non_manifold_edges = int(np.sum(uses > 2))
     faces = np.asarray(geometry.faces)
     if _normals_point_outward(geometry):
         faces = faces[:, ::-1]
