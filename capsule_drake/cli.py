@@ -389,17 +389,13 @@ def _import_colon(args) -> int:
     import numpy as np
 
     from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-    from capsule_drake.anatomy.importer import MeshImportError
+    from capsule_drake.run import StepBar
 
     stages = ["reading", "repairing", "centreline", "wall table"]
+    bar = StepBar(len(stages), enabled=not args.quiet, unit="stages")
 
-    def say(text):
-        if args.quiet:
-            return
-        stage = next((k for k, name in enumerate(stages) if text.startswith(name)), 0)
-        done = int(20 * stage / len(stages))
-        print(f"\r[{'#' * done}{'.' * (20 - done)}] {stage + 1}/{len(stages)} {text:<32}",
-              end="", file=sys.stderr, flush=True)
+    def say(text):  # the stages before this one are done
+        bar.show(next((k for k, name in enumerate(stages) if text.startswith(name)), 0), text)
 
     if not (args.scale > 0.0 and np.isfinite(args.scale)):
         raise ScenarioError(f"--scale must be > 0, got {args.scale}")
@@ -408,13 +404,12 @@ def _import_colon(args) -> int:
     try:
         wall = import_colon_mesh(args.mesh, args.scale, args.max_faces, args.reverse,
                                  progress=say)
-    except (MeshImportError, ValueError) as e:
+    except ValueError as e:  # MeshImportError, or a mesh with no tube to follow
         if not args.quiet:
             print(file=sys.stderr)
         raise ScenarioError(str(e).splitlines()[0]) from None
     summary = write_import(wall, args.out)
-    if not args.quiet:
-        print(f"\r[{'#' * 20}] done{' ' * 40}", file=sys.stderr)
+    bar.show(len(stages), "done")
     radius = summary["radius_m"]
     print(f"imported {args.mesh}: {summary['faces']} faces"
           f"{' (textured)' if summary['textured'] else ''}; centreline "

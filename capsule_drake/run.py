@@ -64,6 +64,30 @@ class Progress:
             self.stream.write("\n")
 
 
+class StepBar:
+    """Steps done out of a total, with a label, on one line of stderr (the benchmark's runs,
+    the import's stages); a new line once all are done."""
+
+    def __init__(self, total: int, enabled: bool = True, unit: str = "runs",
+                 stream=sys.stderr):
+        self.total, self.enabled, self.unit, self.stream = total, enabled, unit, stream
+        self.done = 0
+        self.start = time.perf_counter()
+
+    def step(self, label: str):
+        self.show(self.done + 1, label)
+
+    def show(self, done: int, label: str):
+        self.done = done
+        if self.enabled:
+            bar = "#" * int(30 * done / self.total)
+            self.stream.write(f"\r[{bar:<30}] {done}/{self.total} {self.unit}  "
+                              f"{time.perf_counter() - self.start:6.0f} s  {label:<32}")
+            if done == self.total:
+                self.stream.write("\n")
+            self.stream.flush()
+
+
 def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
              realtime_rate: float = 0.0, progress: bool = True,
              live_meshcat: bool = False, extend=None) -> RunResult:

@@ -31,6 +31,7 @@ from capsule_drake.systems.haptic_master import HapticDeviceConfig, check_haptic
 from capsule_drake.systems.epm_arm import ArmConfig, check_arm_config
 from capsule_drake.systems.imu import ImuConfig
 from capsule_drake.systems.lumen_tracker import LumenTrackerConfig
+from capsule_drake.systems.magnet_force import FIELD_MODELS
 from capsule_drake.systems.magnetometer import MagnetometerConfig
 from capsule_drake.teleop.mapping import MappingConfig, check_mapping_config
 from capsule_drake.teleop.operator import OperatorConfig, check_operator_config
@@ -340,8 +341,9 @@ def validate(scenario: Scenario) -> None:
     need(scenario.log_period > 0, f"log_period must be positive, got {scenario.log_period}")
     need(scenario.magnet_update_period >= 0,
          f"magnet_update_period must be >= 0, got {scenario.magnet_update_period}")
-    need(scenario.magnet_model in ("dipole", "finite"),
-         f"magnet_model must be 'dipole' or 'finite', got {scenario.magnet_model!r}")
+    need(scenario.magnet_model in FIELD_MODELS,
+         f"magnet_model must be one of {', '.join(FIELD_MODELS)}, "
+         f"got {scenario.magnet_model!r}")
     if scenario.magnet_model == "finite":
         for where, geometry in (("epm.magnet", scenario.epm.magnet),
                                 ("capsule.ipm", scenario.capsule.ipm)):

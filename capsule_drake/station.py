@@ -202,7 +202,7 @@ def add_colon_wall(plant, scenario: Scenario, colon) -> int:
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
                                         f"colon_wall_{i:02d}", props)
-    boxes = getattr(colon, "collision_boxes", [])
+    boxes = colon.collision_boxes
     for i, (extents, centre) in enumerate(boxes):
         props = _contact_properties(scenario)
         AddRigidHydroelasticProperties(properties=props)
@@ -223,7 +223,7 @@ def add_colon_visuals(plant, scenario: Scenario, perception: bool = True):
         mucosa.set_perception_properties(PerceptionProperties())
     plant.RegisterVisualGeometry(world, mucosa)
     torso = GeometryInstance(RigidTransform(), Mesh(str(assets.torso_obj)), "torso")
-    rgba = getattr(colon_for(scenario).abdomen, "display_rgba", None) or TORSO_RGBA
+    rgba = colon_for(scenario).abdomen.display_rgba or TORSO_RGBA
     torso.set_illustration_properties(MakePhongIllustrationProperties(rgba))
     plant.RegisterVisualGeometry(world, torso)
 

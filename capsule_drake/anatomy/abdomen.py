@@ -15,6 +15,8 @@ from .params import AbdomenParams
 class Abdomen:
     """The anterior abdominal wall, z = skin_height(x, y) [m] above the table."""
 
+    display_rgba = None  # the torso's colour in Meshcat: the station's skin colour
+
     def __init__(self, params: AbdomenParams):
         self.params = params
 

@@ -27,6 +27,8 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from .importer import _boundary_loops, geometry_of
+
 
 def _edge_graph(mesh: trimesh.Trimesh):
     edges = mesh.edges_unique
@@ -41,8 +43,6 @@ def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
     """One end of the tube: the boundary loop nearest the vertex geodesically farthest from
     vertex 0, or that vertex alone for a closed mesh."""
     far = int(np.argmax(dijkstra(graph, indices=0)))
-    from capsule_drake.anatomy.importer import _boundary_loops
-
     loops = _boundary_loops(mesh)
     if loops:
         distance = dijkstra(graph, indices=far)
@@ -184,8 +184,6 @@ def envelope_centre(loop: np.ndarray, start: np.ndarray, normal: np.ndarray,
 
 
 def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:
-    from capsule_drake.anatomy.importer import _boundary_loops
-
     return [np.asarray(mesh.vertices)[loop].mean(axis=0) for loop in _boundary_loops(mesh)
             if len(loop) >= 3]
 
@@ -267,8 +265,6 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     every `step`, then every millimetre, each centred on its loop, to where the tube ends
     (an open end's loop centroid is added) or closes (a cap: the loop collapses).
     `progress`, if given, is called with (iteration, iterations)."""
-    from capsule_drake.anatomy.importer import geometry_of
-
     mesh = geometry_of(mesh)
     points = _resample(ring_centreline(mesh, step), step)
     for iteration in range(iterations):
@@ -339,7 +335,8 @@ def _smooth_inside(points):
 
 
 def _refine(mesh, points, step, keep_ends=False, max_move=None):
-    """Each point moved to the centroid of its section normal to the centreline; returns
+    """Each point moved to the centre of its section normal to the centreline
+    (`_section_centre`); returns
     (points, radii). With keep_ends, the end points stay (their sections are the tube's
     ends) and take their neighbours' radii."""
     tangents = np.gradient(points, axis=0)

@@ -36,6 +36,8 @@ class TubeColon:
     one (anatomy/imported.py) alike."""
 
     centerline: Centerline
+    # (extents, centre) boxes around the colon the capsule can touch (e.g. a tray).
+    collision_boxes: tuple = ()
 
     def wall_radius(self, s, theta) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError

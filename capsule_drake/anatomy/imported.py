@@ -206,8 +206,6 @@ class ImportedColon(TubeColon):
             end lands in it).
     """
 
-    collision_boxes: list = []
-
     def __init__(self, mesh: trimesh.Trimesh, centerline: Centerline, table_s, table_theta,
                  table_radius, skin_above: float = 0.02, display_mesh=None,
                  display_rgba=None, mucosa: MucosaParams | None = None, seed: int = 0):
@@ -373,7 +371,7 @@ def _import_folder(params, directory: Path) -> Path:
 
 def _load_imported(params, directory: Path) -> ImportedColon:
     display = rgba = None
-    boxes = []
+    boxes = ()
     if params.source == "ex_vivo":
         from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh
 

@@ -32,7 +32,6 @@ import csv
 import dataclasses
 import json
 import multiprocessing
-import sys
 import time
 from pathlib import Path
 
@@ -304,24 +303,6 @@ def _metrics(task, colon, data, camera, stopped) -> dict:
     }
 
 
-class _Bar:
-    """Runs finished, on one line of stderr."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled, self.done = total, enabled, 0
-        self.start = time.perf_counter()
-
-    def step(self, label: str):
-        self.done += 1
-        if self.enabled:
-            bar = "#" * int(30 * self.done / self.total)
-            sys.stderr.write(f"\r[{bar:<30}] {self.done}/{self.total} runs  "
-                             f"{time.perf_counter() - self.start:6.0f} s  {label:<32}")
-            if self.done == self.total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
 def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
               address: str | None = None, progress: bool = True,
               on_result=None) -> list[dict]:
@@ -334,7 +315,9 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     """
     if engine not in ("local", "dask"):
         raise ValueError(f"benchmark engine {engine!r} is not 'local' or 'dask'")
-    bar = _Bar(len(tasks), progress)
+    from capsule_drake.run import StepBar
+
+    bar = StepBar(len(tasks), progress)
     results: list[dict | None] = [None] * len(tasks)
     if engine == "local":
         with concurrent.futures.ProcessPoolExecutor(

@@ -277,14 +277,24 @@ def MagneticForce_(T):
         def _finite_pair_function(magnets):
             """A pair function (i, j) -> interaction that treats the larger magnet with a
             cylinder shape as a finite source, the other as a point or (with a cylinder
-            shape) an integrated cylinder; pairs with no cylinder stay dipoles."""
+            shape) an integrated cylinder; pairs with no cylinder stay dipoles. The roles
+            are fixed by the magnets, so they are decided here, once per pair."""
+            def strength(k):
+                return sum(x * x for x in magnets[k].m_B)
+
+            swapped = {}
+            for i in range(len(magnets)):
+                for j in range(i + 1, len(magnets)):
+                    ci, cj = magnets[i].cylinder, magnets[j].cylinder
+                    if ci or cj:
+                        swapped[i, j] = not (ci and (not cj or strength(i) >= strength(j)))
+
             def pair(m_i, m_j, p, d_min, i, j):
-                ci, cj = magnets[i].cylinder, magnets[j].cylinder
-                if not ci and not cj:
+                swap = swapped.get((i, j))
+                if swap is None:
                     return dipole_pair_interaction_float(m_i, m_j, p, d_min)
-                size_i = sum(x * x for x in magnets[i].m_B)
-                size_j = sum(x * x for x in magnets[j].m_B)
-                if ci and (not cj or size_i >= size_j):
+                ci, cj = magnets[i].cylinder, magnets[j].cylinder
+                if not swap:
                     return cylinder_pair_interaction_float(
                         m_i, m_j, p, *ci, target_size=cj or None, min_distance=d_min)
                 # j is the finite source: swap the roles, then swap the results back.

@@ -27,6 +27,7 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
 from capsule_drake.systems.imu import ChannelNoise
+from capsule_drake.systems.magnet_force import FIELD_MODELS
 
 
 @dataclasses.dataclass
@@ -127,8 +128,8 @@ class Magnetometer(LeafSystem):
     def __init__(self, plant, body, sources, config: MagnetometerConfig | None = None,
                  min_distance: float = DEFAULT_MIN_DISTANCE, field_model: str = "dipole"):
         LeafSystem.__init__(self)
-        if field_model not in ("dipole", "finite"):
-            raise ValueError(f"Magnetometer field_model must be 'dipole' or 'finite', "
+        if field_model not in FIELD_MODELS:
+            raise ValueError(f"Magnetometer field_model must be one of {FIELD_MODELS}, "
                              f"got {field_model!r}")
         if not plant.is_finalized():
             raise ValueError("Magnetometer needs a finalized MultibodyPlant")
