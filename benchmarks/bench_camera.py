@@ -22,9 +22,9 @@ import numpy as np
 
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for
-from capsule_drake.systems.camera import CameraConfig, LensRenderer
-from capsule_drake.views import camera_scene
-from capsule_drake.vision import LensConfig
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.perception.views import camera_scene
+from capsule_drake.perception import LensConfig
 
 # name: (lens, face_resolution_scale)
 LENSES = {

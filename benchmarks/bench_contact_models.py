@@ -40,7 +40,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, VectorLogSink
 
 from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
-from capsule_drake.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
+from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.scenario import ContactConfig, Scenario
 from capsule_drake.station import (
     add_colon_wall,

@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from capsule_drake.lumen_eval import sample_frames
-from capsule_drake.vision.lumen import load_detector
+from capsule_drake.perception.evaluation import sample_frames
+from capsule_drake.perception.lumen import load_detector
 
 
 def main():

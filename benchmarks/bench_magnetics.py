@@ -32,14 +32,14 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.magnetics import (
+from capsule_drake.physics.magnetics import (
     dipole_force,
     dipole_pair_interaction,
     dipole_pair_interaction_float,
     dipole_pair_wrench,
     dipole_torque,
 )
-from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 from timing import median_us  # benchmarks/timing.py
 
 # Only for --station (imports the colon builder).

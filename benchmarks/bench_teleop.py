@@ -27,7 +27,7 @@ def run(args):
 
     from capsule_drake.scenario import layered, load_scenario
     from capsule_drake.station import colon_for, make_station
-    from capsule_drake.systems.contact_monitor import ContactMonitor
+    from capsule_drake.physics.contact_monitor import ContactMonitor
 
     import yaml
 

@@ -27,7 +27,7 @@ def machine_reference_ms(calls: int = 20000) -> float:
     """Wall time (ms) of a fixed piece of the 1 kHz loop's kind of Python (dipole pair
     forces): this VM's speed drifts by tens of percent over minutes, so each real-time
     factor is printed beside it (26-50 ms when the README's figures were taken)."""
-    from capsule_drake.magnetics import dipole_pair_interaction_float
+    from capsule_drake.physics.magnetics import dipole_pair_interaction_float
     start = time.perf_counter()
     for k in range(calls):
         dipole_pair_interaction_float((0.0, 0.0, 1.0), (0.1, 0.0, 0.0), (0.0, 0.01 * k, 0.1))

@@ -15,7 +15,7 @@ import numpy as np
 
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import colon_for
-from capsule_drake.views import contact_sheet, darkest_spot, views_along_colon
+from capsule_drake.perception.views import contact_sheet, darkest_spot, views_along_colon
 
 
 def main():

@@ -217,7 +217,7 @@ def _load(args):
 
 def _record(args) -> int:
     scenario = _load(args)
-    from capsule_drake.record import record
+    from capsule_drake.io.record import record
 
     name = args.scenario or "Default"
     out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -262,7 +262,7 @@ def _teleop(args) -> int:
 
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from capsule_drake.run import simulate
+    from capsule_drake.io.run import simulate
 
     live = teleop.operator in ("browser", "udp")
     drake_log = logging.getLogger("drake")
@@ -307,8 +307,8 @@ def _eval_lumen(args) -> int:
         raise ScenarioError("--frames and --colons must be >= 1")
     if not 0.0 <= args.wall_fraction <= 1.0:
         raise ScenarioError(f"--wall-fraction must be in [0, 1], got {args.wall_fraction}")
-    from capsule_drake.lumen_eval import save_evaluation, sample_frames
-    from capsule_drake.vision.lumen import load_detector
+    from capsule_drake.perception.evaluation import save_evaluation, sample_frames
+    from capsule_drake.perception.lumen import load_detector
 
     names = args.detector or ["gaussian", "median"]
     try:
@@ -339,7 +339,7 @@ def _run(args) -> int:
     # Imported here so that `capsule-sim --help` and argument errors answer at once.
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from capsule_drake.run import simulate
+    from capsule_drake.io.run import simulate
 
     meshcat = None
     if args.meshcat:
@@ -389,7 +389,7 @@ def _import_colon(args) -> int:
     import numpy as np
 
     from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-    from capsule_drake.run import StepBar
+    from capsule_drake.io.run import StepBar
 
     stages = ["reading", "repairing", "centreline", "wall table"]
     bar = StepBar(len(stages), enabled=not args.quiet, unit="stages")

@@ -20,23 +20,23 @@ from pathlib import Path
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from capsule_drake.anatomy import ColonParams, check_colon_params
-from capsule_drake.guidance import PseudoForceConfig, check_pseudo_force_config
-from capsule_drake.magnetics import MagnetGeometry
+from capsule_drake.guidance.terms import PseudoForceConfig, check_pseudo_force_config
+from capsule_drake.physics.magnetics import MagnetGeometry
 from capsule_drake.schema import SchemaError, check, parse_yaml
-from capsule_drake.systems.ahrs import AhrsConfig
-from capsule_drake.systems.camera import CameraConfig, check_camera_config
-from capsule_drake.systems.channel import (TeleopChannelConfig, check_channel_config,
+from capsule_drake.capsule.ahrs import AhrsConfig
+from capsule_drake.capsule.camera import CameraConfig, check_camera_config
+from capsule_drake.teleop.channel import (TeleopChannelConfig, check_channel_config,
                                            check_passivity_config)
-from capsule_drake.systems.haptic_master import HapticDeviceConfig, check_haptic_device_config
-from capsule_drake.systems.epm_arm import ArmConfig, check_arm_config
-from capsule_drake.systems.imu import ImuConfig
-from capsule_drake.systems.lumen_tracker import LumenTrackerConfig
-from capsule_drake.systems.magnet_force import FIELD_MODELS
-from capsule_drake.systems.magnetometer import MagnetometerConfig
+from capsule_drake.teleop.haptic_master import HapticDeviceConfig, check_haptic_device_config
+from capsule_drake.epm.arm import ArmConfig, check_arm_config
+from capsule_drake.capsule.imu import ImuConfig
+from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
+from capsule_drake.physics.magnet_force import FIELD_MODELS
+from capsule_drake.capsule.magnetometer import MagnetometerConfig
 from capsule_drake.teleop.mapping import MappingConfig, check_mapping_config
 from capsule_drake.teleop.operator import OperatorConfig, check_operator_config
 from capsule_drake.teleop.udp import UdpBridgeConfig, check_udp_bridge_config
-from capsule_drake.vision.lumen import check_lumen_params, load_detector
+from capsule_drake.perception.lumen import check_lumen_params, load_detector
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DIAGRAMS_DIR = REPO_ROOT / "diagrams"

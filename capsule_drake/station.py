@@ -74,28 +74,28 @@ from pydrake.systems.primitives import Demultiplexer, TrajectorySource, ZeroOrde
 from capsule_drake.anatomy import build_colon, colon_assets, wall_pieces
 from capsule_drake.anatomy.imported import imported_colon_assets
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
-from capsule_drake.epm_path import (along_colon_trajectory, hold_above_trajectory,
+from capsule_drake.epm.poses import (along_colon_trajectory, hold_above_trajectory,
                                     pose_trajectory)
 from capsule_drake.scenario import AlongColon, HoldAbove, Scenario, ScenarioError
-from capsule_drake.systems.ahrs import MahonyAhrs
-from capsule_drake.systems.camera import (CameraConfig, add_camera_renderer,
+from capsule_drake.capsule.ahrs import MahonyAhrs
+from capsule_drake.capsule.camera import (CameraConfig, add_camera_renderer,
                                           capsule_camera_for_frame, check_camera_config)
-from capsule_drake.systems.channel import TeleopChannel
-from capsule_drake.systems.contact_monitor import ContactMonitor
-from capsule_drake.systems.epm_arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT,
+from capsule_drake.teleop.channel import TeleopChannel
+from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.epm.arm import (ARM_BASE, ARM_JOINTS, SHOULDER_HEIGHT,
                                            CommandMarker, EpmArmController, EpmGuard,
                                            MagnetPose, arm_base_pose, solve_posture)
-from capsule_drake.systems.force_feedback import ForceFeedback
-from capsule_drake.systems.haptic_master import STYLUS_SIZE, HapticMaster
-from capsule_drake.systems.imu import Imu, add_random_sources
-from capsule_drake.systems.lumen_range import LumenRange
-from capsule_drake.systems.lumen_tracker import LumenTracker
-from capsule_drake.systems.lumen_truth import LumenTruth
-from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
-from capsule_drake.systems.magnetometer import Magnetometer
-from capsule_drake.systems.pseudo_force import PseudoForceField
-from capsule_drake.systems.render_worker import RenderWorker
-from capsule_drake.systems.stage_command import PoseToStage
+from capsule_drake.teleop.force_feedback import ForceFeedback
+from capsule_drake.teleop.haptic_master import STYLUS_SIZE, HapticMaster
+from capsule_drake.capsule.imu import Imu, add_random_sources
+from capsule_drake.perception.lumen_range import LumenRange
+from capsule_drake.perception.lumen_tracker import LumenTracker
+from capsule_drake.perception.lumen_truth import LumenTruth
+from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.capsule.magnetometer import Magnetometer
+from capsule_drake.guidance.pseudo_force import PseudoForceField
+from capsule_drake.capsule.render_worker import RenderWorker
+from capsule_drake.epm.stage import PoseToStage
 from capsule_drake.teleop.mapping import TeleopMapping
 from capsule_drake.teleop.browser import BrowserOperator
 from capsule_drake.teleop.operator import (ForwardSpeed, LumenRayFromTruth, SimulatedOperator,

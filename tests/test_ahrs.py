@@ -32,7 +32,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 from scipy.spatial.transform import Rotation
 
-from capsule_drake.systems.ahrs import (
+from capsule_drake.capsule.ahrs import (
     AhrsConfig,
     MahonyAhrs,
     mahony_update,
@@ -40,7 +40,7 @@ from capsule_drake.systems.ahrs import (
     tilt_and_heading_error,
     tilt_quaternion,
 )
-from capsule_drake.systems.imu import STANDARD_GRAVITY, Imu, ImuConfig, imu_channels
+from capsule_drake.capsule.imu import STANDARD_GRAVITY, Imu, ImuConfig, imu_channels
 
 DEG = math.pi / 180.0
 CALIBRATED = dataclasses.replace(ImuConfig(), accel_initial_bias_sigma=0.0)

@@ -5,10 +5,10 @@ controllability of the linearised capsule."""
 import numpy as np
 import pytest
 
-from capsule_drake.analysis import (actuation_matrix, capsule_wrench, controllability,
+from capsule_drake.control.analysis import (actuation_matrix, capsule_wrench, controllability,
                                     hold_against_gravity, magnetic_stiffness,
                                     translational_model)
-from capsule_drake.magnetics import cylinder_moment, dipole_force
+from capsule_drake.physics.magnetics import cylinder_moment, dipole_force
 
 M_EPM = cylinder_moment(0.1016, 0.1016, 1.48)
 M_IPM = cylinder_moment(0.0111, 0.0111, 1.48)

@@ -11,8 +11,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.analysis import epm_pose_for_force
-from capsule_drake.magnetics import cylinder_moment, dipole_field, dipole_force
+from capsule_drake.control.analysis import epm_pose_for_force
+from capsule_drake.physics.magnetics import cylinder_moment, dipole_field, dipole_force
 from capsule_drake.navigation.autonomy import (BACKOFF, COAST, CRUISE, PUSH, SEARCH,
                                                LumenFollower, LumenFollowerConfig,
                                                add_lumen_follower,
@@ -89,7 +89,7 @@ def test_bad_magnet_moment_raises_one_line():
 
 
 def _net_force(command, heading):
-    """A second route to the force: the dipole formula of capsule_drake.magnetics on the
+    """A second route to the force: the dipole formula of capsule_drake.physics.magnetics on the
     capsule's magnet aligned with the heading, plus the capsule's weight."""
     p_WE, m_hat = command[:3], command[3:]
     force = dipole_force(M_EPM * m_hat, M_IPM * heading, _p_WM() - p_WE)

@@ -21,11 +21,11 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.station import (PACKAGE, configure_parser)
-from capsule_drake.systems.camera import (CameraConfig, LensRenderer,
+from capsule_drake.capsule.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
-from capsule_drake.views import camera_scene
-from capsule_drake.vision import LensConfig
+from capsule_drake.perception.views import camera_scene
+from capsule_drake.perception import LensConfig
 
 # Images of the test scenes go here, to be looked at.
 IMAGE_DIR = Path(os.environ.get("CAPSULE_CAMERA_TEST_IMAGES",

@@ -12,7 +12,7 @@ from pydrake.systems.analysis import Simulator
 
 from capsule_drake.scenario import ScenarioError, load_scenario
 from capsule_drake.station import make_station
-from capsule_drake.systems.camera import CameraConfig, check_camera_config
+from capsule_drake.capsule.camera import CameraConfig, check_camera_config
 
 FPS, LATENCY = 10.0, 0.04
 

@@ -14,7 +14,7 @@ from capsule_drake.anatomy.windows import CameraWindows, sight_reach
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_camera_walls, add_colon_visuals,
                                    capsule_start_pose, colon_for, configure_parser)
-from capsule_drake.systems.camera import CameraConfig, LensRenderer
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.systems.channel import (
+from capsule_drake.teleop.channel import (
     ChannelConfig, DelayChannel, PassivityConfig, PassivityController, TeleopChannel,
     TeleopChannelConfig, check_channel_config, check_passivity_config, packet_fate,
     passivity_step, predicted_work)

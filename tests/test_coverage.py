@@ -11,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder
 from capsule_drake.navigation.coverage import WallPatches, seen_in_frame
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import add_camera_walls, colon_for
-from capsule_drake.systems.camera import CameraConfig, LensRenderer
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
-from capsule_drake.dataset import DatasetWriter, read_depth_png
+from capsule_drake.io.dataset import DatasetWriter, read_depth_png
 
 
 class FrameClock(LeafSystem):

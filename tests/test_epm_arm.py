@@ -13,11 +13,11 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.epm_path import skin_gap
-from capsule_drake.magnetics import MagnetGeometry
+from capsule_drake.epm.poses import skin_gap
+from capsule_drake.physics.magnetics import MagnetGeometry
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import (ArmMount, colon_for, configure_parser)
-from capsule_drake.systems.epm_arm import (ARM_JOINTS, SHOULDER_HEIGHT, ArmConfig,
+from capsule_drake.epm.arm import (ARM_JOINTS, SHOULDER_HEIGHT, ArmConfig,
                                            EpmArmController, EpmGuard, MagnetPose,
                                            arm_base_pose, rotate_axis_onto, solve_posture)
 

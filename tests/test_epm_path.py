@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from capsule_drake.epm_path import (
+from capsule_drake.epm.poses import (
     along_colon_trajectory,
     epm_pose_over,
     field_aligning_moment_direction,
@@ -12,7 +12,7 @@ from capsule_drake.epm_path import (
     skin_gap,
     stage_joint_positions,
 )
-from capsule_drake.magnetics import MagnetGeometry, dipole_field
+from capsule_drake.physics.magnetics import MagnetGeometry, dipole_field
 from capsule_drake.scenario import AlongColon, HoldAbove
 
 

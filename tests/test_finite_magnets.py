@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from capsule_drake.magnetics import (cylinder_field, cylinder_moment,
+from capsule_drake.physics.magnetics import (cylinder_field, cylinder_moment,
                                      cylinder_pair_interaction_float, dipole_field,
                                      dipole_pair_interaction_float, meshed_reference_wrench)
 from capsule_drake.scenario import ScenarioError, load_scenario
@@ -106,7 +106,7 @@ def test_finite_field_model_in_magnetic_force():
     from pydrake.multibody.tree import SpatialInertia
     from pydrake.systems.framework import DiagramBuilder
 
-    from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
+    from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=1e-3), builder)

@@ -157,7 +157,7 @@ def _inside(scenario_name, override, duration):
     """Runs the drag; returns (advance, smallest distance from the capsule's axis to the
     wall mesh, capsule radius): the capsule stayed inside if its axis never came nearer
     the wall than its radius (less the contact's compliance)."""
-    from capsule_drake.run import simulate
+    from capsule_drake.io.run import simulate
     from capsule_drake.station import colon_for
 
     scenario = load_scenario(name=scenario_name, override=override)
@@ -181,7 +181,7 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     capsule stays inside the imported wall. (The drag is stick-slip: the capsule first
     slides back 3.6 cm, then jumps forward between 6 and 10 s; at 4, 6, 10 and 12 s the two
     runs agree within 1 mm, at 8 s, mid-jump, they are 7.1 and 9.9 cm along.)"""
-    from capsule_drake.run import simulate
+    from capsule_drake.io.run import simulate
     from capsule_drake.station import colon_for
 
     path = tmp_path / "colon.obj"

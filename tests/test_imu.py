@@ -13,8 +13,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.allan import allan_deviation, log_log_slope, white_noise_coefficient
-from capsule_drake.systems.imu import (
+from capsule_drake.capsule.allan import allan_deviation, log_log_slope, white_noise_coefficient
+from capsule_drake.capsule.imu import (
     STANDARD_GRAVITY,
     Imu,
     ImuConfig,
@@ -266,8 +266,8 @@ def test_same_seed_same_recording_other_seed_other_recording():
 def test_sensor_configs_load_from_yaml_and_reject_unknown_keys():
     from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-    from capsule_drake.systems.ahrs import AhrsConfig
-    from capsule_drake.systems.magnetometer import MagnetometerConfig
+    from capsule_drake.capsule.ahrs import AhrsConfig
+    from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
     for schema in (ImuConfig, AhrsConfig, MagnetometerConfig):
         assert yaml_load_typed(schema=schema, data=yaml_dump_typed(schema())) == schema()

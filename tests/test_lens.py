@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
 
-from capsule_drake.vision import Lens, LensConfig
+from capsule_drake.perception import Lens, LensConfig
 
 # A strongly distorted Kannala-Brandt lens (coefficients of the size calibrations of
 # wide-angle endoscope cameras report) and a barrel-distorted 120-degree pinhole.

@@ -6,8 +6,8 @@ import pytest
 from pydrake.systems.framework import OutputPortSelection
 from pydrake.systems.primitives import FirstOrderTaylorApproximation
 
-from capsule_drake.linearization import capsule_magnet_diagram, hover_operating_point
-from capsule_drake.magnetics import cylinder_moment, dipole_force
+from capsule_drake.control.linearization import capsule_magnet_diagram, hover_operating_point
+from capsule_drake.physics.magnetics import cylinder_moment, dipole_force
 
 M_EPM = cylinder_moment(0.1016, 0.1016, 1.48)
 M_IPM = cylinder_moment(0.0111, 0.0111, 1.48)
@@ -75,7 +75,7 @@ def _step_response(step, duration=5.0):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-    from capsule_drake.hover_control import HoverController, design_hover_lqr
+    from capsule_drake.control.hover import HoverController, design_hover_lqr
 
     inner, plant = capsule_magnet_diagram(M_IPM, M_EPM)
     context, epm_pose = hover_operating_point(inner, plant, [0.0, 0.0, 0.1], [1.0, 0.0, 0.0],

@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer
 
-from capsule_drake.magnetics import dipole_field
+from capsule_drake.physics.magnetics import dipole_field
 from capsule_drake.navigation.localization import MagneticLocalizer, locate_sensor
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import make_station

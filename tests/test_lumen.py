@@ -7,11 +7,11 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
-from capsule_drake.lumen_eval import evaluate, sample_frames
+from capsule_drake.perception.evaluation import evaluate, sample_frames
 from capsule_drake.scenario import ScenarioError, load_scenario
-from capsule_drake.systems.lumen_tracker import LumenTracker, LumenTrackerConfig
-from capsule_drake.vision import Lens, LensConfig
-from capsule_drake.vision.lumen import (LumenDetection, LumenParams, dark_biased_threshold,
+from capsule_drake.perception.lumen_tracker import LumenTracker, LumenTrackerConfig
+from capsule_drake.perception import Lens, LensConfig
+from capsule_drake.perception.lumen import (LumenDetection, LumenParams, dark_biased_threshold,
                                         detect_lumen, load_detector)
 
 SIZE = 256

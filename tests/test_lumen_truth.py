@@ -6,7 +6,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import capsule_start_pose, colon_for
-from capsule_drake.systems.lumen_truth import LumenTruth, lumen_target
+from capsule_drake.perception.lumen_truth import LumenTruth, lumen_target
 
 
 class IdealPinhole:

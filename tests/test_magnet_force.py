@@ -12,8 +12,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, InputPortSelection, OutputPortSelection
 from pydrake.systems.primitives import FirstOrderTaylorApproximation
 
-from capsule_drake.magnetics import dipole_field, dipole_pair_wrench
-from capsule_drake.systems.magnet_force import MagneticForce, MagneticForce_, MagnetSpec
+from capsule_drake.physics.magnetics import dipole_field, dipole_pair_wrench
+from capsule_drake.physics.magnet_force import MagneticForce, MagneticForce_, MagnetSpec
 
 CAPSULE_MASS = 0.005  # kg
 EPM_MASS = 6.2  # kg

@@ -9,7 +9,7 @@ from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, InitializeAutoDif
 from pydrake.common.yaml import yaml_load_typed
 from scipy.spatial.transform import Rotation
 
-from capsule_drake.magnetics import (
+from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
     MU0,
     MagnetGeometry,

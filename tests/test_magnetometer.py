@@ -14,10 +14,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, LogVectorOutput
 
-from capsule_drake.magnetics import dipole_field
-from capsule_drake.systems.imu import add_random_sources
-from capsule_drake.systems.magnet_force import MagneticForce, MagnetSpec
-from capsule_drake.systems.magnetometer import Magnetometer, MagnetometerConfig
+from capsule_drake.physics.magnetics import dipole_field
+from capsule_drake.capsule.imu import add_random_sources
+from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.capsule.magnetometer import Magnetometer, MagnetometerConfig
 
 MU0 = 4e-7 * math.pi
 EPM_MOMENT = 970.0  # A m^2, REFERENCE section 1

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pydrake.math import RollPitchYaw, RotationMatrix
 
-from capsule_drake.metrics import capsule_surface_points_C, wall_excursion
+from capsule_drake.io.metrics import capsule_surface_points_C, wall_excursion
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import capsule_start_pose, colon_for
 

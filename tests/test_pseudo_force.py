@@ -15,14 +15,14 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from capsule_drake import guidance
-from capsule_drake.guidance import (PseudoForceConfig, capsule_axis_points,
+from capsule_drake.guidance import terms as guidance
+from capsule_drake.guidance.terms import (PseudoForceConfig, capsule_axis_points,
                                     check_pseudo_force_config, colon_potential,
                                     colon_potential_force, lumen_attraction, pseudo_force,
                                     wall_avoidance, wall_clearance)
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import capsule_start_pose, colon_for, configure_parser
-from capsule_drake.systems.pseudo_force import PseudoForceField
+from capsule_drake.guidance.pseudo_force import PseudoForceField
 
 # The device frame of the default config, written out: x_D = x_C (image right), y_D = -y_C
 # (image up), z_D = -z_C (toward the operator, so camera forward is pushing the stylus away).

@@ -8,7 +8,7 @@ import pytest
 
 from capsule_drake.cli import main as cli_main
 from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
-from capsule_drake.run import simulate
+from capsule_drake.io.run import simulate
 from capsule_drake.station import colon_for, make_station
 
 
@@ -28,9 +28,9 @@ def test_capsule_outside_the_colon_is_a_scenario_error():
 
 def test_bad_sensor_settings_are_scenario_errors():
     # Checked by the systems they configure (load_scenario checks some earlier still).
-    from capsule_drake.systems.camera import CameraConfig
-    from capsule_drake.systems.imu import ImuConfig
-    from capsule_drake.vision import LensConfig
+    from capsule_drake.capsule.camera import CameraConfig
+    from capsule_drake.capsule.imu import ImuConfig
+    from capsule_drake.perception import LensConfig
 
     scenario = Scenario()
     scenario.capsule.camera = CameraConfig(lens=LensConfig(model="fancy"))
@@ -133,7 +133,7 @@ def test_fast_contact_model_drags_the_capsule_inside_the_wall():
 
 
 def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch):
-    import capsule_drake.run as run_module
+    import capsule_drake.io.run as run_module
 
     class FailingSimulator(run_module.Simulator):
         def AdvanceTo(self, t):

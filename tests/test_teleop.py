@@ -10,14 +10,14 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from capsule_drake.epm_path import field_aligning_moment_direction
+from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.scenario import Scenario, load_scenario
 from capsule_drake.station import capsule_start_pose, colon_for, make_station
-from capsule_drake.systems.epm_arm import EpmGuard
-from capsule_drake.systems.force_feedback import ForceFeedback
-from capsule_drake.systems.haptic_master import HapticDeviceConfig, HapticMaster
+from capsule_drake.epm.arm import EpmGuard
+from capsule_drake.teleop.force_feedback import ForceFeedback
+from capsule_drake.teleop.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
-from capsule_drake.systems.lumen_range import free_range
+from capsule_drake.perception.lumen_range import free_range
 from capsule_drake.teleop.operator import (ForwardSpeed, OperatorConfig, SimulatedOperator,
                                            WayForward)
 from pydrake.common.eigen_geometry import AngleAxis

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from capsule_drake.cli import main as cli_main
-from capsule_drake.dataset import read_depth_png
+from capsule_drake.io.dataset import read_depth_png
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import colon_for
-from capsule_drake.views import darkest_spot, views_along_colon
+from capsule_drake.perception.views import darkest_spot, views_along_colon
 
 
 @pytest.fixture(scope="module")

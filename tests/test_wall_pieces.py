@@ -22,7 +22,7 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from capsule_drake.anatomy import ColonParams, build_colon
 from capsule_drake.anatomy.pieces import wall_pieces
-from capsule_drake.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
+from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.station import capsule_start_pose, configure_parser
 
 CHORD = 0.0005       # the default max_chord_depth [m]

@@ -55,8 +55,8 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
-from capsule_drake.analysis import epm_pose_for_force
-from capsule_drake.epm_path import field_aligning_moment_direction
+from capsule_drake.control.analysis import epm_pose_for_force
+from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
@@ -533,7 +533,7 @@ def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
     """
     # Imported here: station imports much of the package.
     from capsule_drake.station import CAPSULE_BODY, colon_for
-    from capsule_drake.systems.epm_arm import EpmGuard
+    from capsule_drake.epm.arm import EpmGuard
     from capsule_drake.teleop.operator import LumenRayFromTruth
 
     if lumen not in LUMEN_SOURCES:

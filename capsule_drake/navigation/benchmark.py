@@ -166,8 +166,8 @@ def _add_truth_ray(builder, station, scenario, navigator_name):
 
 
 def _navigator_context(station, scenario, colon) -> NavigatorContext:
-    from capsule_drake.epm_path import epm_pose_over
-    from capsule_drake.systems.epm_arm import EpmGuard
+    from capsule_drake.epm.poses import epm_pose_over
+    from capsule_drake.epm.arm import EpmGuard
 
     plant = station.GetSubsystemByName("plant")
     capsule = plant.GetModelInstanceByName("capsule")
@@ -190,7 +190,7 @@ def run_task(task: Task) -> dict:
 
     from capsule_drake.navigation.coverage import MucosaCoverage
     from capsule_drake.station import colon_for, make_station
-    from capsule_drake.systems.contact_monitor import ContactMonitor
+    from capsule_drake.physics.contact_monitor import ContactMonitor
 
     scenario = task_scenario(task)
     colon = colon_for(scenario)
@@ -315,7 +315,7 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     """
     if engine not in ("local", "dask"):
         raise ValueError(f"benchmark engine {engine!r} is not 'local' or 'dask'")
-    from capsule_drake.run import StepBar
+    from capsule_drake.io.run import StepBar
 
     bar = StepBar(len(tasks), progress)
     results: list[dict | None] = [None] * len(tasks)

@@ -18,7 +18,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from capsule_drake.magnetics import dipole_field
+from capsule_drake.physics.magnetics import dipole_field
 
 
 def locate_sensor(B_W, p_E, m_E, p_guess, iterations: int = 30,

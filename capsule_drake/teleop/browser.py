@@ -20,7 +20,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
-from capsule_drake.systems.haptic_master import STYLUS_SIZE
+from capsule_drake.teleop.haptic_master import STYLUS_SIZE
 
 # button name, key code, stylus direction (D frame) or an action
 KEYS = (

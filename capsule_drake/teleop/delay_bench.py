@@ -20,7 +20,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.systems.channel import ChannelConfig, PassivityConfig, TeleopChannel, \
+from capsule_drake.teleop.channel import ChannelConfig, PassivityConfig, TeleopChannel, \
     TeleopChannelConfig
 
 PERIOD = 0.001  # the haptic loop's period (s)

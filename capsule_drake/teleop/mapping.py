@@ -30,7 +30,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from capsule_drake.epm_path import field_aligning_moment_direction
+from capsule_drake.epm.poses import field_aligning_moment_direction
 
 MODES = ("position", "lead", "rate")
 

@@ -23,7 +23,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from capsule_drake.guidance import saturate_checked as saturate_force
+from capsule_drake.guidance.terms import saturate_checked as saturate_force
 
 log = logging.getLogger(__name__)
 

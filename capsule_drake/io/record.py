@@ -6,13 +6,13 @@ from pathlib import Path
 import yaml
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
-from capsule_drake.dataset import DatasetWriter
-from capsule_drake.run import RunResult, simulate
+from capsule_drake.io.dataset import DatasetWriter
+from capsule_drake.io.run import RunResult, simulate
 from capsule_drake.scenario import Scenario
-from capsule_drake.systems.ahrs import AhrsConfig
-from capsule_drake.systems.camera import CameraConfig
-from capsule_drake.systems.imu import ImuConfig
-from capsule_drake.systems.magnetometer import MagnetometerConfig
+from capsule_drake.capsule.ahrs import AhrsConfig
+from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.imu import ImuConfig
+from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
 # Sensor streams written as CSV files: file name -> [(station output, column names)].
 _STREAMS = {

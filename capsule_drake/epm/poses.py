@@ -17,7 +17,7 @@ import functools
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
-from capsule_drake.magnetics import MagnetGeometry
+from capsule_drake.physics.magnetics import MagnetGeometry
 
 
 def field_aligning_moment_direction(u, h):

@@ -16,7 +16,7 @@ state (a ring buffer), so a context can be cloned and a run repeated exactly.
 
 **Why time-domain passivity (TDPA) and not wave variables.** The force returned to the
 operator is computed on the robot side, not measured on a physical slave: the pseudo-force of
-``capsule_drake.guidance`` is a function of the capsule's situation, which follows the
+``capsule_drake.guidance.terms`` is a function of the capsule's situation, which follows the
 (delayed) stylus, and its wall term is a stiff virtual spring. Seen from the stylus, forward
 channel, robot-side computation and backward channel together form a *one-port* whose only
 physical port is the device. Its passivity can therefore be observed at the master with local

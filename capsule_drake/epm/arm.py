@@ -23,7 +23,7 @@ from pydrake.multibody.inverse_kinematics import (
 )
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from capsule_drake.epm_path import (highest_skin_under, magnet_footprint_radius,
+from capsule_drake.epm.poses import (highest_skin_under, magnet_footprint_radius,
                                     magnet_vertical_half_extent)
 
 ARM_JOINTS = tuple(f"arm_joint_{i}" for i in range(1, 8))

@@ -36,7 +36,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
 
-from capsule_drake.vision import Lens, LensConfig
+from capsule_drake.perception import Lens, LensConfig
 
 FPS_MODES = ("fixed", "adaptive")
 DEFAULT_RENDERER = "capsule_camera"

@@ -8,7 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageGrey8U, ImageRgba8U
 
-from capsule_drake.vision.lumen import LumenParams, check_lumen_params, load_detector
+from capsule_drake.perception.lumen import LumenParams, check_lumen_params, load_detector
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ and draws exactly the image the camera would draw itself. So a simulation's outp
 depend on whether, or how fast, the worker runs: whenever it is still starting, has failed,
 or was not given that frame, the camera draws the frame itself.
 
-The worker is a fresh interpreter (`python -m capsule_drake.systems.render_worker`), so it
+The worker is a fresh interpreter (`python -m capsule_drake.capsule.render_worker`), so it
 never re-runs the user's script. Protocol over its stdin and stdout, every message a 4-byte
 little-endian length and that many bytes: first the camera's settings (a pickle of the
 ColonParams and CameraConfig), then camera poses [R_WC row-major (9), p_WC (3)] as 12
@@ -74,7 +74,7 @@ def serve(stdin, stdout) -> None:
 
         from capsule_drake.scenario import Scenario
         from capsule_drake.station import add_camera_walls, colon_for
-        from capsule_drake.systems.camera import LensRenderer
+        from capsule_drake.capsule.camera import LensRenderer
 
         scenario = Scenario(colon=colon_params)
         builder = DiagramBuilder()
@@ -132,7 +132,7 @@ class RenderWorker:
         self._shape = (config.lens.height, config.lens.width, 4)
         self._size = int(np.prod(self._shape))
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "capsule_drake.systems.render_worker"],
+            [sys.executable, "-m", "capsule_drake.capsule.render_worker"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=stderr,
             # One rasteriser thread: the worker keeps to the core the simulation leaves.
             env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), LP_NUM_THREADS="1"))

@@ -36,7 +36,7 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.systems.imu import STANDARD_GRAVITY
+from capsule_drake.capsule.imu import STANDARD_GRAVITY
 
 
 @dataclasses.dataclass

@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RotationMatrix
 
-from capsule_drake.epm_path import skin_gap
+from capsule_drake.epm.poses import skin_gap
 
 
 def capsule_surface_points_C(radius: float, length: float, n_around: int = 24) -> np.ndarray:

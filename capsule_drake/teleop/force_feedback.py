@@ -12,7 +12,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.guidance import rotation_from_rpy_deg, saturate
+from capsule_drake.guidance.terms import rotation_from_rpy_deg, saturate
 
 
 def contact_force_D(F_W, R_WB, R_BC, R_DC, gain: float) -> np.ndarray:

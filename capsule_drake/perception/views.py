@@ -13,8 +13,8 @@ from capsule_drake.scenario import Scenario
 from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_camera_walls, add_colon_visuals,
                                    capsule_start_pose, colon_for, configure_parser,
                                    make_station)
-from capsule_drake.systems.camera import CameraConfig
-from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
+from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 
 
 @dataclasses.dataclass

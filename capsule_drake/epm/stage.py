@@ -3,7 +3,7 @@
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from capsule_drake.epm_path import stage_joint_positions
+from capsule_drake.epm.poses import stage_joint_positions
 
 
 class PoseToStage(LeafSystem):

@@ -26,7 +26,7 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem_
 from pydrake.systems.scalar_conversion import TemplateSystem
 
-from capsule_drake.magnetics import dipole_force, dipole_torque
+from capsule_drake.physics.magnetics import dipole_force, dipole_torque
 
 
 @TemplateSystem.define("EpmWrench_", T_list=[float, AutoDiffXd])
@@ -123,7 +123,7 @@ def hover_operating_point(diagram, plant, p_WM, heading, epm_moment: float,
     """A context of `diagram` in which the capsule's magnet hangs still at p_WM, along the
     unit `heading` (horizontal), and the EPM pose (fixed on `epm_pose`) that holds it there
     against gravity. Returns (context, epm_pose)."""
-    from capsule_drake.analysis import hold_against_gravity
+    from capsule_drake.control.analysis import hold_against_gravity
     from capsule_drake.station import CAPSULE_BODY
 
     heading = np.asarray(heading, dtype=float)

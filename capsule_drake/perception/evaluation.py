@@ -25,9 +25,9 @@ from pydrake.math import RigidTransform, RotationMatrix
 from capsule_drake.anatomy import ColonParams
 from capsule_drake.scenario import Scenario
 from capsule_drake.station import CAPSULE_BODY, colon_for
-from capsule_drake.systems.camera import CameraConfig, LensRenderer
-from capsule_drake.systems.lumen_truth import lumen_target, project_lumen
-from capsule_drake.views import camera_scene
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
+from capsule_drake.perception.views import camera_scene
 
 KINDS = ("lumen", "wall")
 

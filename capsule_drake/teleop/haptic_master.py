@@ -13,7 +13,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.guidance import saturate_checked
+from capsule_drake.guidance.terms import saturate_checked
 
 STYLUS_SIZE = 9  # position (3), quaternion wxyz (4), clutch (1), mode (1)
 

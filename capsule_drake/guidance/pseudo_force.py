@@ -1,6 +1,6 @@
 """PseudoForceField: the force the haptic stylus gives the operator's hand, sampled and held.
 
-The physics is `capsule_drake.guidance.pseudo_force` (lumen attraction, wall avoidance and a
+The physics is `capsule_drake.guidance.terms.pseudo_force` (lumen attraction, wall avoidance and a
 potential field along the colon, in the device frame, saturated); this system samples it at
 the device's servo period and holds it, so it adds no algebraic loop and costs one
 evaluation per period (about 1.5 ms of Python, mostly the wall query `Colon.excursion`).
@@ -12,7 +12,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.guidance import (CAPSULE_LENGTH, CAPSULE_RADIUS, TERMS, PseudoForceConfig,
+from capsule_drake.guidance.terms import (CAPSULE_LENGTH, CAPSULE_RADIUS, TERMS, PseudoForceConfig,
                                     check_pseudo_force_config, pseudo_force)
 
 

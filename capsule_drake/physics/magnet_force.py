@@ -15,7 +15,7 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
-from capsule_drake.magnetics import (
+from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
     cylinder_pair_interaction_float,
     dipole_pair_interaction,
@@ -126,7 +126,7 @@ def MagneticForce_(T):
     class Impl(LeafSystem_[T]):
         """Magnetic forces and fields between magnets fixed to plant bodies.
 
-        Each magnet is a point dipole (``capsule_drake.magnetics``, after Mahoney
+        Each magnet is a point dipole (``capsule_drake.physics.magnetics``, after Mahoney
         & Abbott, IJRR 2016) at a fixed point ``M`` of a body ``B``. For every
         pair, the force and torque are summed onto both magnets, so any number of
         magnets is supported (cost grows with the number of pairs).
@@ -169,7 +169,7 @@ def MagneticForce_(T):
                 indices and welds are read, at construction.
             magnets: list of MagnetSpec (unique names).
             min_distance: guard radius (m) of the dipole model, see
-                ``capsule_drake.magnetics.dipole_field``.
+                ``capsule_drake.physics.magnetics.dipole_field``.
             field_model: "dipole" (every magnet a point dipole; float and AutoDiffXd) or
                 "finite" (float only): in each pair with a magnet given a ``cylinder``
                 shape, the larger such magnet's exact field

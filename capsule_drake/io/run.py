@@ -15,10 +15,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.metrics import run_metrics
+from capsule_drake.io.metrics import run_metrics
 from capsule_drake.scenario import Scenario, dump_scenario
 from capsule_drake.station import CAPSULE_BODY, colon_for, make_station
-from capsule_drake.systems.contact_monitor import ContactMonitor
+from capsule_drake.physics.contact_monitor import ContactMonitor
 
 
 @dataclass

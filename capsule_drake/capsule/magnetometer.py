@@ -1,6 +1,6 @@
 """Three-axis magnetometer on a plant body: the field of the external magnets, with noise.
 
-The ideal value is the sum of the point-dipole fields (``capsule_drake.magnetics.dipole_field``,
+The ideal value is the sum of the point-dipole fields (``capsule_drake.physics.magnetics.dipole_field``,
 Mahoney & Abbott, IJRR 2016; with field_model "finite", a cylinder source's exact field,
 ``magnetics.cylinder_field``) of the source magnets at the sensor point S, expressed in the
 sensor frame. Magnets on the sensor's own body are left out: their field at the sensor is
@@ -11,7 +11,7 @@ applies the range to the external field alone, i.e. it assumes a sensor placed (
 that the self-field does not saturate it. The earth's field (~50 uT) is not modelled: next to
 the external magnet it is three orders of magnitude smaller.
 
-The noise is the same per-axis model as the IMU's (``capsule_drake.systems.imu.ChannelNoise``):
+The noise is the same per-axis model as the IMU's (``capsule_drake.capsule.imu.ChannelNoise``):
 white noise of a one-sided density, bias random walk, turn-on bias, range, quantisation.
 """
 
@@ -25,9 +25,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
-from capsule_drake.systems.imu import ChannelNoise
-from capsule_drake.systems.magnet_force import FIELD_MODELS
+from capsule_drake.physics.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
+from capsule_drake.capsule.imu import ChannelNoise
+from capsule_drake.physics.magnet_force import FIELD_MODELS
 
 
 @dataclasses.dataclass

@@ -3,7 +3,7 @@ magnetic stiffness, equilibria and controllability of a capsule held by the EPM
 (point-dipole model). The lumen follower drives with `epm_pose_for_force`.
 
 Derivatives come from automatic differentiation (`AutoDiffXd`) through the same dipole
-functions the simulation uses (`capsule_drake.magnetics`); the tests check them against
+functions the simulation uses (`capsule_drake.physics.magnetics`); the tests check them against
 central differences and physical identities (a symmetric, traceless stiffness).
 
 Frames and units: world frame, SI. p_E, p_C: the EPM's and the capsule magnet's centres (m);
@@ -16,8 +16,8 @@ import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 from pydrake.systems.primitives import ControllabilityMatrix, IsControllable, LinearSystem
 
-from capsule_drake.epm_path import field_aligning_moment_direction
-from capsule_drake.magnetics import MU0, dipole_force, dipole_torque
+from capsule_drake.epm.poses import field_aligning_moment_direction
+from capsule_drake.physics.magnetics import MU0, dipole_force, dipole_torque
 
 
 # Directions from the capsule's magnet to the EPM searched by `epm_pose_for_force`: the

@@ -1,0 +1,1 @@
+"""The capsule: its model (frames, size, magnet) and its on-board sensors."""

@@ -1,0 +1,1 @@
+"""Control design and analysis: actuation, linearisation, controllers."""

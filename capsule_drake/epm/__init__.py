@@ -1,0 +1,1 @@
+"""The external magnet: its poses, mounts (stage, arm), guard and drivers."""

@@ -1,0 +1,1 @@
+"""The pseudo-force on the operator's hand: its terms and its system."""

@@ -1,0 +1,1 @@
+"""Running a station and what a run leaves: run loop, metrics, datasets."""

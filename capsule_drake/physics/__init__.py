@@ -1,0 +1,1 @@
+"""Magnet fields, forces and torques; the magnet force system; contact."""
