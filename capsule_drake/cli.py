@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import sys
 import time
 from pathlib import Path
 
-from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
-                                    validate)
+import yaml
+
+from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -206,13 +206,18 @@ def _scenario_arguments(parser):
     parser.add_argument("--duration", type=float, metavar="S", help="simulated seconds")
 
 
-def _load(args):
-    if args.duration is not None and args.duration < 0:
-        raise ScenarioError(f"--duration must be >= 0, got {args.duration}")
-    scenario = load_scenario(args.scenario_file, args.scenario, args.scenario_text)
+def _flags(**values) -> str:
+    """YAML text of a command's flags, layered on the scenario before it is checked."""
+    return yaml.safe_dump(values, default_flow_style=True, width=1 << 20).strip()
+
+
+def _load(args, *flags: str):
+    """The scenario of the command line: the file's named scenario, the user's
+    --scenario-text over it, then the command's own flags (YAML texts), then checked once."""
+    overrides = [args.scenario_text]
     if args.duration is not None:
-        scenario = dataclasses.replace(scenario, duration=args.duration)
-    return scenario
+        overrides.append(_flags(duration=args.duration))
+    return load_scenario(args.scenario_file, args.scenario, overrides + list(flags))
 
 
 def _record(args) -> int:
@@ -237,34 +242,28 @@ def _record(args) -> int:
 def _teleop(args) -> int:
     if args.scenario is None and args.scenario_file == DEFAULT_SCENARIO_FILE:
         args.scenario = "Teleop"
-    scenario = _load(args)
-    if scenario.teleop is None:
-        raise ScenarioError(f"scenario {args.scenario or 'Default'} has no teleop section "
-                            "(use --scenario Teleop or add `teleop: {}`)")
-    teleop = scenario.teleop
+    # The verb makes the operator drive the EPM: `!Teleop` merges into the scenario's own
+    # Teleop driver (or replaces another driver with the default one).
+    teleop = {"udp": {"port": args.port}}
     if args.operator is not None:
-        teleop = dataclasses.replace(teleop, operator=args.operator)
+        teleop["operator"] = args.operator
     if args.delay is not None:
-        if not args.delay >= 0:
-            raise ScenarioError(f"--delay must be >= 0, got {args.delay}")
-        channel = dataclasses.replace(
-            teleop.channel,
-            forward=dataclasses.replace(teleop.channel.forward, delay=args.delay),
-            backward=dataclasses.replace(teleop.channel.backward, delay=args.delay))
-        teleop = dataclasses.replace(teleop, channel=channel)
-    if teleop.operator == "udp":
-        teleop = dataclasses.replace(teleop, udp=dataclasses.replace(teleop.udp,
-                                                                     port=args.port))
-    scenario = dataclasses.replace(scenario, teleop=teleop)
+        teleop["channel"] = {"forward": {"delay": args.delay},
+                             "backward": {"delay": args.delay}}
+    flags = ["{epm: {driver: !Teleop " + _flags(**teleop) + "}}"]
     if args.guidance == "off":
-        scenario = dataclasses.replace(scenario, pseudo_force=None)
-    validate(scenario)
+        flags.append("{pseudo_force: null}")
+    scenario = _load(args, *flags)
+    teleop = scenario.epm.driver
+    live = teleop.operator in ("browser", "udp")
+    if live and scenario.simulator.target_realtime_rate == 0.0:
+        # A person at the device: paced to the wall clock.
+        scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
 
     from pydrake.geometry import Meshcat, MeshcatParams
 
     from capsule_drake.io.run import simulate
 
-    live = teleop.operator in ("browser", "udp")
     drake_log = logging.getLogger("drake")
     level = drake_log.level
     if not live:
@@ -287,8 +286,7 @@ def _teleop(args) -> int:
                   f"{device.port()} (docs/udp_protocol.md)", file=sys.stderr)
         return None
 
-    result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
-                      realtime_rate=1.0 if live else 0.0, progress=not args.quiet,
+    result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,
                       live_meshcat=live, extend=announce)
     m = result.metrics
     if "advance_m" in m:
@@ -334,7 +332,8 @@ def _eval_lumen(args) -> int:
 
 
 def _run(args) -> int:
-    scenario = _load(args)
+    # A live page is paced to the wall clock.
+    scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
 
     # Imported here so that `capsule-sim --help` and argument errors answer at once.
     from pydrake.geometry import Meshcat, MeshcatParams
@@ -359,7 +358,6 @@ def _run(args) -> int:
     name = args.scenario or "Default"
     out_dir = args.out or Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
-                      realtime_rate=1.0 if args.meshcat else 0.0,
                       progress=not args.quiet, live_meshcat=args.meshcat)
     m = result.metrics
     if "advance_m" in m:

@@ -15,7 +15,11 @@ import typing
 import yaml
 
 
-class SchemaError(ValueError):
+class ScenarioError(ValueError):
+    """A scenario file, override or value is wrong; the message is one line naming where."""
+
+
+class SchemaError(ScenarioError):
     """A scenario document does not match its schema; the message names the key."""
 
 

@@ -1,34 +1,22 @@
 """Procedural colon (rectum to cecum): build from a seed, query the wall, cache meshes.
 
-`build_colon(params)` is pure and deterministic; `colon_assets(params)` writes the OBJ/MTL
-meshes and the centreline once per parameter set and returns their paths.
+`build_colon(params)` is pure and deterministic; `procedural_colon_assets(params)` writes its
+OBJ/MTL meshes and centreline once per parameter set (anatomy/cache.py) and returns their
+paths. Scenarios load a colon of any source through anatomy/source.py.
 """
 
-import hashlib
-import os
-import shutil
-import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydrake.common.yaml import yaml_dump_typed
 
 from .abdomen import Abdomen
 from .centerline import Centerline, rotation_minimising_frame
 from .course import nominal_radius, solve_course
-from .mesh import (SKIN_MTL, closed_tube, mucosa_mtl, ring_stations, textured_tube,
-                   tube_chunks, write_obj, write_textured_obj)
+from .cache import ColonAssets, asset_paths, build_once, default_cache_root, params_hash, write_asset_files
+from .mesh import closed_tube, ring_stations, textured_tube, tube_chunks
 from .params import SEGMENT_NAMES, ColonParams
 from .texture import write_mucosa_texture
 from .wall import HaustralWall
-
-GEOMETRY_VERSION = 1
-"""Bump whenever code changes the generated geometry: it invalidates cached assets."""
-
-MUCOSA_TEXTURE = "colon_mucosa.png"
-"""File name of the mucosa texture, next to the visual OBJ (its MTL refers to it)."""
-
 
 class TubeColon:
     """What every colon answers, from its `centerline`, its `wall_radius(s, theta)` and its
@@ -169,46 +157,6 @@ def build_colon(params: ColonParams) -> Colon:
     return Colon(params, centerline, wall, Abdomen(params.abdomen), targets)
 
 
-@dataclass
-class ColonAssets:
-    """Files of one generated colon (all in one cache directory)."""
-
-    visual_obj: Path
-    collision_objs: list[Path]
-    centerline_npz: Path
-    torso_obj: Path
-
-
-def _source_digest() -> str:
-    """Hash of this package's source: a code change must never reuse stale cached meshes."""
-    digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
-
-
-def params_hash(params: ColonParams) -> str:
-    """Cache key: hash of the YAML dump of the params, GEOMETRY_VERSION and the source."""
-    text = f"v{GEOMETRY_VERSION}\n{_source_digest()}\n" + yaml_dump_typed(params)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def default_cache_root() -> Path:
-    """$CAPSULE_DRAKE_CACHE/colon if set, else ~/.cache/capsule_drake/colon."""
-    env = os.environ.get("CAPSULE_DRAKE_CACHE")
-    base = Path(env) if env else Path.home() / ".cache" / "capsule_drake"
-    return base / "colon"
-
-
-def _asset_paths(directory: Path, chunks: int) -> ColonAssets:
-    return ColonAssets(
-        visual_obj=directory / "colon_visual.obj",
-        collision_objs=[directory / f"colon_collision_{k:02d}.obj" for k in range(chunks)],
-        centerline_npz=directory / "centerline.npz",
-        torso_obj=directory / "torso.obj")
-
-
 def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
     """Write every mesh and the centreline of `colon` into `directory`."""
     mucosa = colon.params.mucosa
@@ -218,58 +166,14 @@ def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
         colon.centerline, colon.abdomen.torso_mesh())
 
 
-def write_asset_files(directory: Path, chunks, visual, write_texture, mucosa, centerline,
-                      torso) -> ColonAssets:
-    """A colon's files in `directory`: the visual OBJ (`visual`, a TexturedMesh) with its
-    material and texture (`write_texture(path)` writes the image), the collision chunks
-    (trimesh list), the centreline and the torso (drawn around the colon)."""
-    directory.mkdir(parents=True, exist_ok=True)
-    assets = _asset_paths(directory, len(chunks))
-    write_texture(directory / MUCOSA_TEXTURE)
-    (directory / "colon_visual.mtl").write_text(
-        mucosa_mtl(MUCOSA_TEXTURE, mucosa.specular, mucosa.shininess))
-    write_textured_obj(assets.visual_obj, visual, material=("colon_visual.mtl", "mucosa"))
-    for path, mesh in zip(assets.collision_objs, chunks):
-        write_obj(path, mesh)
-    centerline.save(assets.centerline_npz)
-    (directory / "torso.mtl").write_text(SKIN_MTL)
-    write_obj(assets.torso_obj, torso, normals=True, material=("torso.mtl", "skin"))
-    return assets
-
-
-def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
+def procedural_colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
     """Generated files of the colon for `params`, built once and cached.
 
     The files live in `<root>/<params_hash>/`, root = `cache_dir` if given, else
     `default_cache_root()`. They are written to a temporary directory and renamed into
     place, so concurrent processes never see a half-written set.
     """
-    if params.source != "procedural":
-        from .imported import imported_colon_assets
-
-        return imported_colon_assets(params, cache_dir)[1]
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
     final = root / params_hash(params)
     build_once(final, lambda tmp: write_colon_assets(build_colon(params), tmp))
-    return _asset_paths(final, len(sorted(final.glob("colon_collision_*.obj"))))
-
-
-def build_once(final: Path, write) -> None:
-    """Unless folder `final` is complete (it has centerline.npz), runs write(folder) into a
-    temporary folder beside it and renames that into place, so concurrent processes never
-    see a half-written set."""
-    if (final / "centerline.npz").exists():
-        return
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
-    try:
-        write(tmp)
-        try:
-            os.rename(tmp, final)
-        except OSError:
-            if not (final / "centerline.npz").exists():
-                raise
-            # Another process won the race; its files are identical.
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+    return asset_paths(final, len(sorted(final.glob("colon_collision_*.obj"))))

@@ -29,11 +29,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import trimesh
+from pydrake.common.yaml import yaml_dump_typed
 from scipy.interpolate import RegularGridInterpolator
 
 from .centerline import Centerline, rotation_minimising_frame
 from .centerline_extraction import extract_centerline, section_loop
+from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
+from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
 from .importer import (RepairReport, _texture_of, check_colon_mesh, geometry_of,
                        load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
@@ -307,15 +310,8 @@ class ImportedColon(TubeColon):
 
 # --- Imported colons in scenarios: the `colon.source` field -------------------------------
 
-_COLONS: dict[str, ImportedColon] = {}
-
-
 def _digest(params, files) -> str:
-    from pydrake.common.yaml import yaml_dump_typed
-
-    from .colon import GEOMETRY_VERSION, _source_digest
-
-    digest = hashlib.sha256(f"imported v{GEOMETRY_VERSION}\n{_source_digest()}\n".encode())
+    digest = hashlib.sha256(f"imported v{GEOMETRY_VERSION}\n{source_digest()}\n".encode())
     fields = {k: getattr(params, k) for k in ("source", "mesh_scale", "mesh_max_faces",
                                                "mesh_reverse", "mesh_skin_above",
                                                "collision_chunks")}
@@ -347,8 +343,6 @@ def imported_colon_assets(params, cache_dir=None):
     """(ImportedColon, ColonAssets) for `params.source` != "procedural": imported (or, for
     "ex_vivo", generated and imported) once, its files cached like the procedural colon's
     (written to a temporary folder and renamed into place)."""
-    from .colon import _asset_paths, build_once, default_cache_root
-
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
     if params.source == "ex_vivo":
         files = []
@@ -356,12 +350,8 @@ def imported_colon_assets(params, cache_dir=None):
         files = _source_files(Path(params.source))
     final = root / _digest(params, files)
     build_once(final, lambda tmp: _build_imported(params, tmp))
-    key = str(final)
-    if key not in _COLONS:
-        _COLONS.clear()
-        _COLONS[key] = _load_imported(params, final)
     chunks = len(sorted(final.glob("colon_collision_*.obj")))
-    return _COLONS[key], _asset_paths(final, chunks)
+    return _load_imported(params, final), asset_paths(final, chunks)
 
 
 def _import_folder(params, directory: Path) -> Path:
@@ -373,8 +363,6 @@ def _load_imported(params, directory: Path) -> ImportedColon:
     display = rgba = None
     boxes = ()
     if params.source == "ex_vivo":
-        from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh
-
         display, rgba, boxes = tray_mesh(), TRAY_RGBA, tray_boxes()
     colon = ImportedColon.load(_import_folder(params, directory), params.mesh_skin_above,
                                display, rgba, mucosa=params.mucosa, seed=params.seed)
@@ -383,13 +371,9 @@ def _load_imported(params, directory: Path) -> ImportedColon:
 
 
 def _build_imported(params, directory: Path) -> None:
-    from .colon import write_asset_files
-
     folder = _import_folder(params, directory)
     if folder != Path(params.source):
         if params.source == "ex_vivo":
-            from .ex_vivo import write_segment
-
             mesh_path = write_segment(directory / "reconstruction", params.seed, params.mucosa)
         else:
             mesh_path = Path(params.source)

@@ -15,6 +15,7 @@ anatomy/windows.py and station.add_camera_walls): ~15k triangles instead of the 
 
 import dataclasses
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -31,12 +32,19 @@ from pydrake.geometry import (
     RenderCameraCore,
     RenderEngineVtkParams,
     Rgba,
+    Role,
 )
+from pydrake.multibody.parsing import Parser
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
 
+from capsule_drake.anatomy import colon_assets
+from capsule_drake.anatomy.windows import CameraWindows, camera_windows
+from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.perception import Lens, LensConfig
+from capsule_drake.perception.lumen_truth import add_lumen_truth
+from capsule_drake.scene import block
 
 FPS_MODES = ("fixed", "adaptive")
 DEFAULT_RENDERER = "capsule_camera"
@@ -109,9 +117,15 @@ class CameraConfig:
     # below the camera's tick (1 / fps, or 1 / fps_max in adaptive mode) and needs a scene
     # the camera sees unmoving (a colon's camera walls).
     latency: float = 0.0
-    # With latency > 0: draw frames in a process of their own (systems/render_worker.py),
+    # With latency > 0: draw frames in a process of their own (capsule/render_worker.py),
     # on another core while the simulation runs on; the images are the same either way.
     render_process: bool = True
+
+
+def camera_tick(config: CameraConfig) -> float:
+    """Period (s) at which the camera checks whether to take a frame: 1 / fps, or 1 / fps_max
+    in adaptive mode."""
+    return 1.0 / (config.fps_max if config.fps_mode == "adaptive" else config.fps)
 
 
 def check_camera_config(config: CameraConfig) -> None:
@@ -136,7 +150,7 @@ def check_camera_config(config: CameraConfig) -> None:
         raise ValueError("camera face_resolution_scale must be positive")
     if not config.latency >= 0.0:
         raise ValueError(f"camera latency {config.latency} must be >= 0")
-    tick = 1.0 / (config.fps_max if config.fps_mode == "adaptive" else config.fps)
+    tick = camera_tick(config)
     if config.latency >= tick:
         raise ValueError(f"camera latency {config.latency} s must be below the camera's "
                          f"tick ({tick:.4g} s: one frame in flight at a time)")
@@ -192,7 +206,6 @@ class LensRenderer:
     """
 
     def __init__(self, config: CameraConfig):
-        check_camera_config(config)
         self.config = config
         self.lens = Lens(config.lens)
         self.width, self.height = self.lens.width, self.lens.height
@@ -431,7 +444,7 @@ class CapsuleCamera(LeafSystem):
         W, H = self._renderer.width, self._renderer.height
         c = self._config
         self._adaptive = c.fps_mode == "adaptive"
-        self._tick = 1.0 / (c.fps_max if self._adaptive else c.fps)
+        self._tick = camera_tick(c)
         self._latency = c.latency
         if self._latency > 0.0 and not static_scene:
             raise ValueError("camera latency needs a scene the camera sees unmoving (a "
@@ -476,6 +489,11 @@ class CapsuleCamera(LeafSystem):
     @property
     def lens(self) -> Lens:
         return self._renderer.lens
+
+    @property
+    def config(self) -> CameraConfig:
+        """The camera's settings (a copy)."""
+        return dataclasses.replace(self._config)
 
     def tick(self) -> float:
         """Period (s) at which the camera checks whether to take a frame."""
@@ -633,3 +651,92 @@ def capsule_camera_for_frame(plant, frame, config: CameraConfig, renderer_for=No
     body = frame.body()
     return CapsuleCamera(config, plant.GetBodyFrameIdOrThrow(body.index()),
                          frame.GetFixedPoseInBodyFrame(), renderer_for, static_scene, worker)
+
+# --- The camera in a colon: its walls, and the camera block --------------------------------
+
+@dataclasses.dataclass
+class CameraWalls:
+    """The camera windows and their renderers; called with a camera's world position, it
+    names the renderer to draw with (the window of the centreline foot's arc length)."""
+
+    windows: CameraWindows
+    renderer_names: list[str]
+    centerline: object
+
+    def __call__(self, p_WC) -> str:
+        s = self.centerline.closest(np.asarray(p_WC, dtype=float))[0]
+        return self.renderer_names[self.windows.index_at(s)]
+
+
+def add_camera_walls(plant, scene_graph, colon_params, colon,
+                     config: CameraConfig) -> CameraWalls:
+    """The colon wall as capsule cameras see it, and their renderers. Call before Finalize,
+    after every other model: the cameras see nothing else (the geometry registered so far
+    loses its perception role).
+
+    Each window is accepted by a renderer of its own (`<config.renderer_name>.<k>`, added
+    here), so a frame draws only the stretch the camera is in. Returns the `CameraWalls`
+    that names the renderer for a camera at p_WC; another camera in the colon sees the wall
+    through it.
+    """
+    assets = colon_assets(colon_params)
+    windows = camera_windows(colon, assets.visual_obj.parent, config.far,
+                             config.window_spacing)
+    if len(windows.objs) == 1:
+        names = [config.renderer_name]
+    else:
+        names = [f"{config.renderer_name}.{k:02d}" for k in range(len(windows.objs))]
+    for name in names:
+        add_camera_renderer(scene_graph, config, name)
+    visuals = [(f"window_{k:02d}", obj, name)
+               for k, (obj, name) in enumerate(zip(windows.objs, names))]
+    # pydrake cannot set the ("renderer", "accepting") property (a set of names), so the
+    # walls come as an SDF model with <drake:accepting_renderer> tags.
+    body = "".join(
+        f"<visual name='{name}'><geometry><mesh><uri>{Path(obj).resolve().as_uri()}</uri>"
+        f"</mesh></geometry><drake:accepting_renderer>{renderer}</drake:accepting_renderer>"
+        "</visual>" for name, obj, renderer in visuals)
+    sdf = ("<?xml version='1.0'?><sdf version='1.9' xmlns:drake='http://drake.mit.edu'>"
+           f"<model name='camera_walls_{config.renderer_name}'><static>true</static>"
+           f"<link name='walls'>{body}"
+           "</link></model></sdf>")
+    instance, = Parser(plant).AddModelsFromString(sdf, "sdf")
+    for index in plant.GetBodyIndices(instance):
+        for geometry_id in plant.GetVisualGeometriesForBody(plant.get_body(index)):
+            scene_graph.RemoveRole(plant.get_source_id(), geometry_id, Role.kIllustration)
+    # A capsule camera sees only the inside of the colon. Everything else (the capsule's own
+    # shell, the EPM, the arm, the table) would sit in every window's renderer, unseen, and
+    # each renderer re-poses its moving geometry at every physics step: with the arm's links
+    # in 16 renderers that cost ~1.5 s per simulated second (measured), more than drawing.
+    inspector = scene_graph.model_inspector()
+    source = plant.get_source_id()
+    for geometry_id in inspector.GetAllGeometryIds(Role.kPerception):
+        if not inspector.BelongsToSource(geometry_id, source):
+            continue
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(geometry_id))
+        if not plant.GetModelInstanceName(body.model_instance()).startswith("camera_walls_"):
+            scene_graph.RemoveRole(source, geometry_id, Role.kPerception)
+    return CameraWalls(windows, names, colon.centerline)
+
+
+@block(CameraConfig)
+def add_camera(builder, parts, config: CameraConfig):
+    """`capsule.camera` at the capsule's `camera` frame (its own renderers, light at the
+    lens) and `capsule.lumen`, the lumen ground truth; exports capsule.camera.<signal> and
+    capsule.lumen.<signal>. The station has added the camera's walls before (parts
+    .renderer_for), so the camera sees only the anchored wall: its depth image is drawn on
+    demand, and frames with latency in a render worker on another core."""
+    plant = parts.plant
+    camera_frame = plant.GetFrameByName("camera", parts.capsule_instance)
+    static = parts.renderer_for is not None
+    worker = (RenderWorker(parts.colon_params, config)
+              if static and config.latency > 0.0 and config.render_process else None)
+    camera = builder.AddNamedSystem("capsule.camera", capsule_camera_for_frame(
+        plant, camera_frame, config, parts.renderer_for, static_scene=static, worker=worker))
+    builder.Connect(parts.scene_graph.get_query_output_port(),
+                    camera.get_query_object_input_port())
+    for name in ("rgb_image", "depth_image", "frame_info", "frame_pose"):
+        parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
+    add_lumen_truth(builder, parts, camera)
+    return camera
+

@@ -44,6 +44,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
+from capsule_drake.scene import block
+
 STANDARD_GRAVITY = 9.80665  # m/s^2 (CGPM 1901), the "g" of datasheets
 DEG = math.pi / 180.0
 
@@ -364,6 +366,7 @@ class Imu(Diagram):
             builder.ExportOutput(noise.get_output_port_by_signal(name), name)
         builder.BuildInto(self)
         self._noise = noise
+        self.config = copy.deepcopy(config)
 
     def noise_system(self) -> ImuNoise:
         return self._noise
@@ -376,3 +379,12 @@ class Imu(Diagram):
         builder.Connect(plant.get_body_spatial_accelerations_output_port(),
                         self.GetInputPort("body_spatial_accelerations"))
 
+
+
+@block(ImuConfig)
+def add_imu(builder, parts, config: ImuConfig):
+    """`capsule.imu` on the capsule body, fed by the plant; exports capsule.imu.<signal>."""
+    imu = builder.AddNamedSystem("capsule.imu", Imu(parts.plant, parts.capsule_body, config))
+    imu.connect_to_plant(builder, parts.plant)
+    parts.export_outputs(imu, "capsule.imu")
+    return imu

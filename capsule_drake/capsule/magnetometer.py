@@ -25,6 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
+from capsule_drake.scene import block
 from capsule_drake.physics.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
 from capsule_drake.capsule.imu import ChannelNoise
 from capsule_drake.physics.magnet_force import FIELD_MODELS
@@ -176,6 +177,11 @@ class Magnetometer(LeafSystem):
     def config(self) -> MagnetometerConfig:
         return copy.deepcopy(self._config)
 
+    @property
+    def config(self) -> MagnetometerConfig:
+        """The magnetometer's settings (a copy)."""
+        return copy.deepcopy(self._config)
+
     def period(self) -> float:
         return self._period
 
@@ -226,3 +232,19 @@ class Magnetometer(LeafSystem):
         discrete_state.get_mutable_vector(self._measured).SetFromVector(measured)
         discrete_state.get_mutable_vector(self._true).SetFromVector(truth)
         discrete_state.get_mutable_vector(self._bias).SetFromVector(bias)
+
+
+@block(MagnetometerConfig)
+def add_magnetometer(builder, parts, config: MagnetometerConfig):
+    """`capsule.magnetometer`: the EPM's field at the sensor (the model of the magnet force
+    block, parts.field_model), with its noise sources; exports capsule.magnetometer.B_S and
+    B_S_true."""
+    magnetometer = builder.AddNamedSystem("capsule.magnetometer", Magnetometer(
+        parts.plant, parts.capsule_body, parts.magnets, config,
+        field_model=parts.field_model))
+    builder.Connect(parts.plant.get_body_poses_output_port(),
+                    magnetometer.get_body_poses_input_port())
+    add_random_sources(builder, magnetometer.get_noise_input_ports(), magnetometer.period())
+    parts.export(magnetometer.get_B_S_output_port(), "capsule.magnetometer.B_S")
+    parts.export(magnetometer.get_B_S_true_output_port(), "capsule.magnetometer.B_S_true")
+    return magnetometer

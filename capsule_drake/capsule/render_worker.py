@@ -11,7 +11,7 @@ and draws exactly the image the camera would draw itself. So a simulation's outp
 depend on whether, or how fast, the worker runs: whenever it is still starting, has failed,
 or was not given that frame, the camera draws the frame itself.
 
-The worker is a fresh interpreter (`python -m capsule_drake.capsule.render_worker`), so it
+The worker is a fresh interpreter (`python -m capsule_drake.capsule.render_process`), so it
 never re-runs the user's script. Protocol over its stdin and stdout, every message a 4-byte
 little-endian length and that many bytes: first the camera's settings (a pickle of the
 ColonParams and CameraConfig), then camera poses [R_WC row-major (9), p_WC (3)] as 12
@@ -38,11 +38,11 @@ log = logging.getLogger(__name__)
 
 # Longest wait for a frame already submitted (s): a worker this late is taken for dead.
 FRAME_TIMEOUT = 30.0
-_POSE_BYTES = 12 * 8
+POSE_BYTES = 12 * 8
 _F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)
 
 
-def _read_exactly(stream, n: int) -> bytes:
+def read_exactly(stream, n: int) -> bytes:
     data = bytearray()
     while len(data) < n:
         chunk = stream.read(n - len(data))
@@ -52,58 +52,16 @@ def _read_exactly(stream, n: int) -> bytes:
     return bytes(data)
 
 
-def _read_message(stream) -> bytes:
-    (n,) = struct.unpack("<I", _read_exactly(stream, 4))
-    return _read_exactly(stream, n)
+def read_message(stream) -> bytes:
+    (n,) = struct.unpack("<I", read_exactly(stream, 4))
+    return read_exactly(stream, n)
 
 
-def _write_message(stream, payload) -> None:
+def write_message(stream, payload) -> None:
     payload = memoryview(payload).cast("B")
     stream.write(struct.pack("<I", len(payload)))
     stream.write(payload)
     stream.flush()
-
-
-def serve(stdin, stdout) -> None:
-    """The worker's loop (module docstring), on binary streams."""
-    try:
-        colon_params, config = pickle.loads(_read_message(stdin))
-        from pydrake.math import RigidTransform, RotationMatrix
-        from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-        from pydrake.systems.framework import DiagramBuilder
-
-        from capsule_drake.scenario import Scenario
-        from capsule_drake.station import add_camera_walls, colon_for
-        from capsule_drake.capsule.camera import LensRenderer
-
-        scenario = Scenario(colon=colon_params)
-        builder = DiagramBuilder()
-        plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-        walls = add_camera_walls(plant, scene_graph, scenario, colon_for(scenario), config)
-        plant.Finalize()
-        diagram = builder.Build()
-        context = diagram.CreateDefaultContext()
-        query = scene_graph.get_query_output_port().Eval(
-            scene_graph.GetMyContextFromRoot(context))
-        world = query.inspector().world_frame_id()
-        renderer = LensRenderer(config)
-        image = np.empty((renderer.height, renderer.width, 4), dtype=np.uint8)
-        _write_message(stdout, b"ready")
-        while True:
-            message = _read_message(stdin)
-            if len(message) != _POSE_BYTES:
-                raise ValueError(f"a pose message of {len(message)} bytes, not {_POSE_BYTES}")
-            pose = np.frombuffer(message, dtype="<f8")
-            X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
-            renderer.render_rgba(query, world, X_WC, out=image, renderer=walls(pose[9:]))
-            _write_message(stdout, image)
-    except (EOFError, BrokenPipeError, KeyboardInterrupt):
-        pass
-    except Exception as e:  # reported to the camera, which then draws its own frames
-        try:
-            _write_message(stdout, f"{type(e).__name__}: {e}".encode()[:1000])
-        except OSError:
-            pass
 
 
 def _stop(process):
@@ -132,7 +90,7 @@ class RenderWorker:
         self._shape = (config.lens.height, config.lens.width, 4)
         self._size = int(np.prod(self._shape))
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "capsule_drake.capsule.render_worker"],
+            [sys.executable, "-m", "capsule_drake.capsule.render_process"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=stderr,
             # One rasteriser thread: the worker keeps to the core the simulation leaves.
             env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), LP_NUM_THREADS="1"))
@@ -146,7 +104,7 @@ class RenderWorker:
         self._pending: bytes | None = None  # the pose of the frame being drawn
         self._finalizer = weakref.finalize(self, _stop, self._process)
         try:
-            _write_message(self._process.stdin, pickle.dumps((colon_params, config)))
+            write_message(self._process.stdin, pickle.dumps((colon_params, config)))
         except OSError as e:
             self._fail(f"cannot start ({e})")
 
@@ -172,7 +130,7 @@ class RenderWorker:
             return False
         pose = np.ascontiguousarray(pose, dtype="<f8")
         try:
-            _write_message(self._process.stdin, pose)
+            write_message(self._process.stdin, pose)
         except (OSError, ValueError) as e:
             return self._fail(f"cannot send it a frame ({e})")
         self._pending = pose.tobytes()
@@ -202,7 +160,7 @@ class RenderWorker:
         if not select.select([stdout], [], [], timeout)[0]:
             return None
         try:
-            return _read_message(stdout)
+            return read_message(stdout)
         except (EOFError, OSError, ValueError, struct.error) as e:
             return e
 
@@ -241,6 +199,3 @@ class RenderWorker:
         self._finalizer()
         return False
 
-
-if __name__ == "__main__":
-    serve(sys.stdin.buffer, sys.stdout.buffer)

@@ -23,8 +23,15 @@ from pydrake.multibody.inverse_kinematics import (
 )
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from capsule_drake.epm.poses import (highest_skin_under, magnet_footprint_radius,
-                                    magnet_vertical_half_extent)
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import PdControllerGains
+from pydrake.systems.primitives import TrajectorySource
+
+from capsule_drake.epm.guard import EpmGuard
+from capsule_drake.epm.poses import pose_trajectory
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.schema import ScenarioError
 
 ARM_JOINTS = tuple(f"arm_joint_{i}" for i in range(1, 8))
 ARM_BASE = "arm_link_0"
@@ -33,9 +40,9 @@ SHOULDER_HEIGHT = 0.36
 
 
 @dataclasses.dataclass
-class ArmConfig:
-    """The arm that carries the EPM (models/epm_arm.sdf) and its controller.
-    YAML-loadable; all fields default."""
+class Arm:
+    """The EPM on the 7-DoF arm (models/epm_arm.sdf) beside the table, placed by its
+    controller (guard, differential IK) through the joints' PD servos. All fields default."""
 
     # Pose of the arm's base in the world (m, deg): beside the patient table (top at z = 0,
     # origin under the umbilicus, +y toward the head), facing the patient.
@@ -73,68 +80,33 @@ class ArmConfig:
     unreachable_tolerance: float = 0.002
 
 
-def check_arm_config(config: ArmConfig) -> None:
+def check_arm_config(config: Arm) -> None:
     """Raises ValueError naming the first impossible field."""
     if len(config.base_xyz) != 3:
-        raise ValueError("epm.arm.base_xyz must have 3 values")
+        raise ValueError("epm.mount.base_xyz must have 3 values")
     for name in ("joint_stiffness", "joint_damping"):
         values = getattr(config, name)
         if len(values) != 7 or min(values) < 0.0:
-            raise ValueError(f"epm.arm.{name} must be 7 values >= 0")
+            raise ValueError(f"epm.mount.{name} must be 7 values >= 0")
     if config.posture_deg and len(config.posture_deg) != 7:
-        raise ValueError("epm.arm.posture_deg must be empty or 7 values")
+        raise ValueError("epm.mount.posture_deg must be empty or 7 values")
     if not config.control_period > 0.0:
-        raise ValueError("epm.arm.control_period must be > 0")
+        raise ValueError("epm.mount.control_period must be > 0")
     if not 0.0 < config.velocity_scale <= 1.0:
-        raise ValueError("epm.arm.velocity_scale must be in (0, 1]")
+        raise ValueError("epm.mount.velocity_scale must be in (0, 1]")
     if not config.limit_margin_deg >= 0.0 or not config.centering_gain >= 0.0:
-        raise ValueError("epm.arm.limit_margin_deg and centering_gain must be >= 0")
+        raise ValueError("epm.mount.limit_margin_deg and centering_gain must be >= 0")
     if not config.approach_speed > 0.0 or not config.approach_time > 0.0:
-        raise ValueError("epm.arm.approach_speed and approach_time must be > 0")
+        raise ValueError("epm.mount.approach_speed and approach_time must be > 0")
     if not config.max_speed > 0.0 or not config.max_turn_rate > 0.0:
-        raise ValueError("epm.arm.max_speed and max_turn_rate must be > 0")
+        raise ValueError("epm.mount.max_speed and max_turn_rate must be > 0")
     if not config.reach > 0.0 or not config.unreachable_tolerance > 0.0:
-        raise ValueError("epm.arm.reach and unreachable_tolerance must be > 0")
+        raise ValueError("epm.mount.reach and unreachable_tolerance must be > 0")
 
 
-def arm_base_pose(config: ArmConfig) -> RigidTransform:
+def arm_base_pose(config: Arm) -> RigidTransform:
     return RigidTransform(RotationMatrix.MakeZRotation(np.radians(config.base_yaw_deg)),
                           np.asarray(config.base_xyz, dtype=float))
-
-
-class EpmGuard:
-    """Keeps an EPM command safe and within reach: the magnet's lowest point at least
-    `clearance` above the highest skin under it, its centre within `reach` of the shoulder.
-    `apply(p, m)` returns (p_safe, m_hat, raised (bool), pulled_in (bool))."""
-
-    def __init__(self, abdomen, geometry, clearance: float, shoulder_W: np.ndarray,
-                 reach: float):
-        self.abdomen = abdomen
-        self.geometry = geometry
-        self.clearance = clearance
-        self.shoulder_W = np.asarray(shoulder_W, dtype=float)
-        self.reach = reach
-        self._footprint = magnet_footprint_radius(geometry)
-
-    def lowest_centre_height(self, x: float, y: float, m_hat: np.ndarray) -> float:
-        skin = highest_skin_under(self.abdomen, x, y, self._footprint)
-        return skin + self.clearance + magnet_vertical_half_extent(m_hat, self.geometry)
-
-    def apply(self, p_WE, m_hat_W):
-        p = np.array(p_WE, dtype=float)
-        m = np.asarray(m_hat_W, dtype=float)
-        m = m / np.linalg.norm(m)
-        pulled_in = False
-        offset = p - self.shoulder_W
-        distance = np.linalg.norm(offset)
-        if distance > self.reach:
-            p = self.shoulder_W + offset * (self.reach / distance)
-            pulled_in = True
-        floor = self.lowest_centre_height(p[0], p[1], m)
-        raised = bool(p[2] < floor)
-        if raised:
-            p[2] = floor
-        return p, m, raised, pulled_in
 
 
 def rotate_axis_onto(R_WE: RotationMatrix, target_W: np.ndarray) -> RotationMatrix:
@@ -182,12 +154,12 @@ class EpmArmController(LeafSystem):
     Args:
         arm_plant: a MultibodyPlant holding only the arm (base welded at the station's
             pose) and its EPM, finalised: the controller's kinematic model.
-        config: ArmConfig.
+        config: Arm.
         guard: an EpmGuard.
         q0: initial joint command (7), e.g. `solve_posture`'s result.
     """
 
-    def __init__(self, arm_plant, config: ArmConfig, guard: EpmGuard, q0):
+    def __init__(self, arm_plant, config: Arm, guard: EpmGuard, q0):
         super().__init__()
         check_arm_config(config)
         self._plant = arm_plant
@@ -285,7 +257,7 @@ class EpmArmController(LeafSystem):
         return EventStatus.Succeeded()
 
 
-def ik_parameters(arm_plant, config: ArmConfig, dt: float, posture):
+def ik_parameters(arm_plant, config: Arm, dt: float, posture):
     """Drake's DifferentialInverseKinematicsParameters for the arm: joint limits (with the
     margin), scaled velocity limits, the posture's centering in the null space, and the
     roll about the magnet's axis (E's z) left free."""
@@ -327,46 +299,84 @@ def solve_posture(controller: EpmArmController, q_start, p_target, m_target,
     return best
 
 
-class MagnetPose(LeafSystem):
-    """[p_WM (3), m_hat_W (3)]: a magnet body's centre and moment direction, from the
-    plant's body poses (the moment along the body's `axis_B`)."""
-
-    def __init__(self, plant, body, axis_B=(0.0, 0.0, 1.0)):
-        super().__init__()
-        self._index = int(body.index())
-        self._axis_B = np.asarray(axis_B, dtype=float)
-        self._poses = self.DeclareAbstractInputPort(
-            "body_poses", AbstractValue.Make([RigidTransform()] * plant.num_bodies()))
-        self.DeclareVectorOutputPort("pose", 6, self._calc)
-
-    def _calc(self, context, output):
-        X_WB = self._poses.Eval(context)[self._index]
-        output.SetFromVector(np.concatenate([X_WB.translation(),
-                                             X_WB.rotation().matrix() @ self._axis_B]))
+# Where the arm's start-posture solve begins (rad): shoulder forward, elbow bent, flange down.
+ARM_START_GUESS = (0.0, 0.6, 0.0, -1.2, 0.0, 1.2, 0.0)
 
 
-class CommandMarker(LeafSystem):
-    """Shows an EPM pose command in Meshcat: a translucent copy of the magnet (moment along
-    its axis) at [p_WE, m_hat_W], published every `period` (and into a recording)."""
+class ArmMount:
+    """The arm in a station: the EPM command goes through the EpmArmController (guard,
+    differential IK) to the joints' PD servos."""
 
-    def __init__(self, meshcat, geometry, period: float, path: str = "/epm_command"):
-        super().__init__()
-        from pydrake.geometry import Cylinder, Rgba, Sphere
-        self._meshcat = meshcat
-        self._path = path
-        dims = geometry.dimensions
-        shape = (Sphere(0.5 * dims[0]) if geometry.shape == "sphere" else
-                 Cylinder(0.5 * dims[0], dims[1]) if geometry.shape == "cylinder" else
-                 Cylinder(0.5 * float(np.hypot(dims[0], dims[1])), dims[2]))
-        meshcat.SetObject(path, shape, Rgba(0.2, 0.6, 1.0, 0.3))
-        self._command = self.DeclareVectorInputPort("epm_command", 6)
-        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+    model_name = "epm_arm"
 
-    def _publish(self, context):
-        command = self._command.Eval(context)
-        if not np.all(np.isfinite(command)) or np.linalg.norm(command[3:]) < 1e-9:
-            return EventStatus.DidNothing()
-        R = RotationMatrix.MakeFromOneVector(command[3:], 2)
-        self._meshcat.SetTransform(self._path, RigidTransform(R, command[:3]),
-                                   context.get_time())
-        return EventStatus.Succeeded()
+    def __init__(self, config: Arm):
+        self.config = config
+
+    def add_models(self, plant, parser):
+        """Before Finalize: the arm welded at its base pose, its servo gains."""
+        self.instance, = parser.AddModels(url=model_url("epm_arm.sdf"))
+        plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(ARM_BASE, self.instance),
+                         arm_base_pose(self.config))
+        # A torque-controlled arm compensates its own weight; the magnet's pull it must bear.
+        plant.set_gravity_enabled(self.instance, False)
+        for name, p, d in zip(ARM_JOINTS, self.config.joint_stiffness,
+                              self.config.joint_damping):
+            plant.GetJointActuatorByName(name, self.instance).set_controller_gains(
+                PdControllerGains(p=p, d=d))
+        return self.instance
+
+    def controller_plant(self):
+        """The controller's own model: the arm alone, welded at the same pose."""
+        arm = MultibodyPlant(0.0)
+        instance, = configure_parser(Parser(arm)).AddModels(url=model_url("epm_arm.sdf"))
+        arm.WeldFrames(arm.world_frame(), arm.GetFrameByName(ARM_BASE, instance),
+                       arm_base_pose(self.config))
+        arm.Finalize()
+        return arm
+
+    def connect(self, builder, parts, trajectory):
+        """After Finalize: the controller and the arm's start posture (solved to reach the
+        first pose of `trajectory`, a stage trajectory); exports epm.state (arm [q, v]),
+        epm.desired_state and epm.status (see EpmArmController)."""
+        plant = parts.plant
+        poses = pose_trajectory(trajectory)
+        first = poses.value(poses.start_time()).ravel()
+        shoulder = arm_base_pose(self.config).multiply([0.0, 0.0, SHOULDER_HEIGHT])
+        epm = parts.epm
+        guard = EpmGuard(parts.colon.abdomen, epm.magnet, epm.clearance, shoulder,
+                         self.config.reach)
+        arm = self.controller_plant()
+        guess = (np.radians(self.config.posture_deg) if self.config.posture_deg
+                 else np.array(ARM_START_GUESS))
+        probe = EpmArmController(arm, self.config, guard, guess)
+        q0, position_error, axis_error = solve_posture(probe, guess, first[:3], first[3:])
+        if position_error > 1e-3 or axis_error > 1e-2:
+            raise ScenarioError(
+                f"scenario: epm.mount (the arm) cannot reach the EPM's first pose (misses by "
+                f"{position_error * 1000:.1f} mm, {np.degrees(axis_error):.1f} deg): move "
+                "epm.mount.base_xyz closer or give epm.mount.posture_deg")
+        posture = np.radians(self.config.posture_deg) if self.config.posture_deg else q0
+        self.controller = builder.AddNamedSystem("epm_arm_controller", EpmArmController(
+            arm, dataclasses.replace(self.config, posture_deg=list(np.degrees(posture))),
+            guard, q0))
+        for name, value in zip(ARM_JOINTS, q0):
+            plant.GetJointByName(name, self.instance).set_default_angle(value)
+        builder.Connect(plant.get_state_output_port(self.instance),
+                        self.controller.GetInputPort("arm_state"))
+        builder.Connect(self.controller.GetOutputPort("arm_desired_state"),
+                        plant.get_desired_state_input_port(self.instance))
+        parts.export(plant.get_state_output_port(self.instance), "epm.state")
+        parts.export(self.controller.GetOutputPort("arm_desired_state"), "epm.desired_state")
+        parts.export(self.controller.GetOutputPort("status"), "epm.status")
+
+    def follow(self, builder, parts, trajectory):
+        """The controller follows the poses of the stage trajectory (`epm_path`); exports
+        them as epm.command. Returns the path's system."""
+        path = builder.AddNamedSystem("epm_path", TrajectorySource(pose_trajectory(trajectory)))
+        builder.Connect(path.get_output_port(), self.controller.GetInputPort("epm_command"))
+        parts.export(path.get_output_port(), "epm.command")
+        return path
+
+    def command_input(self, builder, parts):
+        """The controller's pose command input [p_WE, m_hat_W]."""
+        return self.controller.GetInputPort("epm_command")

@@ -1,9 +1,41 @@
-"""PoseToStage: an EPM pose command [p_WE, m_hat_W] as the five-axis stage's desired state."""
+"""The EPM on the five-axis stage (models/epm_stage.sdf): x, y, z, yaw, pitch PD servos.
+
+A path driver sends the stage a joint trajectory straight to its servos; a pose-command
+driver goes through `PoseToStage`.
+"""
+
+import dataclasses
 
 import numpy as np
+from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.primitives import TrajectorySource
 
 from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.models import model_url
+
+STAGE_JOINTS = ("x", "y", "z", "yaw", "pitch")
+
+
+@dataclasses.dataclass
+class Gains:
+    """PD gains of a joint servo (implicit in Drake's SAP-family solvers)."""
+
+    # Proportional gain: N/m for translation, N m/rad for rotation.
+    p: float = 2.0e4
+    # Derivative gain: N s/m for translation, N m s/rad for rotation.
+    d: float = 7.0e2
+
+
+@dataclasses.dataclass
+class Stage:
+    """The EPM on a commanded five-axis stage: light and fast. Its weight is the stage's
+    business (a servo that holds the EPM wherever it is sent, as a stiff arm would)."""
+
+    # Servo gains of the x, y, z axes.
+    translation_gains: Gains = dataclasses.field(default_factory=Gains)
+    # Servo gains of the yaw and pitch axes.
+    rotation_gains: Gains = dataclasses.field(default_factory=lambda: Gains(p=400.0, d=4.0))
 
 
 class PoseToStage(LeafSystem):
@@ -37,3 +69,58 @@ class PoseToStage(LeafSystem):
             q[3] = x[3] + np.angle(np.exp(1j * (q[3] - x[3])))
             x[:5] = q
         discrete_state.set_value(self._state, x)
+
+
+class StageMount:
+    """The stage in a station: its model, its start, and how a driver commands it."""
+
+    model_name = "epm_stage"
+
+    def __init__(self, config: Stage):
+        self.config = config
+
+    def add_models(self, plant, parser):
+        """Before Finalize: the stage and its servo gains; returns its model instance."""
+        self.instance, = parser.AddModels(url=model_url("epm_stage.sdf"))
+        plant.set_gravity_enabled(self.instance, False)
+        for name in STAGE_JOINTS:
+            gains = (self.config.translation_gains if name in ("x", "y", "z")
+                     else self.config.rotation_gains)
+            plant.GetJointActuatorByName(name, self.instance).set_controller_gains(
+                PdControllerGains(p=gains.p, d=gains.d))
+        return self.instance
+
+    def connect(self, builder, parts, trajectory):
+        """After Finalize: start where `trajectory` (stage joints) begins; exports epm.state
+        (stage joints [x y z yaw pitch, rates])."""
+        plant = parts.plant
+        actuated = [plant.get_joint_actuator(i).joint().name()
+                    for i in plant.GetJointActuatorIndices(self.instance)]
+        assert tuple(actuated) == STAGE_JOINTS, actuated
+        self._q0 = trajectory.value(trajectory.start_time()).ravel()
+        for name, value in zip(STAGE_JOINTS, self._q0):
+            joint = plant.GetJointByName(name, self.instance)
+            if name in ("x", "y", "z"):
+                joint.set_default_translation(value)
+            else:
+                joint.set_default_angle(value)
+        parts.export(plant.get_state_output_port(self.instance), "epm.state")
+
+    def follow(self, builder, parts, trajectory):
+        """The stage's servos follow the joint trajectory (`epm_path`); exports
+        epm.desired_state. Returns the path's system."""
+        path = builder.AddNamedSystem(
+            "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
+        builder.Connect(path.get_output_port(),
+                        parts.plant.get_desired_state_input_port(self.instance))
+        parts.export(path.get_output_port(), "epm.desired_state")
+        return path
+
+    def command_input(self, builder, parts):
+        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
+        epm.desired_state."""
+        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(self._q0))
+        builder.Connect(stage.get_output_port(),
+                        parts.plant.get_desired_state_input_port(self.instance))
+        parts.export(stage.get_output_port(), "epm.desired_state")
+        return stage.GetInputPort("epm_command")

@@ -12,7 +12,8 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.guidance.terms import (CAPSULE_LENGTH, CAPSULE_RADIUS, TERMS, PseudoForceConfig,
+from capsule_drake.scene import block
+from capsule_drake.guidance.terms import (TERMS, PseudoForceConfig,
                                     check_pseudo_force_config, pseudo_force)
 
 
@@ -64,9 +65,8 @@ class PseudoForceField(LeafSystem):
     """
 
     def __init__(self, colon, config: PseudoForceConfig, X_BC: RigidTransform,
-                 capsule_radius: float = CAPSULE_RADIUS, capsule_length: float = CAPSULE_LENGTH):
+                 capsule_radius: float, capsule_length: float):
         LeafSystem.__init__(self)
-        check_pseudo_force_config(config)
         self._colon = colon
         self._config = copy.deepcopy(config)
         self._R_BC = X_BC.rotation().matrix()
@@ -131,3 +131,19 @@ class PseudoForceField(LeafSystem):
         discrete_state.get_mutable_vector(self._distance_state).SetAtIndex(
             0, result.wall_distance)
         discrete_state.get_mutable_vector(self._invalid_state).SetFromVector(counts)
+
+
+@block(PseudoForceConfig)
+def add_pseudo_force(builder, parts, config: PseudoForceConfig):
+    """`pseudo_force` from the capsule's state and, when there is one, the lumen tracker;
+    exports pseudo_force.<signal>."""
+    force = builder.AddNamedSystem("pseudo_force", PseudoForceField(
+        parts.colon, config, parts.capsule.X_BC, capsule_radius=parts.capsule.radius,
+        capsule_length=parts.capsule.length))
+    builder.Connect(parts.capsule_state, force.GetInputPort("capsule_state"))
+    if parts.has("capsule.lumen_tracker.lumen_ray"):
+        for name in ("lumen_ray", "lumen_visible", "lumen_confidence"):
+            builder.Connect(parts.output(f"capsule.lumen_tracker.{name}"),
+                            force.GetInputPort(name))
+    parts.export_outputs(force, "pseudo_force")
+    return force

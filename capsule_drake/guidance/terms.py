@@ -34,12 +34,6 @@ import math
 
 import numpy as np
 
-CAPSULE_RADIUS = 0.0058
-"""Radius [m] of the capsule's collision shape (models/capsule.sdf)."""
-
-CAPSULE_LENGTH = 0.0199
-"""Length [m] of the cylinder of the capsule's collision shape, along body z (capsule.sdf)."""
-
 WALL_SAMPLES = 5
 """Points on the capsule's axis segment at which the wall distance is evaluated."""
 
@@ -182,7 +176,7 @@ def lumen_attraction(ray_C, visible: bool, confidence: float, k_lateral: float,
     return scale * np.array([k_lateral * r[0], k_lateral * r[1], k_forward * max(r[2], 0.0)])
 
 
-def capsule_axis_points(R_WB, p_WB, length: float = CAPSULE_LENGTH,
+def capsule_axis_points(R_WB, p_WB, length: float,
                         samples: int = WALL_SAMPLES) -> np.ndarray:
     """(samples, 3) world points evenly spaced on the capsule's axis segment, body z from
     -length/2 to +length/2."""
@@ -222,8 +216,8 @@ class WallClearance:
     point_W: np.ndarray
 
 
-def wall_clearance(colon, R_WB, p_WB, w_WB, v_WB, radius: float = CAPSULE_RADIUS,
-                   length: float = CAPSULE_LENGTH,
+def wall_clearance(colon, R_WB, p_WB, w_WB, v_WB, radius: float,
+                   length: float,
                    samples: int = WALL_SAMPLES) -> WallClearance:
     """Distance from the capsule (a capsule shape along body z) to the colon wall.
 
@@ -297,8 +291,8 @@ class PseudoForce:
 
 
 def pseudo_force(colon, config: PseudoForceConfig, R_BC, ray_C, lumen_visible: float,
-                 lumen_confidence: float, capsule_state, radius: float = CAPSULE_RADIUS,
-                 length: float = CAPSULE_LENGTH) -> PseudoForce:
+                 lumen_confidence: float, capsule_state, radius: float,
+                 length: float) -> PseudoForce:
     """The pseudo-force of all three terms, from the inputs of `PseudoForceField`.
 
     Args:

@@ -9,16 +9,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydrake.geometry import Capsule
 from pydrake.common import RandomGenerator
-from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
+from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.io.metrics import run_metrics
-from capsule_drake.scenario import Scenario, dump_scenario
-from capsule_drake.station import CAPSULE_BODY, colon_for, make_station
 from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.scenario import Scenario, dump_scenario
+from capsule_drake.station import make_station
 
 
 @dataclass
@@ -31,6 +32,9 @@ class RunResult:
     contact_load: np.ndarray   # (K,) N
     epm_pose: np.ndarray       # (6, K) EPM centre and moment direction
     out_dir: Path | None
+    diagram: object = None     # the simulated diagram ("station" inside), its final
+    context: object = None     # context (for the loggers an `extend` added), and the
+    station: object = None     # station
 
 
 class Progress:
@@ -89,44 +93,63 @@ class StepBar:
 
 
 def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
-             realtime_rate: float = 0.0, progress: bool = True,
-             live_meshcat: bool = False, extend=None) -> RunResult:
-    """Builds the station for `scenario`, runs it for `scenario.duration` and scores it.
+             progress: bool = True, live_meshcat: bool = False, extend=None,
+             stop_when=None) -> RunResult:
+    """Builds the station for `scenario`, runs it for `scenario.duration` and scores it:
+    the one run loop of `run`, `record`, `teleop` and `benchmark`.
+
+    It applies `scenario.simulator` (Drake's SimulatorConfig: target_realtime_rate 1 paces
+    the run to the wall clock), seeds the diagram's random context with
+    `scenario.random_seed`, logs the capsule's state, the contact load and the EPM's pose
+    every `scenario.outputs.log_period`, and shows progress.
 
     Args:
         meshcat: a pydrake Meshcat to draw into and record, or None.
         out_dir: if given, writes metrics.json, scenario.yaml, logs.npz and (with meshcat)
             recording.html there. A simulation error or Ctrl-C still writes what was logged.
-        realtime_rate: 0 runs as fast as possible; 1 paces to wall-clock time.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
-            writer, a controller) around the station before the diagram is built; the
-            returned callable, if any, runs after the simulation, however it ended.
+            writer, loggers, a controller) around the station before the diagram is built;
+            the returned callable, if any, runs after the simulation, however it ended.
+        stop_when: optional `stop_when(station, station_context) -> str | None`, asked
+            every simulated half second: a text ends the run there (a goal reached), and
+            becomes the metrics' "stopped_at".
     """
-    colon = colon_for(scenario)
+    colon, _ = load_colon(scenario.colon)
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
-    capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder,
-                                  scenario.log_period)
-    contact_log = LogVectorOutput(monitor.GetOutputPort("contact_load"), builder,
-                                  scenario.log_period)
-    epm_log = LogVectorOutput(station.GetOutputPort("epm.pose"), builder, scenario.log_period)
+    period = scenario.outputs.log_period
+    capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period)
+    contact_log = LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period)
+    epm_log = LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
     finish = extend(builder, station) if extend is not None else None
     diagram = builder.Build()
-
-    plant = station.GetSubsystemByName("plant")
-    scene_graph = station.GetSubsystemByName("scene_graph")
-    capsule_radius, capsule_length = _capsule_dimensions(plant, scene_graph)
+    model = capsule_model()
 
     simulator = Simulator(diagram)
+    ApplySimulatorConfig(scenario.simulator, simulator)
     diagram.SetRandomContext(simulator.get_mutable_context(),
                              RandomGenerator(scenario.random_seed))
-    simulator.set_target_realtime_rate(realtime_rate)
+    stopped_at = None
+    if stop_when is not None:
+        last_check = [-np.inf]
+
+        def monitor_run(root_context):
+            t = root_context.get_time()
+            if t - last_check[0] < 0.5:
+                return EventStatus.DidNothing()
+            last_check[0] = t
+            reason = stop_when(station, station.GetMyContextFromRoot(root_context))
+            if reason:
+                return EventStatus.ReachedTermination(diagram, reason)
+            return EventStatus.DidNothing()
+
+        simulator.set_monitor(monitor_run)
     if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.visual_period,
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
                                set_visualizations_while_recording=live_meshcat)
     bar = Progress(scenario.duration, enabled=progress)
     stopped_early = None
@@ -137,8 +160,11 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         t = 0.0
         while t < scenario.duration - 1e-12:
             t = min(scenario.duration, t + chunk)
-            simulator.AdvanceTo(t)
-            bar.update(t)
+            status = simulator.AdvanceTo(t)
+            bar.update(simulator.get_context().get_time())
+            if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                stopped_at = status.message()
+                break
     except KeyboardInterrupt:
         stopped_early = f"interrupted at t = {simulator.get_context().get_time():.3f} s"
     except (RuntimeError, ValueError) as e:
@@ -148,6 +174,12 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         bar.close()
         if finish is not None:
             finish()
+        if station.HasSubsystemNamed("capsule.camera"):
+            # The render worker is a process: end it with the run, not when a pool process
+            # that runs the next run gets round to collecting this diagram.
+            worker = station.GetSubsystemByName("capsule.camera").worker
+            if worker is not None:
+                worker.close()
     wall_time = time.perf_counter() - wall_start
 
     context = simulator.get_context()
@@ -157,15 +189,18 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     times = logs[0].sample_times()[:k]
     result = RunResult(metrics={}, times=times, capsule_state=logs[0].data()[:, :k],
                        contact_load=logs[1].data()[0, :k], epm_pose=logs[2].data()[:, :k],
-                       out_dir=Path(out_dir) if out_dir is not None else None)
+                       out_dir=Path(out_dir) if out_dir is not None else None,
+                       diagram=diagram, context=context, station=station)
     if k > 0:
         result.metrics = run_metrics(
             colon, times, result.capsule_state, result.contact_load, result.epm_pose,
-            capsule_radius=capsule_radius, capsule_length=capsule_length,
+            capsule_radius=model.radius, capsule_length=model.length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
             sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early)
     else:
         result.metrics = {"stopped_early": stopped_early, "wall_time_s": wall_time}
+    if stopped_at:
+        result.metrics["stopped_at"] = stopped_at
 
     if meshcat is not None:
         meshcat.StopRecording()
@@ -173,16 +208,6 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     if result.out_dir is not None:
         _write_outputs(result, scenario, meshcat)
     return result
-
-
-def _capsule_dimensions(plant, scene_graph):
-    """Radius and cylinder length of the capsule's collision shape."""
-    inspector = scene_graph.model_inspector()
-    for geometry_id in plant.GetCollisionGeometriesForBody(plant.GetBodyByName(CAPSULE_BODY)):
-        shape = inspector.GetShape(geometry_id)
-        if isinstance(shape, Capsule):
-            return shape.radius(), shape.length()
-    raise RuntimeError("the capsule model has no Capsule collision shape")
 
 
 def _write_outputs(result: RunResult, scenario: Scenario, meshcat):

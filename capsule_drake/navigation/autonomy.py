@@ -57,12 +57,13 @@ from pydrake.systems.primitives import Demultiplexer
 
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
+from capsule_drake.navigation.localization import MagneticLocalizer
+from capsule_drake.scene import block
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
+from capsule_drake.teleop.operator import LumenRayFromTruth
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
 POSE_SOURCES = ("truth", "sensors")
-
-GRAVITY = 9.81  # m/s^2
 
 # Modes of the controller (the `status` output's first element).
 CRUISE, PUSH, BACKOFF, SEARCH, COAST = 0.0, 1.0, 2.0, 3.0, 4.0
@@ -188,12 +189,12 @@ _WAY = slice(32, 35)    # the way forward (world, unit)
 _CRUMBS = 35            # breadcrumbs (max_crumbs x 3) from here on
 
 
-class LumenFollower(LeafSystem):
+class LumenFollowerController(LeafSystem):
     """Lumen ray + capsule pose -> EPM command [p_WE, m_hat_W] (module docstring).
 
     .. pydrake_system::
 
-        name: LumenFollower
+        name: LumenFollowerController
         input_ports:
         - capsule_pose
         - lumen_ray
@@ -515,89 +516,82 @@ class LumenRayFromPoint(LeafSystem):
         return r, bool(r[2] >= self._cos)
 
 
-def add_lumen_follower(builder, station, scenario, config: LumenFollowerConfig,
-                       lumen: str = "truth", name: str = "lumen_follower",
-                       pose: str = "truth") -> LumenFollower:
-    """Adds a LumenFollower to `builder` (which holds `station`) and wires it: the capsule's
-    pose from `capsule.state`, the lumen from the station, its command to `epm.command`.
+@dataclasses.dataclass
+class LumenFollower:
+    """The autonomous lumen follower drives the EPM (module docstring): it sees the lumen in
+    the capsule's camera and knows the capsule's pose, the magnets' moments, the capsule's
+    weight and the patient's skin."""
 
-    The station must be built with `external_epm_command=True` and a capsule camera.
-    lumen: "truth" (the lumen truth's pixel through the lens, with its visibility, which
-    accounts for tissue hiding the lumen), "truth_point" (the lumen truth's world point as a
-    ray, seen whenever it is in front of the lens, even behind a fold) or "detected" (the
-    lumen tracker's ray and visibility; needs `capsule.lumen_tracker`).
-    pose: "truth" (the capsule's simulated pose) or "sensors" (the orientation from the
-    AHRS, the position from the magnetometer and the EPM's pose by `MagneticLocalizer`,
-    starting from the capsule's known start pose; needs `capsule.imu`, `capsule.ahrs` and
-    `capsule.magnetometer`).
-    """
-    # Imported here: station imports much of the package.
-    from capsule_drake.station import CAPSULE_BODY, colon_for
-    from capsule_drake.epm.arm import EpmGuard
-    from capsule_drake.teleop.operator import LumenRayFromTruth
+    # Where it sees the lumen: "truth" (the lumen truth's pixel through the lens, with its
+    # visibility, which accounts for tissue hiding the lumen), "truth_point" (the lumen
+    # truth's world point as a ray, seen whenever it is in front of the lens, even behind a
+    # fold) or "detected" (the lumen tracker's; needs capsule.lumen_tracker).
+    lumen: str = "truth"
+    # Where it knows the capsule's pose from: "truth" (the simulation) or "sensors" (the
+    # AHRS's orientation and the MagneticLocalizer's position from the magnetometer and the
+    # EPM's pose, from the capsule's known start; needs capsule.imu, capsule.ahrs and
+    # capsule.magnetometer).
+    pose: str = "truth"
+    # The control law's gains, limits and timings.
+    control: LumenFollowerConfig = dataclasses.field(default_factory=LumenFollowerConfig)
 
-    if lumen not in LUMEN_SOURCES:
-        raise ValueError(f"lumen source {lumen!r} is not one of {LUMEN_SOURCES}")
-    if pose not in POSE_SOURCES:
-        raise ValueError(f"pose source {pose!r} is not one of {POSE_SOURCES}")
-    if pose == "sensors" and None in (scenario.capsule.imu, scenario.capsule.ahrs,
-                                      scenario.capsule.magnetometer):
-        raise ValueError("pose 'sensors' needs capsule.imu, capsule.ahrs and "
-                         "capsule.magnetometer")
-    if scenario.capsule.camera is None:
-        raise ValueError("the lumen follower needs capsule.camera (it follows the lumen seen)")
-    if lumen == "detected" and scenario.capsule.lumen_tracker is None:
-        raise ValueError("lumen 'detected' needs capsule.lumen_tracker")
-    plant = station.GetSubsystemByName("plant")
-    capsule = plant.GetModelInstanceByName("capsule")
-    X_BC = plant.GetFrameByName("camera", capsule).GetFixedPoseInBodyFrame()
-    p_BM = plant.GetFrameByName("ipm", capsule).GetFixedPoseInBodyFrame().translation()
-    colon = colon_for(scenario)
-    guard = EpmGuard(colon.abdomen, scenario.epm.magnet, scenario.epm.clearance,
-                     np.zeros(3), np.inf)
-    mass = plant.GetBodyByName(CAPSULE_BODY, capsule).default_mass()
-    follower = builder.AddNamedSystem(name, LumenFollower(
-        config, X_BC, p_BM, guard.lowest_centre_height, scenario.epm.magnet.moment(),
-        scenario.capsule.ipm.moment(), mass * GRAVITY))
+
+def check_lumen_follower(config: LumenFollower) -> None:
+    """Raises ValueError naming the first impossible field (on its own; what it needs of
+    the rest of the scenario is checked with the scenario)."""
+    if config.lumen not in LUMEN_SOURCES:
+        raise ValueError(f"lumen must be one of {', '.join(LUMEN_SOURCES)}, got {config.lumen!r}")
+    if config.pose not in POSE_SOURCES:
+        raise ValueError(f"pose must be one of {', '.join(POSE_SOURCES)}, got {config.pose!r}")
+    check_lumen_follower_config(config.control)
+
+
+@block(LumenFollower)
+def add_lumen_follower(builder, parts, config: LumenFollower,
+                       name: str = "lumen_follower") -> LumenFollowerController:
+    """`lumen_follower` and what it reads: the capsule's pose (the truth, or `<name>
+    .localizer` on the sensors), the lumen (`<name>.lumen_seen` from the truth, or the
+    tracker's); its command goes to the EPM's carrier and is exported as epm.command."""
+    magnet = parts.epm.magnet
+    follower = builder.AddNamedSystem(name, LumenFollowerController(
+        config.control, parts.capsule.X_BC, parts.capsule.X_BM.translation(),
+        parts.epm.guard.lowest_centre_height, magnet.moment(), parts.ipm.moment(),
+        parts.capsule.mass * parts.gravity))
     demux = builder.AddNamedSystem(f"{name}.pose", Demultiplexer([7, 6]))
-    builder.Connect(station.GetOutputPort("capsule.state"), demux.get_input_port())
+    builder.Connect(parts.capsule_state, demux.get_input_port())
     pose_port = demux.get_output_port(0)
-    if pose == "sensors":
-        from capsule_drake.navigation.localization import MagneticLocalizer
-        from capsule_drake.station import capsule_start_pose
-        X_WB0 = capsule_start_pose(colon, scenario.capsule.start_s)
-        q = X_WB0.rotation().ToQuaternion()
+    if config.pose == "sensors":
+        q = parts.X_WB0.rotation().ToQuaternion()
+        magnetometer = builder.GetSubsystemByName("capsule.magnetometer")
         localizer = builder.AddNamedSystem(f"{name}.localizer", MagneticLocalizer(
-            scenario.capsule.magnetometer.X_BS(), scenario.epm.magnet.moment(),
-            X_WB0.translation(), q_WB0=[q.w(), q.x(), q.y(), q.z()]))
-        builder.Connect(station.GetOutputPort("capsule.magnetometer.B_S"),
-                        localizer.GetInputPort("B_S"))
-        builder.Connect(station.GetOutputPort("capsule.ahrs.q_WB"),
-                        localizer.GetInputPort("q_WB"))
-        builder.Connect(station.GetOutputPort("epm.pose"), localizer.GetInputPort("epm_pose"))
+            magnetometer.config.X_BS(), magnet.moment(), parts.X_WB0.translation(),
+            q_WB0=[q.w(), q.x(), q.y(), q.z()]))
+        builder.Connect(parts.output("capsule.magnetometer.B_S"), localizer.GetInputPort("B_S"))
+        builder.Connect(parts.output("capsule.ahrs.q_WB"), localizer.GetInputPort("q_WB"))
+        builder.Connect(parts.output("epm.pose"), localizer.GetInputPort("epm_pose"))
         pose_port = localizer.GetOutputPort("capsule_pose")
     builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
-    if lumen == "truth":
-        camera = station.GetSubsystemByName("capsule.camera")
+    camera = builder.GetSubsystemByName("capsule.camera")
+    if config.lumen == "truth":
         seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromTruth(camera.lens))
-        builder.Connect(station.GetOutputPort("capsule.lumen.lumen_pixel"),
-                        seen.GetInputPort("pixel"))
-        builder.Connect(station.GetOutputPort("capsule.lumen.lumen_visible"),
+        builder.Connect(parts.output("capsule.lumen.lumen_pixel"), seen.GetInputPort("pixel"))
+        builder.Connect(parts.output("capsule.lumen.lumen_visible"),
                         seen.GetInputPort("visible"))
         ray, visible = seen.GetOutputPort("ray"), seen.GetOutputPort("visible")
-    elif lumen == "truth_point":
-        camera = station.GetSubsystemByName("capsule.camera")
-        seen = builder.AddNamedSystem(f"{name}.lumen_seen",
-                                      LumenRayFromPoint(X_BC, camera.lens.max_theta))
+    elif config.lumen == "truth_point":
+        seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromPoint(
+            parts.capsule.X_BC, camera.lens.max_theta))
         # The ray as the camera sees it: from the capsule's true pose.
         builder.Connect(demux.get_output_port(0), seen.GetInputPort("capsule_pose"))
-        builder.Connect(station.GetOutputPort("capsule.lumen.lumen_point_W"),
+        builder.Connect(parts.output("capsule.lumen.lumen_point_W"),
                         seen.GetInputPort("point_W"))
         ray, visible = seen.GetOutputPort("ray"), seen.GetOutputPort("visible")
     else:
-        ray = station.GetOutputPort("capsule.lumen_tracker.lumen_ray")
-        visible = station.GetOutputPort("capsule.lumen_tracker.lumen_visible")
+        ray = parts.output("capsule.lumen_tracker.lumen_ray")
+        visible = parts.output("capsule.lumen_tracker.lumen_visible")
     builder.Connect(ray, follower.GetInputPort("lumen_ray"))
     builder.Connect(visible, follower.GetInputPort("lumen_visible"))
-    builder.Connect(follower.GetOutputPort("epm_command"), station.GetInputPort("epm.command"))
+    command = follower.GetOutputPort("epm_command")
+    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    parts.export(command, "epm.command")
     return follower

@@ -8,6 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageGrey8U, ImageRgba8U
 
+from capsule_drake.scene import block
 from capsule_drake.perception.lumen import LumenParams, check_lumen_params, load_detector
 
 log = logging.getLogger(__name__)
@@ -128,3 +129,17 @@ class LumenTracker(LeafSystem):
         else:
             grey[...] = 0
         return EventStatus.Succeeded()
+
+
+@block(LumenTrackerConfig)
+def add_lumen_tracker(builder, parts, config: LumenTrackerConfig):
+    """`capsule.lumen_tracker` on every new frame of capsule.camera (the scenario's checks
+    make sure there is one), as it is delivered; exports capsule.lumen_tracker.<signal>."""
+    camera = builder.GetSubsystemByName("capsule.camera")
+    tracker = builder.AddNamedSystem("capsule.lumen_tracker", LumenTracker(
+        camera.lens, config, period=camera.tick(), delay=camera.latency() + 1e-6))
+    builder.Connect(parts.output("capsule.camera.rgb_image"), tracker.GetInputPort("rgb_image"))
+    builder.Connect(parts.output("capsule.camera.frame_info"),
+                    tracker.GetInputPort("frame_info"))
+    parts.export_outputs(tracker, "capsule.lumen_tracker")
+    return tracker

@@ -129,3 +129,16 @@ class LumenTruth(LeafSystem):
 
     def _calc_point(self, context, output: BasicVector):
         output.SetFromVector(self._cache.Eval(context)[2])
+
+
+def add_lumen_truth(builder, parts, camera):
+    """`capsule.lumen` on a capsule camera (with its depth, for what tissue hides) and the
+    capsule's state; exports capsule.lumen.{lumen_pixel, lumen_visible, lumen_point_W}."""
+    lumen = builder.AddNamedSystem("capsule.lumen", LumenTruth(
+        parts.colon, camera.lens, parts.capsule.X_BC, lookahead=parts.lumen_lookahead,
+        depth_is_range=True))
+    builder.Connect(parts.capsule_state, lumen.GetInputPort("capsule_state"))
+    builder.Connect(camera.get_depth_image_output_port(), lumen.GetInputPort("depth"))
+    parts.export_outputs(lumen, "capsule.lumen",
+                         ("lumen_pixel", "lumen_visible", "lumen_point_W"))
+    return lumen

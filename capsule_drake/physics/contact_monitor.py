@@ -41,24 +41,8 @@ class ContactMonitor(LeafSystem):
         self.DeclareVectorOutputPort("capsule_force_W", 3, self._calc_capsule_force)
 
     def _calc_capsule_force(self, context, output):
-        results = self._contact_results_port.Eval(context)
-        total = np.zeros(3)
-        for i in range(results.num_hydroelastic_contacts()):
-            info = results.hydroelastic_contact_info(i)
-            surface = info.contact_surface()
-            force = info.F_Ac_W().translational()  # on the body of geometry M
-            if surface.id_M() in self._capsule:
-                total += force
-            elif surface.id_N() in self._capsule:
-                total -= force
-        for i in range(results.num_point_pair_contacts()):
-            info = results.point_pair_contact_info(i)
-            pair = info.point_pair()
-            if pair.id_B in self._capsule:  # contact_force() acts on body B
-                total += info.contact_force()
-            elif pair.id_A in self._capsule:
-                total -= info.contact_force()
-        output.SetFromVector(total)
+        output.SetFromVector(capsule_contact_force_W(self._contact_results_port.Eval(context),
+                                                     self._capsule))
 
     def _calc_contact_load(self, context, output):
         results = self._contact_results_port.Eval(context)
@@ -69,3 +53,25 @@ class ContactMonitor(LeafSystem):
         for i in range(results.num_point_pair_contacts()):
             total += np.linalg.norm(results.point_pair_contact_info(i).contact_force())
         output.SetAtIndex(0, total)
+
+
+def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
+    """The net contact force (N, world frame) on the body of `capsule_geometries` (a set of
+    GeometryIds) in a plant's ContactResults: hydroelastic and point contacts alike."""
+    total = np.zeros(3)
+    for i in range(results.num_hydroelastic_contacts()):
+        info = results.hydroelastic_contact_info(i)
+        surface = info.contact_surface()
+        force = info.F_Ac_W().translational()  # on the body of geometry M
+        if surface.id_M() in capsule_geometries:
+            total += force
+        elif surface.id_N() in capsule_geometries:
+            total -= force
+    for i in range(results.num_point_pair_contacts()):
+        info = results.point_pair_contact_info(i)
+        pair = info.point_pair()
+        if pair.id_B in capsule_geometries:  # contact_force() acts on body B
+            total += info.contact_force()
+        elif pair.id_A in capsule_geometries:
+            total -= info.contact_force()
+    return total

@@ -1,0 +1,62 @@
+"""One place that loads a scenario's colon, whatever its source, behind one cache.
+
+`load_colon(params)` returns (colon, assets) for `params.source`: "procedural" (generated
+from the seed, anatomy/colon.py), "ex_vivo" (the shipped porcine segment, generated and
+imported) or a user's mesh or import folder (anatomy/imported.py). The colon answers the
+same queries in every case (`TubeColon`); its files (meshes, texture, centreline) are cached
+on disk (anatomy/cache.py) and the loaded colon in memory, once per process for equal
+parameters. `colon_wall_pieces` gives the convex wall pieces of the fast contact model.
+"""
+
+from __future__ import annotations
+
+from pydrake.common.yaml import yaml_dump_typed
+
+from .cache import ColonAssets
+from .colon import build_colon, procedural_colon_assets
+from .imported import imported_colon_assets
+from .params import ColonParams
+from .pieces import wall_pieces
+
+_LOADED: dict[str, tuple] = {}
+_PIECES: dict[tuple, list] = {}
+_KEEP = 4  # colons kept in memory (a benchmark process runs one colon after another)
+
+
+class ColonSourceError(ValueError):
+    """The colon's source cannot be loaded; the message is one line."""
+
+
+def load_colon(params: ColonParams, cache_dir=None) -> tuple:
+    """(colon, ColonAssets) of `params`, built or imported once and cached. Raises
+    ColonSourceError (one line) when an imported source cannot be read."""
+    key = yaml_dump_typed(params) + f"\n{cache_dir}"
+    if key not in _LOADED:
+        if len(_LOADED) >= _KEEP:
+            _LOADED.pop(next(iter(_LOADED)))
+        if params.source == "procedural":
+            _LOADED[key] = (build_colon(params), procedural_colon_assets(params, cache_dir))
+        else:
+            try:
+                _LOADED[key] = imported_colon_assets(params, cache_dir)
+            except (ValueError, FileNotFoundError) as e:  # MeshImportError is a ValueError
+                text = str(e).strip()
+                first = text.splitlines()[0] if text else type(e).__name__
+                raise ColonSourceError(f"colon.source: {first}") from None
+    return _LOADED[key]
+
+
+def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
+    """The files of the colon of `params` (see `load_colon`)."""
+    return load_colon(params, cache_dir)[1]
+
+
+def colon_wall_pieces(params: ColonParams, axial_length: float, max_chord_depth: float):
+    """The convex pieces of the procedural colon's wall (anatomy/pieces.py), built once per
+    process for equal parameters."""
+    key = (yaml_dump_typed(params), axial_length, max_chord_depth)
+    if key not in _PIECES:
+        _PIECES.clear()
+        _PIECES[key] = wall_pieces(load_colon(params)[0], axial_length=axial_length,
+                                   max_chord_depth=max_chord_depth)
+    return _PIECES[key]

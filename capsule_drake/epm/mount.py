@@ -1,0 +1,82 @@
+"""The EPM in a station: its carrier (stage or arm), where it starts, and its pose.
+
+`add_epm_models` (before the plant is finalised) adds the carrier's model; `add_epm_mount`
+(after) starts it where its driver begins and adds `epm_pose` ([p_WE, m_hat_W] from the
+plant). The driver (epm.driver in the scenario) is a block of its own that commands it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+from capsule_drake.epm.arm import Arm, ArmMount
+from capsule_drake.epm.guard import EpmGuard, floor_guard
+from capsule_drake.epm.paths import stage_trajectory
+from capsule_drake.epm.poses import pose_trajectory
+from capsule_drake.epm.stage import StageMount
+
+EPM_BODY = "epm"
+
+
+@dataclasses.dataclass
+class EpmParts:
+    """The EPM as the blocks after its mount see it."""
+
+    magnet: object           # MagnetGeometry
+    clearance: float         # smallest gap between the magnet and the skin (m)
+    mount: object            # StageMount or ArmMount
+    instance: object         # the carrier's model instance
+    guard: EpmGuard          # the clearance floor (lowest_centre_height(x, y, m_hat))
+    trajectory: object = None      # stage joint trajectory the EPM starts on
+    start_command: np.ndarray = None   # [p_WE, m_hat_W] at the start
+
+
+def add_epm_models(parts, config):
+    """Before Finalize: the carrier of `config.mount` (!Stage or !Arm); sets parts.epm."""
+    mount = ArmMount(config.mount) if isinstance(config.mount, Arm) else StageMount(config.mount)
+    instance = mount.add_models(parts.plant, parts.parser)
+    parts.epm = EpmParts(config.magnet, config.clearance, mount, instance,
+                         floor_guard(parts.colon.abdomen, config.magnet, config.clearance))
+
+
+def add_epm_mount(builder, parts, config):
+    """After Finalize: the carrier starts where the driver's path begins (or over the
+    capsule's start), and `epm_pose` reports the magnet's pose as epm.pose."""
+    epm = parts.epm
+    epm.trajectory = stage_trajectory(config.driver, parts.colon, parts.start_s,
+                                      config.magnet, config.clearance)
+    poses = pose_trajectory(epm.trajectory)
+    epm.start_command = poses.value(epm.trajectory.start_time()).ravel()
+    epm.mount.connect(builder, parts, epm.trajectory)
+
+
+def add_epm_pose(builder, parts):
+    """`epm_pose`: the EPM's centre and moment direction, exported as epm.pose."""
+    plant = parts.plant
+    pose = builder.AddNamedSystem("epm_pose", MagnetPose(
+        plant, plant.GetBodyByName(EPM_BODY, parts.epm.instance)))
+    builder.Connect(plant.get_body_poses_output_port(), pose.GetInputPort("body_poses"))
+    parts.export(pose.GetOutputPort("pose"), "epm.pose")
+
+
+class MagnetPose(LeafSystem):
+    """[p_WM (3), m_hat_W (3)]: a magnet body's centre and moment direction, from the
+    plant's body poses (the moment along the body's `axis_B`)."""
+
+    def __init__(self, plant, body, axis_B=(0.0, 0.0, 1.0)):
+        super().__init__()
+        self._index = int(body.index())
+        self._axis_B = np.asarray(axis_B, dtype=float)
+        self._poses = self.DeclareAbstractInputPort(
+            "body_poses", AbstractValue.Make([RigidTransform()] * plant.num_bodies()))
+        self.DeclareVectorOutputPort("pose", 6, self._calc)
+
+    def _calc(self, context, output):
+        X_WB = self._poses.Eval(context)[self._index]
+        output.SetFromVector(np.concatenate([X_WB.translation(),
+                                             X_WB.rotation().matrix() @ self._axis_B]))

@@ -1,0 +1,116 @@
+"""A user's navigator as the EPM's driver (`epm.driver: !Plugin {factory: ...}`).
+
+Interface. `factory(context: NavigatorContext) -> LeafSystem`. The system needs an output
+port `epm_command` ([p_WE (3), m_hat_W (3)]: the EPM's centre and unit moment direction,
+world frame), and may have any of these input ports, connected by name:
+`capsule_state` (13: quaternion wxyz, position, angular and linear velocity; ground truth),
+`epm_pose` (6), `rgb_image` and `frame_info` (the camera's), `lumen_ray`, `lumen_visible`,
+`lumen_confidence` (the lumen tracker's: switch it on with `capsule: {lumen_tracker: {}}`),
+and `lumen_truth_ray`, `lumen_truth_visible` (the lumen truth, as a ray in the camera
+frame; needs the camera). A user's lumen detector plugs into the tracker instead:
+`capsule: {lumen_tracker: {detector: "package.module:function"}}`.
+"""
+
+
+import dataclasses
+
+import numpy as np
+
+from capsule_drake.plugins import load_function
+from capsule_drake.scene import block
+from capsule_drake.schema import ScenarioError
+from capsule_drake.teleop.operator import LumenRayFromTruth
+
+PLUGIN_INPUTS = {
+    "capsule_state": None, "epm_pose": "epm.pose",
+    "rgb_image": "capsule.camera.rgb_image", "frame_info": "capsule.camera.frame_info",
+    "lumen_ray": "capsule.lumen_tracker.lumen_ray",
+    "lumen_visible": "capsule.lumen_tracker.lumen_visible",
+    "lumen_confidence": "capsule.lumen_tracker.lumen_confidence",
+    "lumen_truth_ray": "capsule.lumen.lumen_pixel",
+    "lumen_truth_visible": "capsule.lumen.lumen_pixel",
+}
+
+
+@dataclasses.dataclass
+class Plugin:
+    """A user's navigator drives the EPM: `factory` names "package.module:function" (the
+    interface is in navigation/plugin.py)."""
+
+    factory: str = ""
+
+
+@dataclasses.dataclass
+class NavigatorContext:
+    """What a user's navigator factory is given.
+
+    colon_length: the colon's centreline length (m; the goal is its end: the navigator is
+    not given the centreline itself). lens: the camera's Lens (None without a camera).
+    X_BC: the camera's pose in the capsule body. floor_height: function (x, y, m_hat) ->
+    the lowest EPM centre height the clearance allows. start_command: the EPM's pose at the
+    start, [p_WE, m_hat_W].
+    """
+
+    colon_length: float
+    lens: object
+    X_BC: object
+    floor_height: object
+    start_command: np.ndarray
+
+
+def load_navigator(name: str):
+    """The factory of a user's navigator "package.module:function"; ValueError (one line)
+    when it cannot be found."""
+    return load_function("navigator", name, "a navigator factory")
+
+
+def check_plugin(config: Plugin) -> None:
+    """Raises ValueError (one line) when the factory cannot be found."""
+    load_navigator(config.factory)
+
+
+@block(Plugin)
+def add_plugin(builder, parts, config: Plugin):
+    """`navigator`, the user's system, connected by its input ports' names; its command
+    goes to the EPM's carrier and is exported as epm.command."""
+    name = config.factory
+    camera = (builder.GetSubsystemByName("capsule.camera")
+              if parts.has("capsule.camera.rgb_image") else None)
+    context = NavigatorContext(parts.colon.centerline.length,
+                               camera.lens if camera is not None else None,
+                               parts.capsule.X_BC, parts.epm.guard.lowest_centre_height,
+                               np.array(parts.epm.start_command))
+    system = builder.AddNamedSystem("navigator", load_navigator(name)(context))
+    truth = None
+    for i in range(system.num_input_ports()):
+        port = system.get_input_port(i)
+        input_name = port.get_name()
+        if input_name not in PLUGIN_INPUTS:
+            raise ScenarioError(
+                f"scenario: epm.driver: navigator {name!r}: input port {input_name!r} is not "
+                f"one of {', '.join(PLUGIN_INPUTS)}")
+        source = PLUGIN_INPUTS[input_name]
+        if source is not None and not parts.has(source):
+            raise ScenarioError(
+                f"scenario: epm.driver: navigator {name!r}: input {input_name!r} needs "
+                f"{source!r}, which this scenario does not have (switch on the camera or "
+                "the lumen tracker)")
+        if input_name.startswith("lumen_truth_"):
+            if truth is None:
+                truth = builder.AddNamedSystem("lumen_truth_ray", LumenRayFromTruth(camera.lens))
+                builder.Connect(parts.output("capsule.lumen.lumen_pixel"),
+                                truth.GetInputPort("pixel"))
+                builder.Connect(parts.output("capsule.lumen.lumen_visible"),
+                                truth.GetInputPort("visible"))
+            builder.Connect(truth.GetOutputPort(input_name.removeprefix("lumen_truth_")), port)
+        elif source is None:
+            builder.Connect(parts.capsule_state, port)
+        else:
+            builder.Connect(parts.output(source), port)
+    if not system.HasOutputPort("epm_command"):
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r} has no output port "
+                            "'epm_command'")
+    command = system.GetOutputPort("epm_command")
+    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    parts.export(command, "epm.command")
+    return system

@@ -1,0 +1,164 @@
+"""Contact between the capsule and the colon wall: its settings and the geometry it needs.
+
+Two models (`ContactConfig.model`): "hydroelastic" registers the wall as rigid hydroelastic
+triangle-mesh chunks and the capsule as a compliant hydroelastic capsule; "convex_pieces"
+registers ~2,700 convex hulls of wall patches with point contact. A speed-dependent drag on
+the capsule's floating joint models the colon's resistance to motion.
+"""
+
+
+import dataclasses
+
+import numpy as np
+from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
+                              AddRigidHydroelasticProperties, Box, Convex, GeometryInstance,
+                              IllustrationProperties, MakePhongIllustrationProperties, Mesh,
+                              PerceptionProperties, ProximityProperties, RoleAssign)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction
+from pydrake.multibody.tree import QuaternionFloatingJoint
+
+from capsule_drake.anatomy import colon_assets, colon_wall_pieces
+from capsule_drake.capsule.model import CAPSULE_BODY
+
+CONTACT_MODELS = ("hydroelastic", "convex_pieces")
+TORSO_RGBA = np.array([0.93, 0.78, 0.68, 0.18])
+
+
+@dataclasses.dataclass
+class ContactConfig:
+    """How the capsule touches the colon wall. (Drake's own solver settings, the discrete
+    contact approximation among them, are the scenario's `plant`.)"""
+
+    # "hydroelastic" (fidelity): the colon wall is a rigid non-convex triangle mesh split into
+    # chunks and the capsule a compliant hydroelastic capsule; contact forces are pressure
+    # fields over contact patches. ~3x real time.
+    # "convex_pieces" (speed, for long batch runs): the wall is ~2,700 small convex hulls of
+    # wall patches and contact is Drake's point contact; ~9-14x real time, but the diagram
+    # takes ~15 s and ~2 GB to build, and pieces bridge the sharpest fold feet (the capsule
+    # rides up to ~1 mm higher there). Point contact is cheap enough that sampling the
+    # plant's outputs is a measurable cost: set plant.use_sampled_output_ports false with it
+    # (as the FastContact scenario does).
+    model: str = "hydroelastic"
+    # Hydroelastic modulus of the capsule's compliant layer (Pa). 5e6 keeps the penetration
+    # under a 1 N load near 0.6 mm (measured, REFERENCE section 6). Engineering assumption.
+    capsule_hydroelastic_modulus: float = 5.0e6
+    # Edge length of the capsule's tetrahedral pressure mesh (m). Finer costs query time.
+    capsule_resolution_hint: float = 0.004
+    # Hunt-Crossley dissipation of the contact (s/m). Engineering assumption.
+    hunt_crossley_dissipation: float = 5.0
+    # convex_pieces: stiffness of each point contact (N/m; capsule and wall in series halve
+    # it), and the pieces' axial length and largest chord depth below the round wall (m).
+    point_stiffness: float = 2.0e4
+    piece_axial_length: float = 0.010
+    piece_max_chord_depth: float = 0.0005
+    # Coulomb friction between capsule and mucosa (dynamic = static). Measured values span
+    # 0.0004-0.054 on small-bowel mucosa; REFERENCE section 3 suggests sweeping 0.05-0.3.
+    friction: float = 0.2
+    # Resistance to the capsule's motion that grows with its speed (tissue drag, mucus; the
+    # colon's friction rises with sliding velocity, Gao et al., IEEE Trans. Biomed. Eng.):
+    # a linear damping of the capsule's velocity relative to the colon, translational
+    # (N s/m) and rotational (N m s/rad), on its floating joint. 0 (default): not modelled,
+    # only Coulomb friction resists motion, so a capsule that breaks free accelerates.
+    drag_translational: float = 0.0
+    drag_rotational: float = 0.0
+
+
+def check_contact_config(config: ContactConfig) -> None:
+    """Raises ValueError naming the first impossible field."""
+    if config.model not in CONTACT_MODELS:
+        raise ValueError(f"contact.model must be one of {', '.join(CONTACT_MODELS)}, "
+                         f"got {config.model!r}")
+    if not config.friction >= 0:
+        raise ValueError("contact.friction must be >= 0")
+    if not config.drag_translational >= 0:
+        raise ValueError("contact.drag_translational must be >= 0")
+    if not config.drag_rotational >= 0:
+        raise ValueError("contact.drag_rotational must be >= 0")
+
+
+def contact_properties(config: ContactConfig) -> ProximityProperties:
+    """Dissipation, point stiffness and friction of the capsule-wall contact."""
+    props = ProximityProperties()
+    mu = config.friction
+    AddContactMaterial(dissipation=config.hunt_crossley_dissipation,
+                       point_stiffness=config.point_stiffness,
+                       friction=CoulombFriction(mu, mu), properties=props)
+    return props
+
+
+def add_colon_wall(plant, config: ContactConfig, colon_params, colon) -> int:
+    """Registers the colon wall's collision geometry on the world body, by the contact
+    model; returns how many geometries it took."""
+    world = plant.world_body()
+    if config.model == "convex_pieces":
+        pieces = colon_wall_pieces(colon_params, config.piece_axial_length,
+                                   config.piece_max_chord_depth)
+        for i, vertices in enumerate(pieces):
+            name = f"colon_piece_{i:04d}"
+            plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(vertices, name),
+                                            name, contact_properties(config))
+        return len(pieces)
+    chunks = colon_assets(colon_params).collision_objs
+    for i, chunk in enumerate(chunks):
+        props = contact_properties(config)
+        AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
+                                        f"colon_wall_{i:02d}", props)
+    boxes = colon.collision_boxes
+    for i, (extents, centre) in enumerate(boxes):
+        props = contact_properties(config)
+        AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(centre), Box(*extents),
+                                        f"colon_surround_{i:02d}", props)
+    return len(chunks) + len(boxes)
+
+
+def add_colon_visuals(plant, colon_params, colon, perception: bool = True):
+    """The mucosa (its look from the mesh's own material; seen by every renderer if
+    `perception`) and the torso (drawn for orientation only: cameras never see it)."""
+    assets = colon_assets(colon_params)
+    world = plant.world_body()
+    mucosa = GeometryInstance(RigidTransform(), Mesh(str(assets.visual_obj)), "colon_mucosa")
+    mucosa.set_illustration_properties(IllustrationProperties())
+    if perception:
+        mucosa.set_perception_properties(PerceptionProperties())
+    plant.RegisterVisualGeometry(world, mucosa)
+    torso = GeometryInstance(RigidTransform(), Mesh(str(assets.torso_obj)), "torso")
+    rgba = colon.abdomen.display_rgba or TORSO_RGBA
+    torso.set_illustration_properties(MakePhongIllustrationProperties(rgba))
+    plant.RegisterVisualGeometry(world, torso)
+
+
+def set_capsule_contact(plant, scene_graph, config: ContactConfig):
+    """Gives the capsule's collision geometry the contact properties (compliant
+    hydroelastic, or point contact for the convex-pieces wall). Call before Finalize."""
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    for geometry_id in plant.GetCollisionGeometriesForBody(capsule):
+        props = contact_properties(config)
+        if config.model == "convex_pieces":
+            scene_graph.AssignRole(plant.get_source_id(), geometry_id, props,
+                                   RoleAssign.kReplace)
+            continue
+        AddCompliantHydroelasticProperties(
+            resolution_hint=config.capsule_resolution_hint,
+            hydroelastic_modulus=config.capsule_hydroelastic_modulus,
+            properties=props)
+        scene_graph.AssignRole(plant.get_source_id(), geometry_id, props, RoleAssign.kReplace)
+
+
+def add_capsule_drag(plant, config: ContactConfig):
+    """With a speed-dependent resistance (drag_*), the capsule's floating joint is declared
+    here, with that damping (relative to the world, where the colon is); otherwise Finalize
+    gives it a free one. Call before Finalize."""
+    if config.drag_translational > 0.0 or config.drag_rotational > 0.0:
+        add_damped_capsule_joint(plant, config.drag_translational, config.drag_rotational)
+
+
+def add_damped_capsule_joint(plant, translational: float, angular: float):
+    """The capsule's floating joint "capsule_floating", damped against the world
+    (N s/m, N m s). Call before Finalize."""
+    capsule = plant.GetBodyByName(CAPSULE_BODY)
+    return plant.AddJoint(QuaternionFloatingJoint(
+        "capsule_floating", plant.world_frame(), capsule.body_frame(),
+        angular_damping=angular, translational_damping=translational))

@@ -1,0 +1,217 @@
+"""Haptic teleoperation as the EPM's driver (`epm.driver: !Teleop {...}`).
+
+    operator (simulated hand | browser | UDP device) --> HapticMaster / device
+        --> [TeleopChannel: delay, jitter, loss, passivity] --> TeleopMapping --> EPM command
+    pseudo_force.F_D + the capsule's contact (ContactMonitor) --> ForceFeedback
+        --> [TeleopChannel] --> the device's motors, saturated to its limit
+"""
+
+
+import copy
+import dataclasses
+
+from pydrake.systems.primitives import Demultiplexer
+
+from capsule_drake.perception.lumen_range import LumenRange
+from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.scene import block
+from capsule_drake.teleop.browser import BrowserOperator
+from capsule_drake.teleop.channel import (TeleopChannel, TeleopChannelConfig,
+                                          check_channel_config, check_passivity_config)
+from capsule_drake.teleop.force_feedback import ForceFeedback
+from capsule_drake.teleop.haptic_master import (STYLUS_SIZE, HapticDeviceConfig, HapticMaster,
+                                                check_haptic_device_config)
+from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping, check_mapping_config
+from capsule_drake.teleop.operator import (ForwardSpeed, LumenRayFromTruth, OperatorConfig,
+                                           SimulatedOperator, WayForward, check_operator_config)
+from capsule_drake.teleop.udp import UdpBridgeConfig, UdpHapticDevice, check_udp_bridge_config
+
+OPERATORS = ("simulated", "browser", "udp")
+LUMEN_SOURCES = ("tracker", "truth")
+
+
+@dataclasses.dataclass
+class Teleop:
+    """Haptic teleoperation drives the EPM: the operator moves a stylus, the EPM follows the
+    mapping, and the operator feels the pseudo-force (the scenario's `pseudo_force`; null:
+    no guidance) plus the capsule's contact with the wall."""
+
+    # Who holds the stylus: "simulated" (a model of a hand), "browser" (keyboard, gamepad
+    # and sliders in Meshcat, paced in real time) or "udp" (a real device over the
+    # network bridge).
+    operator: str = "simulated"
+    # The haptic device (Geomagic Touch figures).
+    device: HapticDeviceConfig = dataclasses.field(default_factory=HapticDeviceConfig)
+    # Stylus to EPM mapping (position or rate mode, scales, clutch).
+    mapping: MappingConfig = dataclasses.field(default_factory=MappingConfig)
+    # The simulated operator's hand and intent.
+    simulated: OperatorConfig = dataclasses.field(default_factory=OperatorConfig)
+    # What the simulated operator sees of the lumen: the lumen tracker's detection (needs
+    # capsule.lumen_tracker) or the truth (needs capsule.camera).
+    lumen_source: str = "tracker"
+    # Delay, jitter and loss both ways, and the passivity scheme at the device. The scheme
+    # (time-domain passivity) acts only when the link has delay, jitter or loss: with an
+    # ideal link there is nothing to stabilise, and strict passivity would also mute the
+    # guidance, which puts energy into the hand by design.
+    channel: TeleopChannelConfig = dataclasses.field(default_factory=TeleopChannelConfig)
+    # Device newtons per newton of the capsule's contact force with the wall.
+    contact_gain: float = 1.0
+    # The network bridge for a real device (operator "udp"): loopback by default.
+    udp: UdpBridgeConfig = dataclasses.field(default_factory=UdpBridgeConfig)
+
+
+def check_teleop(teleop: Teleop) -> None:
+    """Raises ValueError naming the first impossible field (on its own; what it needs of
+    the rest of the scenario is checked with the scenario)."""
+    if teleop.operator not in OPERATORS:
+        raise ValueError(f"operator must be one of {', '.join(OPERATORS)}, "
+                         f"got {teleop.operator!r}")
+    if teleop.lumen_source not in LUMEN_SOURCES:
+        raise ValueError(f"lumen_source must be one of {', '.join(LUMEN_SOURCES)}, got "
+                         f"{teleop.lumen_source!r}")
+    if not teleop.contact_gain >= 0:
+        raise ValueError("contact_gain must be >= 0")
+    check_haptic_device_config(teleop.device)
+    check_mapping_config(teleop.mapping)
+    check_operator_config(teleop.simulated)
+    check_channel_config(teleop.channel.forward)
+    check_channel_config(teleop.channel.backward)
+    check_passivity_config(teleop.channel.passivity)
+    check_udp_bridge_config(teleop.udp)
+
+
+@block(Teleop)
+def add_teleop(builder, parts, teleop: Teleop):
+    """The haptic loop: operator -> device -> channel -> mapping -> EPM command (to the
+    EPM's carrier, exported as epm.command), and force feedback (pseudo-force + the
+    capsule's contact, saturated) -> channel -> passivity -> device; the channel only when
+    the link is not ideal (teleop.channel_energy then). Exports teleop.<signal>."""
+    plant = parts.plant
+    capsule = parts.capsule_body
+    capsule_state = parts.capsule_state
+    X_BC = parts.capsule.X_BC
+    has_tracker = parts.has("capsule.lumen_tracker.lumen_ray")
+    mapping = builder.AddNamedSystem("teleop.mapping", TeleopMapping(
+        teleop.mapping, X_BC, parts.capsule.X_BM.translation(),
+        parts.epm.guard.lowest_centre_height, parts.epm.start_command,
+        parts.X_WB0.rotation().col(2)))
+    builder.Connect(capsule_state, mapping.GetInputPort("capsule_state"))
+    if teleop.mapping.assist and has_tracker:
+        tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+        builder.Connect(tracker.GetOutputPort("lumen_ray"), mapping.GetInputPort("lumen_ray"))
+        builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                        mapping.GetInputPort("lumen_visible"))
+        camera = builder.GetSubsystemByName("capsule.camera")
+        if camera.config.render_depth:
+            free = builder.AddNamedSystem("teleop.lumen_range", LumenRange(camera.config.far))
+            builder.Connect(camera.GetOutputPort("depth_image"),
+                            free.GetInputPort("depth_image"))
+            builder.Connect(tracker.GetOutputPort("lumen_pixel"),
+                            free.GetInputPort("lumen_pixel"))
+            builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                            free.GetInputPort("lumen_visible"))
+            builder.Connect(free.GetOutputPort("range"), mapping.GetInputPort("lumen_range"))
+            builder.ExportOutput(free.GetOutputPort("range"), "teleop.lumen_range")
+
+    # What the operator feels: the pseudo-force (if any) and the capsule's contact.
+    monitor = builder.AddNamedSystem("teleop.contact", ContactMonitor(
+        plant.GetCollisionGeometriesForBody(capsule)))
+    builder.Connect(plant.get_contact_results_output_port(),
+                    monitor.GetInputPort("contact_results"))
+    rpy = (builder.GetSubsystemByName("pseudo_force").config().device_from_camera_rpy_deg
+           if parts.has("pseudo_force.F_D") else (180.0, 0.0, 0.0))
+    feedback = builder.AddNamedSystem("teleop.feedback", ForceFeedback(
+        X_BC, teleop.contact_gain, teleop.device.force_limit, rpy))
+    builder.Connect(monitor.GetOutputPort("capsule_force_W"),
+                    feedback.GetInputPort("capsule_force_W"))
+    builder.Connect(capsule_state, feedback.GetInputPort("capsule_state"))
+    if parts.has("pseudo_force.F_D"):
+        builder.Connect(parts.output("pseudo_force.F_D"), feedback.GetInputPort("pseudo_force_D"))
+
+    # The link between device and robot. An ideal one (no delay, jitter or loss: the
+    # default, as the seed paper assumes) is a wire: nothing to stabilise, and the two 1 kHz
+    # channel systems would cost ~0.2 s per simulated second for nothing.
+    channel = None
+    force_to_device = feedback.GetOutputPort("F_D")
+    if not all(c.delay == 0 and c.jitter == 0 and c.loss == 0
+               for c in (teleop.channel.forward, teleop.channel.backward)):
+        channel = builder.AddNamedSystem("teleop.channel", TeleopChannel(
+            STYLUS_SIZE, copy.deepcopy(teleop.channel)))
+        builder.Connect(channel.GetOutputPort("stylus_out"), mapping.GetInputPort("stylus"))
+        builder.Connect(channel.GetOutputPort("stylus_age"),
+                        mapping.GetInputPort("stylus_age"))
+        builder.Connect(feedback.GetOutputPort("F_D"), channel.GetInputPort("force_in"))
+        force_to_device = channel.GetOutputPort("force_out")
+
+    if teleop.operator == "simulated":
+        device = builder.AddNamedSystem("teleop.device", HapticMaster(teleop.device))
+        hand = builder.AddNamedSystem("teleop.operator", SimulatedOperator(
+            teleop.simulated, teleop.device.workspace_half_extents))
+        builder.Connect(device.GetOutputPort("stylus"), hand.GetInputPort("stylus"))
+        builder.Connect(device.GetOutputPort("stylus_velocity"),
+                        hand.GetInputPort("stylus_velocity"))
+        builder.Connect(hand.GetOutputPort("hand_force"), device.GetInputPort("hand_force"))
+        builder.Connect(hand.GetOutputPort("buttons"), device.GetInputPort("buttons"))
+        speed = builder.AddNamedSystem("teleop.forward_speed",
+                                       ForwardSpeed(X_BC.rotation().col(2)))
+        builder.Connect(capsule_state, speed.GetInputPort("capsule_state"))
+        builder.Connect(speed.GetOutputPort("forward_speed"),
+                        hand.GetInputPort("forward_speed"))
+        way = builder.AddNamedSystem("teleop.way_forward", WayForward(
+            X_BC.rotation().matrix(), parts.X_WB0.translation()))
+        builder.Connect(capsule_state, way.GetInputPort("capsule_state"))
+        builder.Connect(way.GetOutputPort("way_C"), hand.GetInputPort("way_forward"))
+        if teleop.lumen_source == "tracker":
+            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+            builder.Connect(tracker.GetOutputPort("lumen_visible"),
+                            hand.GetInputPort("lumen_visible"))
+            builder.Connect(tracker.GetOutputPort("lumen_ray"), hand.GetInputPort("lumen_ray"))
+        else:
+            truth = builder.AddNamedSystem("teleop.lumen_seen", LumenRayFromTruth(
+                builder.GetSubsystemByName("capsule.camera").lens))
+            lumen = builder.GetSubsystemByName("capsule.lumen")
+            builder.Connect(lumen.GetOutputPort("lumen_pixel"), truth.GetInputPort("pixel"))
+            builder.Connect(lumen.GetOutputPort("lumen_visible"),
+                            truth.GetInputPort("visible"))
+            builder.Connect(truth.GetOutputPort("visible"), hand.GetInputPort("lumen_visible"))
+            builder.Connect(truth.GetOutputPort("ray"), hand.GetInputPort("lumen_ray"))
+        builder.ExportOutput(hand.GetOutputPort("intent"), "teleop.intent")
+        builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
+        if channel is not None:
+            builder.Connect(device.GetOutputPort("stylus_velocity"),
+                            channel.GetInputPort("stylus_velocity"))
+        builder.ExportOutput(device.GetOutputPort("motor_force"), "teleop.motor_force")
+    elif teleop.operator == "udp":
+        device = builder.AddNamedSystem("teleop.device", UdpHapticDevice(teleop.udp))
+        builder.Connect(force_to_device, device.GetInputPort("force_D"))
+        builder.Connect(device.GetOutputPort("link_ok"), mapping.GetInputPort("link_ok"))
+        builder.ExportOutput(device.GetOutputPort("link_ok"), "teleop.link_ok")
+        builder.ExportOutput(device.GetOutputPort("stats"), "teleop.udp_stats")
+    else:  # browser
+        device = builder.AddNamedSystem("teleop.device", BrowserOperator(
+            parts.meshcat, teleop.device, builder.GetSubsystemByName("capsule.camera").config))
+        builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
+        for name in ("rgb_image", "frame_info"):
+            builder.Connect(builder.GetSubsystemByName("capsule.camera").GetOutputPort(name),
+                            device.GetInputPort(name))
+        if has_tracker:
+            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
+            for name in ("lumen_pixel", "lumen_visible"):
+                builder.Connect(tracker.GetOutputPort(name), device.GetInputPort(name))
+    if channel is not None:
+        split = builder.AddNamedSystem("teleop.stylus_position",
+                                       Demultiplexer([3, STYLUS_SIZE - 3]))
+        builder.Connect(device.GetOutputPort("stylus"), split.get_input_port())
+        builder.Connect(device.GetOutputPort("stylus"), channel.GetInputPort("stylus_in"))
+        builder.Connect(split.get_output_port(0), channel.GetInputPort("stylus_position"))
+        builder.ExportOutput(channel.GetOutputPort("energy"), "teleop.channel_energy")
+    else:
+        builder.Connect(device.GetOutputPort("stylus"), mapping.GetInputPort("stylus"))
+    builder.ExportOutput(device.GetOutputPort("stylus"), "teleop.stylus")
+    builder.ExportOutput(feedback.GetOutputPort("F_D"), "teleop.feedback_D")
+    builder.ExportOutput(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
+    builder.ExportOutput(mapping.GetOutputPort("heading"), "teleop.heading")
+    command = mapping.GetOutputPort("epm_command")
+    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    parts.export(command, "epm.command")
+    return mapping
