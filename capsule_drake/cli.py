@@ -152,9 +152,9 @@ def _seeds(text: str) -> list[int]:
 
 
 def _benchmark(args) -> int:
-    from capsule_drake.navigation.benchmark import (BUILT_IN, COLUMNS, RowWriter, Task,
-                                                    format_table, load_navigator, run_suite,
-                                                    segment_table, summary, write_outputs)
+    from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
+                                                    run_suite, segment_table, summary,
+                                                    task_scenario, write_outputs)
 
     seeds = _seeds(args.seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
@@ -162,16 +162,9 @@ def _benchmark(args) -> int:
         raise ScenarioError("--navigators: none given")
     if args.duration <= 0 or args.workers < 1:
         raise ScenarioError("--duration must be > 0 and --workers >= 1")
-    for navigator in navigators:
-        if navigator not in BUILT_IN:
-            try:
-                load_navigator(navigator)
-            except ValueError as e:
-                raise ScenarioError(str(e)) from None
     tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
              for n in navigators for seed in seeds]
-    # Fail on a bad scenario here, with one line, not in a worker.
-    from capsule_drake.navigation.benchmark import task_scenario
+    # Fail on a bad navigator or scenario here, with one line, not in a worker.
     for navigator in navigators:
         try:
             task_scenario(Task(navigator, seeds[0], args.duration, args.scenario,

@@ -27,7 +27,7 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.scene import block
 from capsule_drake.physics.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
-from capsule_drake.capsule.imu import ChannelNoise
+from capsule_drake.capsule.imu import ChannelNoise, add_random_sources
 from capsule_drake.physics.magnet_force import FIELD_MODELS
 
 

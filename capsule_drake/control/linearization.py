@@ -26,6 +26,10 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem_
 from pydrake.systems.scalar_conversion import TemplateSystem
 
+from capsule_drake.capsule.model import CAPSULE_BODY
+from capsule_drake.control.analysis import hold_against_gravity
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact import add_damped_capsule_joint
 from capsule_drake.physics.magnetics import dipole_force, dipole_torque
 
 
@@ -96,13 +100,10 @@ def capsule_magnet_diagram(ipm_moment: float, epm_moment: float, time_step: floa
                            drag_translational: float = 2.0, drag_rotational: float = 6e-5):
     """(diagram, plant): the free capsule, gravity, the floating joint's damping (the
     colon's resistance, N s/m and N m s), and the EPM's wrench from the input `epm_pose`."""
-    from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_damped_capsule_joint,
-                                       configure_parser)
-
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(
         time_step=time_step, use_sampled_output_ports=False), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+    configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
     capsule = plant.GetBodyByName(CAPSULE_BODY)
     add_damped_capsule_joint(plant, drag_translational, drag_rotational)
     plant.Finalize()
@@ -123,9 +124,6 @@ def hover_operating_point(diagram, plant, p_WM, heading, epm_moment: float,
     """A context of `diagram` in which the capsule's magnet hangs still at p_WM, along the
     unit `heading` (horizontal), and the EPM pose (fixed on `epm_pose`) that holds it there
     against gravity. Returns (context, epm_pose)."""
-    from capsule_drake.control.analysis import hold_against_gravity
-    from capsule_drake.station import CAPSULE_BODY
-
     heading = np.asarray(heading, dtype=float)
     heading = heading / np.linalg.norm(heading)
     capsule = plant.GetBodyByName(CAPSULE_BODY)

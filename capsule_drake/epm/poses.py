@@ -142,7 +142,7 @@ def hold_above_trajectory(colon, start_s: float, path, clearance: float,
     p_WE = target + np.array([0.0, 0.0, path.height])
     gap = skin_gap(colon, p_WE, m_hat, geometry)
     if gap < clearance:
-        raise ValueError(f"epm.path.height {path.height} m leaves {gap * 1000:.0f} mm between "
+        raise ValueError(f"epm.driver.height {path.height} m leaves {gap * 1000:.0f} mm between "
                          f"magnet and skin, less than the clearance {clearance * 1000:.0f} mm")
     q = stage_joint_positions(p_WE, m_hat)
     trajectory = PiecewisePolynomial.ZeroOrderHold([0.0, 1.0], np.column_stack([q, q]))

@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 
+from capsule_drake.capsule.model import rotation_from_quaternion
+
 WALL_SAMPLES = 5
 """Points on the capsule's axis segment at which the wall distance is evaluated."""
 
@@ -125,15 +127,6 @@ def rotation_from_rpy_deg(rpy_deg) -> np.ndarray:
     R_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     R_z = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     return R_z @ R_y @ R_x
-
-
-def rotation_from_quaternion(q_wxyz) -> np.ndarray:
-    """Rotation matrix of a quaternion (w, x, y, z), normalised first (must be nonzero)."""
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)]])
 
 
 def saturate(force, limit: float) -> np.ndarray:

@@ -10,7 +10,7 @@ from capsule_drake.io.dataset import DatasetWriter
 from capsule_drake.io.run import RunResult, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.camera import CameraConfig, camera_tick
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
@@ -60,8 +60,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True) ->
     scenario = with_all_sensors(scenario)
     out_dir = Path(out_dir)
     camera_config = scenario.capsule.camera
-    tick = 1.0 / (camera_config.fps if camera_config.fps_mode == "fixed"
-                  else camera_config.fps_max)
+    tick = camera_tick(camera_config)
 
     def extend(builder, station):
         camera = station.GetSubsystemByName("capsule.camera")
@@ -74,7 +73,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True) ->
             if not all(port in outputs for port, _ in parts):
                 continue  # that sensor is switched off in the scenario
             columns = [c for _, cs in parts for c in cs]
-            period = (scenario.log_period if name == "ground_truth" else
+            period = (scenario.outputs.log_period if name == "ground_truth" else
                       1.0 / scenario.capsule.imu.sample_rate if name in ("imu", "ahrs") else
                       1.0 / scenario.capsule.magnetometer.sample_rate)
             streams.append((name, columns, period))

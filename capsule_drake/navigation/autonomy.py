@@ -51,10 +51,10 @@ A non-finite capsule pose holds the command; a non-finite lumen ray counts as no
 import dataclasses
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.navigation.localization import MagneticLocalizer
@@ -280,7 +280,7 @@ class LumenFollowerController(LeafSystem):
         pose = np.asarray(self._pose.Eval(context), dtype=float)
         if not np.all(np.isfinite(pose)) or np.linalg.norm(pose[:4]) < 1e-6:
             return None
-        R_WB = Quaternion(pose[:4] / np.linalg.norm(pose[:4])).rotation()
+        R_WB = rotation_from_quaternion(pose[:4])
         return R_WB, pose[4:7]
 
     def _initialize(self, context, discrete_state):
@@ -506,7 +506,7 @@ class LumenRayFromPoint(LeafSystem):
         point = np.asarray(self._point.Eval(context), dtype=float)[:3]
         if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(point))):
             return np.zeros(3), False
-        R_WB = Quaternion(pose[:4] / np.linalg.norm(pose[:4])).rotation()
+        R_WB = rotation_from_quaternion(pose[:4])
         R_WC = R_WB @ self._X_BC.rotation().matrix()
         p_WC = pose[4:7] + R_WB @ self._X_BC.translation()
         r = R_WC.T @ (point - p_WC)

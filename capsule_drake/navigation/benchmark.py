@@ -7,22 +7,15 @@ suite runs in parallel processes on this machine (`engine="local"`) or on a Dask
 (`engine="dask"`: a local cluster of `workers` processes, or an existing scheduler's
 address), with a progress line, and gives the same table for the same seeds either way.
 
-Navigators:
-- "autonomy-truth", "autonomy-detected": the lumen follower (navigation/autonomy.py),
-  steering from the lumen truth or from the lumen tracker on the camera's frames;
+Navigators, each a named scenario whose `epm.driver` drives the EPM (diagrams/default.yaml),
+all run through the one run loop (io/run.py `simulate`, which seeds the random context):
+- "autonomy-truth" (scenario Navigation), "autonomy-detected" (NavigationDetected): the
+  lumen follower (navigation/autonomy.py), steering from the lumen truth or from the lumen
+  tracker on the camera's frames;
 - "teleop-guided", "teleop-unguided": the simulated operator at the haptic device
-  (teleop/), with and without the pseudo-force on the hand (the `Teleop` scenario);
-- "package.module:function": a user's navigator (the plug-in interface below).
-
-Plug-in interface. `function(context: NavigatorContext) -> LeafSystem`. The system needs an
-output port `epm_command` ([p_WE (3), m_hat_W (3)]: the EPM's centre and unit moment
-direction, world frame), and may have any of these input ports, connected by name:
-`capsule_state` (13: quaternion wxyz, position, angular and linear velocity; ground truth),
-`epm_pose` (6), `rgb_image` and `frame_info` (the camera's), `lumen_ray`, `lumen_visible`,
-`lumen_confidence` (the lumen tracker's; the tracker is switched on when asked for), and
-`lumen_truth_ray`, `lumen_truth_visible` (the lumen truth, as a ray in the camera frame). A
-user's lumen detector plugs into the tracker instead: `capsule: {lumen_tracker: {detector:
-"package.module:function"}}` in the scenario text (see vision/lumen.py `load_detector`).
+  (scenario Teleop), with and without the pseudo-force on the hand;
+- "package.module:function": a user's navigator (`!Plugin`; the interface is in
+  navigation/plugin.py) on the task's scenario (default Navigation).
 """
 
 from __future__ import annotations
@@ -37,54 +30,48 @@ from pathlib import Path
 
 import numpy as np
 
+from pydrake.systems.primitives import LogVectorOutput
+
+from capsule_drake.anatomy import load_colon
+from capsule_drake.io.run import StepBar, simulate
+from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.plugins import load_function
-from capsule_drake.scenario import layered
+from capsule_drake.scenario import load_scenario
 
 BUILT_IN = ("autonomy-truth", "autonomy-detected", "teleop-guided", "teleop-unguided")
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
 CECUM_MARGIN = 0.04
 # Contact counts as wall contact above this load (N).
 CONTACT_THRESHOLD = 0.05
-PLUGIN_INPUTS = ("capsule_state", "epm_pose", "rgb_image", "frame_info", "lumen_ray",
-                 "lumen_visible", "lumen_confidence", "lumen_truth_ray",
-                 "lumen_truth_visible")
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
            "centring_error_deg", "epm_path_m", "coverage", "sim_time_s", "wall_time_s")
 
 
+# Built-in navigators: the named scenario each runs, and YAML laid over it.
+NAVIGATORS = {
+    "autonomy-truth": ("Navigation", ""),
+    "autonomy-detected": ("NavigationDetected", ""),
+    "teleop-guided": ("Teleop", ""),
+    "teleop-unguided": ("Teleop", "{pseudo_force: null}"),
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class Task:
-    """One run: a navigator on a seeded colon."""
+    """One run: a navigator (a named scenario and its driver) on a seeded colon."""
 
     navigator: str
     seed: int
     duration: float = 600.0
-    # The scenario the autonomous and user navigators start from, and text laid over it
-    # (YAML); teleop navigators use `Teleop` with the same text.
+    # The scenario a user's navigator ("package.module:function") starts from, its driver
+    # replaced by the plug-in; YAML laid over every navigator's scenario.
     scenario: str = "Navigation"
     scenario_text: str = ""
     log_period: float = 0.1
-
-
-@dataclasses.dataclass
-class NavigatorContext:
-    """What a user's navigator factory is given.
-
-    scenario: the run's Scenario. colon_length: the colon's centreline length (m; the goal
-    is its end: the navigator is not given the centreline itself). lens: the camera's Lens
-    (None without a camera). X_BC: the camera's pose in the capsule body. floor_height:
-    function (x, y, m_hat) -> the lowest EPM centre height the clearance allows.
-    start_command: the EPM's pose at the start, [p_WE, m_hat_W].
-    """
-
-    scenario: object
-    colon_length: float
-    lens: object
-    X_BC: object
-    floor_height: object
-    start_command: np.ndarray
+    # The scenario file the named scenarios come from (default diagrams/default.yaml).
+    scenario_file: str | None = None
 
 
 def load_navigator(name: str):
@@ -94,184 +81,74 @@ def load_navigator(name: str):
 
 
 def task_scenario(task: Task):
-    """The Scenario of a task (its colon seed, duration and navigator's needs)."""
-    import yaml
-
-    from capsule_drake.scenario import load_scenario
-
-    extra = yaml.safe_load(task.scenario_text) or {}
-    if not isinstance(extra, dict):
-        raise ValueError("benchmark scenario text must be a YAML mapping")
-    override = layered(extra, {"duration": task.duration, "colon": {"seed": task.seed}})
-    name = task.scenario
-    if task.navigator.startswith("teleop-"):
-        name = "Teleop"
-        if task.navigator == "teleop-unguided":
-            override["pseudo_force"] = None
-    elif task.navigator == "autonomy-detected":
-        override = layered({"capsule": {"lumen_tracker": {}}}, override)
-    return load_scenario(name=name, override=yaml.safe_dump(override, default_flow_style=True))
-
-
-def _connect_navigator(builder, station, scenario, navigator_name, colon):
-    """Adds the navigator of a task to `builder` and connects it; returns it."""
-    if navigator_name in ("autonomy-truth", "autonomy-detected"):
-        from capsule_drake.navigation.autonomy import LumenFollowerConfig, add_lumen_follower
-        lumen = "truth" if navigator_name == "autonomy-truth" else "detected"
-        return add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen)
-    factory = load_navigator(navigator_name)
-    context = _navigator_context(station, scenario, colon)
-    system = builder.AddNamedSystem("navigator", factory(context))
-    sources = {
-        "capsule_state": "capsule.state", "epm_pose": "epm.pose",
-        "rgb_image": "capsule.camera.rgb_image", "frame_info": "capsule.camera.frame_info",
-        "lumen_ray": "capsule.lumen_tracker.lumen_ray",
-        "lumen_visible": "capsule.lumen_tracker.lumen_visible",
-        "lumen_confidence": "capsule.lumen_tracker.lumen_confidence",
-    }
-    truth = None
-    for i in range(system.num_input_ports()):
-        port = system.get_input_port(i)
-        name = port.get_name()
-        if name not in PLUGIN_INPUTS:
-            raise ValueError(f"navigator {navigator_name!r}: input port {name!r} is not one "
-                             f"of {', '.join(PLUGIN_INPUTS)}")
-        if name.startswith("lumen_truth_"):
-            if truth is None:
-                truth = _add_truth_ray(builder, station, scenario, navigator_name)
-            builder.Connect(truth.GetOutputPort(name.removeprefix("lumen_truth_")), port)
-            continue
-        if not station.HasOutputPort(sources[name]):
-            raise ValueError(f"navigator {navigator_name!r}: input {name!r} needs "
-                             f"{sources[name]!r}, which this scenario does not have (switch "
-                             "on the camera or the lumen tracker)")
-        builder.Connect(station.GetOutputPort(sources[name]), port)
-    if not system.HasOutputPort("epm_command"):
-        raise ValueError(f"navigator {navigator_name!r} has no output port 'epm_command'")
-    builder.Connect(system.GetOutputPort("epm_command"), station.GetInputPort("epm.command"))
-    return system
-
-
-def _add_truth_ray(builder, station, scenario, navigator_name):
-    from capsule_drake.teleop.operator import LumenRayFromTruth
-    if not station.HasOutputPort("capsule.lumen.lumen_pixel"):
-        raise ValueError(f"navigator {navigator_name!r}: the lumen truth needs the camera")
-    camera = station.GetSubsystemByName("capsule.camera")
-    truth = builder.AddNamedSystem("lumen_truth_ray", LumenRayFromTruth(camera.lens))
-    builder.Connect(station.GetOutputPort("capsule.lumen.lumen_pixel"),
-                    truth.GetInputPort("pixel"))
-    builder.Connect(station.GetOutputPort("capsule.lumen.lumen_visible"),
-                    truth.GetInputPort("visible"))
-    return truth
-
-
-def _navigator_context(station, scenario, colon) -> NavigatorContext:
-    from capsule_drake.epm.poses import epm_pose_over
-    from capsule_drake.epm.arm import EpmGuard
-
-    plant = station.GetSubsystemByName("plant")
-    capsule = plant.GetModelInstanceByName("capsule")
-    X_BC = plant.GetFrameByName("camera", capsule).GetFixedPoseInBodyFrame()
-    lens = (station.GetSubsystemByName("capsule.camera").lens
-            if station.HasOutputPort("capsule.camera.rgb_image") else None)
-    guard = EpmGuard(colon.abdomen, scenario.epm.magnet, scenario.epm.clearance,
-                     np.zeros(3), np.inf)
-    p, m = epm_pose_over(colon, scenario.capsule.start_s, scenario.epm.clearance,
-                         scenario.epm.magnet)
-    return NavigatorContext(scenario, colon.centerline.length, lens, X_BC,
-                            guard.lowest_centre_height, np.concatenate([p, m]))
+    """The Scenario of a task: the navigator's scenario (or, for a user's navigator, the
+    task's with `!Plugin`), the task's text, then its colon seed, duration and log period."""
+    if task.navigator in NAVIGATORS:
+        name, text = NAVIGATORS[task.navigator]
+    else:
+        load_navigator(task.navigator)
+        name = task.scenario
+        text = f"{{epm: {{driver: !Plugin {{factory: '{task.navigator}'}}}}}}"
+    run = (f"{{duration: {task.duration!r}, colon: {{seed: {task.seed}}}, "
+           f"outputs: {{log_period: {task.log_period!r}}}}}")
+    return load_scenario(task.scenario_file, name, [text, task.scenario_text, run])
 
 
 def run_task(task: Task) -> dict:
-    """Simulates one task; returns its row (COLUMNS) and its progress curve."""
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder, EventStatus
-    from pydrake.systems.primitives import LogVectorOutput
-
-    from capsule_drake.navigation.coverage import MucosaCoverage
-    from capsule_drake.station import colon_for, make_station
-    from capsule_drake.physics.contact_monitor import ContactMonitor
-
+    """Simulates one task through the run loop (`io.run.simulate`, which seeds the random
+    context with the scenario's random_seed), stopping at the cecum; returns its row
+    (COLUMNS) and its progress curve."""
     scenario = task_scenario(task)
-    colon = colon_for(scenario)
-    builder = DiagramBuilder()
-    teleop = task.navigator.startswith("teleop-")
-    station = builder.AddNamedSystem("station", make_station(
-        scenario, external_epm_command=not teleop))
-    if not teleop:
-        _connect_navigator(builder, station, scenario, task.navigator, colon)
-    monitor = builder.AddNamedSystem("contact", ContactMonitor())
-    builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
-    period = task.log_period
-    logs = {"state": LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
-            "epm": LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period),
-            "load": LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period)}
-    camera = None
-    if station.HasOutputPort("capsule.camera.rgb_image"):
-        camera = station.GetSubsystemByName("capsule.camera")
-        coverage = builder.AddNamedSystem("coverage", MucosaCoverage(
-            colon, camera.lens, scenario.capsule.camera.far))
-        for name in ("depth_image", "frame_info", "frame_pose"):
-            builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
-                            coverage.GetInputPort(name))
-        logs["coverage"] = LogVectorOutput(coverage.GetOutputPort("coverage"), builder, 1.0)
-        for name in ("lumen_pixel", "lumen_visible"):
-            logs[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
-                                         builder, period)
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    colon, _ = load_colon(scenario.colon)
     length = colon.centerline.length
-    last_check = [-np.inf]
+    period = scenario.outputs.log_period
+    extra = {}
 
-    def at_cecum(root_context):
-        t = root_context.get_time()
-        if t - last_check[0] < 0.5:
-            return EventStatus.DidNothing()
-        last_check[0] = t
-        state = station.GetOutputPort("capsule.state").Eval(
-            station.GetMyContextFromRoot(root_context))
+    def extend(builder, station):
+        if station.HasOutputPort("capsule.camera.rgb_image"):
+            camera = station.GetSubsystemByName("capsule.camera")
+            coverage = builder.AddNamedSystem("coverage", MucosaCoverage(
+                colon, camera.lens, scenario.capsule.camera.far))
+            for name in ("depth_image", "frame_info", "frame_pose"):
+                builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
+                                coverage.GetInputPort(name))
+            extra["coverage"] = LogVectorOutput(coverage.GetOutputPort("coverage"), builder, 1.0)
+            for name in ("lumen_pixel", "lumen_visible"):
+                extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
+                                              builder, period)
+            extra["camera"] = camera
+
+    def at_cecum(station, context):
+        state = station.GetOutputPort("capsule.state").Eval(context)
         s = float(colon.centerline.closest(state[4:7])[0])
-        if s >= length - CECUM_MARGIN:
-            return EventStatus.ReachedTermination(diagram, "reached the cecum")
-        return EventStatus.DidNothing()
+        return "reached the cecum" if s >= length - CECUM_MARGIN else None
 
-    simulator.set_monitor(at_cecum)
-    start = time.perf_counter()
-    stopped = None
-    try:
-        simulator.Initialize()
-        simulator.AdvanceTo(task.duration)
-    except RuntimeError as e:  # a run that fails is a result, not the end of the suite
-        stopped = f"simulation error: {str(e).splitlines()[0]}"
-    finally:
-        # The render worker is a process: end it with the run, not when a pool process
-        # that runs the next task gets round to collecting this diagram.
-        if camera is not None and camera.worker is not None:
-            camera.worker.close()
-    wall_time = time.perf_counter() - start
-    context = simulator.get_context()
-    data = {name: log.FindLog(context) for name, log in logs.items()}
-    row = _metrics(task, colon, data, camera, stopped)
-    row["sim_time_s"] = round(float(context.get_time()), 3)
-    row["wall_time_s"] = round(wall_time, 1)
-    times = data["state"].sample_times()
-    s = colon.centerline.closest(data["state"].data()[4:7].T)[0]
+    result = simulate(scenario, progress=False, extend=extend, stop_when=at_cecum)
+    camera = extra.pop("camera", None)
+    data = {name: log.FindLog(result.context) for name, log in extra.items()}
+    stopped = result.metrics.get("stopped_early")
+    if stopped and stopped.startswith("simulation error"):
+        stopped = "simulation error: " + stopped.split(": ", 1)[1]
+    row = _metrics(task, colon, result, data, camera, stopped)
+    row["sim_time_s"] = round(float(result.context.get_time()), 3)
+    row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
+    s = colon.centerline.closest(result.capsule_state[4:7].T)[0]
     step = max(1, int(round(1.0 / period)))
-    return {"row": row, "curve": (times[::step].tolist(), s[::step].tolist()),
+    return {"row": row, "curve": (result.times[::step].tolist(), s[::step].tolist()),
             "segments": colon.centerline.segment_ranges()}
 
 
-def _metrics(task, colon, data, camera, stopped) -> dict:
+def _metrics(task, colon, result, data, camera, stopped) -> dict:
     length = colon.centerline.length
-    times = data["state"].sample_times()
-    state = data["state"].data()
+    times = result.times
+    state = result.capsule_state
     s = colon.centerline.closest(state[4:7].T)[0]
     start_s = s[0] if len(s) else 0.0
     reached = np.flatnonzero(s >= length - CECUM_MARGIN)
     furthest = float(s.max()) if len(s) else 0.0
-    load = data["load"].data()[0]
+    load = result.contact_load
     dt = np.diff(times, append=times[-1]) if len(times) else np.zeros(0)
-    epm = data["epm"].data()[:3]
+    epm = result.epm_pose[:3]
     centring = np.nan
     if camera is not None and "lumen_pixel" in data:
         pixel = data["lumen_pixel"].data().T
@@ -315,8 +192,6 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     """
     if engine not in ("local", "dask"):
         raise ValueError(f"benchmark engine {engine!r} is not 'local' or 'dask'")
-    from capsule_drake.io.run import StepBar
-
     bar = StepBar(len(tasks), progress)
     results: list[dict | None] = [None] * len(tasks)
     if engine == "local":

@@ -23,8 +23,8 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
 from capsule_drake.anatomy import ColonParams
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import CAPSULE_BODY, colon_for
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 from capsule_drake.perception.views import camera_scene
@@ -93,10 +93,10 @@ def sample_frames(count: int, colons: int = 5, seed: int = 0, wall_fraction: flo
         share = count // colons + (1 if k < count % colons else 0)
         if share == 0:
             continue
-        scenario = Scenario(colon=ColonParams(seed=seed + k))
-        colon = colon_for(scenario)
+        colon_params = ColonParams(seed=seed + k)
+        colon, _ = load_colon(colon_params)
         diagram, context, plant, scene_graph, walls = camera_scene(
-            0.1, config, scenario)
+            0.1, config, colon=colon_params)
         body = plant.GetBodyByName(CAPSULE_BODY)
         frame_id = plant.GetBodyFrameIdOrThrow(body.index())
         X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()

@@ -9,11 +9,11 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_camera_walls, add_colon_visuals,
-                                   capsule_start_pose, colon_for, configure_parser,
-                                   make_station)
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.anatomy import ColonParams, load_colon
+from capsule_drake.capsule.camera import CameraConfig, add_camera_walls, capsule_camera_for_frame
+from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact import add_colon_visuals
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 
 
@@ -31,7 +31,7 @@ class View:
 
 
 def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None,
-                 scenario: Scenario | None = None):
+                 scenario=None, colon: ColonParams | None = None):
     """A minimal scene for camera checks and benchmarks: the capsule at `start_s` in the
     scenario's colon (default: the default colon), whose wall the camera sees as in the
     station (windows and their renderers, from `config`), with no EPM, sensors or magnet.
@@ -39,17 +39,18 @@ def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None,
     Returns (diagram, context, plant, scene_graph, renderer_for), renderer_for(p_WC) naming
     the renderer for a camera at p_WC.
     """
-    scenario = scenario or Scenario()
-    colon = colon_for(scenario)
+    colon_params = (colon if colon is not None else
+                    scenario.colon if scenario is not None else ColonParams())
+    colon, _ = load_colon(colon_params)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_colon_visuals(plant, scenario, perception=False)
-    renderer_for = add_camera_walls(plant, scene_graph, scenario, colon,
+    configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
+    add_colon_visuals(plant, colon_params, colon, perception=False)
+    renderer_for = add_camera_walls(plant, scene_graph, colon_params, colon,
                                     config or CameraConfig())
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName(CAPSULE_BODY),
-                                         capsule_start_pose(colon, start_s))
+                                         start_pose(colon, start_s))
     diagram = builder.Build()
     return diagram, diagram.CreateDefaultContext(), plant, scene_graph, renderer_for
 
@@ -69,19 +70,17 @@ def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float
     return np.array([u, v], dtype=float)
 
 
-def views_along_colon(scenario: Scenario, s_values, tilt_deg: float = 0.0,
+def views_along_colon(scenario, s_values, tilt_deg: float = 0.0,
                       offset: float = 0.0) -> list[View]:
-    """Renders the capsule camera at each arc length, looking down the colon (tilted by
-    `tilt_deg` about the camera's x axis, shifted `offset` metres off the centerline)."""
-    if scenario.capsule.camera is None:
-        scenario = dataclasses.replace(
-            scenario, capsule=dataclasses.replace(scenario.capsule, camera=CameraConfig()))
-    colon = colon_for(scenario)
-    diagram = make_station(scenario)
-    context = diagram.CreateDefaultContext()
-    plant = diagram.GetSubsystemByName("plant")
-    scene_graph = diagram.GetSubsystemByName("scene_graph")
-    camera = diagram.GetSubsystemByName("capsule.camera")
+    """Renders the capsule camera at each arc length of the scenario's colon (its camera,
+    or the default one), looking down the colon (tilted by `tilt_deg` about the camera's
+    x axis, shifted `offset` metres off the centerline)."""
+    config = scenario.capsule.camera or CameraConfig()
+    colon, _ = load_colon(scenario.colon)
+    diagram, context, plant, scene_graph, renderer_for = camera_scene(
+        scenario.capsule.start_s, config, scenario)
+    camera = capsule_camera_for_frame(plant, plant.GetFrameByName("camera"), config,
+                                      renderer_for, static_scene=True)
     plant_context = plant.GetMyMutableContextFromRoot(context)
     body = plant.GetBodyByName(CAPSULE_BODY)
     frame_id = plant.GetBodyFrameIdOrThrow(body.index())
@@ -90,7 +89,7 @@ def views_along_colon(scenario: Scenario, s_values, tilt_deg: float = 0.0,
     _, mask = camera.lens.pixel_rays()
     views = []
     for s in s_values:
-        X_WB = capsule_start_pose(colon, s).multiply(tilt)
+        X_WB = start_pose(colon, s).multiply(tilt)
         X_WB.set_translation(X_WB.translation() + offset * X_WB.rotation().col(0))
         plant.SetFreeBodyPose(plant_context, body, X_WB)
         query = scene_graph.get_query_output_port().Eval(

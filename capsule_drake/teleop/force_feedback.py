@@ -9,9 +9,9 @@ R_DC as the pseudo-force), the sum saturated by norm to the device's limit.
 import math
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
 
+from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.guidance.terms import rotation_from_rpy_deg, saturate
 
 
@@ -71,6 +71,6 @@ class ForceFeedback(LeafSystem):
             if F_W.any() and math.isfinite(F_W.sum()):
                 q = self._state.Eval(context)[:4]
                 if math.isfinite(q.sum()):
-                    R_WB = Quaternion(q / math.sqrt(q @ q)).rotation()
+                    R_WB = rotation_from_quaternion(q)
                     total += self._contact_to_D @ (R_WB.T @ F_W)
         output.SetFromVector(saturate(total, self._limit))

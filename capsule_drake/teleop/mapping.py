@@ -27,9 +27,9 @@ non-finite stylus, holds the command; the next valid sample re-references (no ju
 import dataclasses
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.epm.poses import field_aligning_moment_direction
 
 MODES = ("position", "lead", "rate")
@@ -199,7 +199,7 @@ class TeleopMapping(LeafSystem):
     def _camera_pose(self, state):
         """R_WC of the capsule's camera and the capsule magnet's position p_WM."""
         q = np.asarray(state[:4], dtype=float)
-        R_WB = Quaternion(q / np.linalg.norm(q)).rotation()
+        R_WB = rotation_from_quaternion(q)
         return R_WB @ self._R_BC, np.asarray(state[4:7]) + R_WB @ self._p_BM
 
     def command_for(self, p_WE_xy, heading, p_WM, height):
