@@ -50,6 +50,7 @@ class StationParts:
     magnets: list = dataclasses.field(default_factory=list)   # MagnetSpec of every magnet
     field_model: str = "dipole"
     renderer_for: Callable | None = None   # the camera walls' renderer picker, if any
+    parser: object = None          # the plant's Parser (models go in before Finalize)
     _outputs: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -132,8 +133,8 @@ def add_scene(builder, scenario, meshcat=None) -> StationParts:
     capsule_instance, = parser.AddModels(url=model_url("capsule.sdf"))
     parts = StationParts(builder, plant, scene_graph, colon, scenario.colon, model,
                          capsule_instance, start_s, start_pose(colon, start_s),
-                         scenario.capsule.ipm, scenario.capsule.lumen_lookahead, meshcat)
-    parts.parser = parser
+                         scenario.capsule.ipm, scenario.capsule.lumen_lookahead, meshcat,
+                         parser=parser)
     return parts
 
 

@@ -35,10 +35,9 @@ from pydrake.systems.primitives import LogVectorOutput
 from capsule_drake.anatomy import load_colon
 from capsule_drake.io.run import StepBar, simulate
 from capsule_drake.navigation.coverage import MucosaCoverage
-from capsule_drake.plugins import load_function
+from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.scenario import load_scenario
 
-BUILT_IN = ("autonomy-truth", "autonomy-detected", "teleop-guided", "teleop-unguided")
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
 CECUM_MARGIN = 0.04
 # Contact counts as wall contact above this load (N).
@@ -56,6 +55,7 @@ NAVIGATORS = {
     "teleop-guided": ("Teleop", ""),
     "teleop-unguided": ("Teleop", "{pseudo_force: null}"),
 }
+BUILT_IN = tuple(NAVIGATORS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,19 +74,13 @@ class Task:
     scenario_file: str | None = None
 
 
-def load_navigator(name: str):
-    """The factory of a user's navigator "package.module:function"; ValueError (one line)
-    when it cannot be found."""
-    return load_function("navigator", name, f"one of {', '.join(BUILT_IN)}")
-
-
 def task_scenario(task: Task):
     """The Scenario of a task: the navigator's scenario (or, for a user's navigator, the
     task's with `!Plugin`), the task's text, then its colon seed, duration and log period."""
     if task.navigator in NAVIGATORS:
         name, text = NAVIGATORS[task.navigator]
     else:
-        load_navigator(task.navigator)
+        load_navigator(task.navigator, f"one of {', '.join(BUILT_IN)}")
         name = task.scenario
         text = f"{{epm: {{driver: !Plugin {{factory: '{task.navigator}'}}}}}}"
     run = (f"{{duration: {task.duration!r}, colon: {{seed: {task.seed}}}, "

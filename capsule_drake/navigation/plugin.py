@@ -58,10 +58,10 @@ class NavigatorContext:
     start_command: np.ndarray
 
 
-def load_navigator(name: str):
-    """The factory of a user's navigator "package.module:function"; ValueError (one line)
-    when it cannot be found."""
-    return load_function("navigator", name, "a navigator factory")
+def load_navigator(name: str, choices: str = "a navigator factory"):
+    """The factory of a user's navigator "package.module:function"; ValueError (one line,
+    offering `choices`) when it cannot be found."""
+    return load_function("navigator", name, choices)
 
 
 def check_plugin(config: Plugin) -> None:
