@@ -37,7 +37,7 @@ from capsule_drake.capsule.magnetometer import MagnetometerConfig
 from capsule_drake.epm.arm import Arm, check_arm_config
 from capsule_drake.epm.paths import AlongColon, External, HoldAbove, check_path
 from capsule_drake.epm.stage import Stage
-from capsule_drake.guidance.terms import PseudoForceConfig, check_pseudo_force_config
+from capsule_drake.guidance.pseudo_force import PseudoForceConfig, check_pseudo_force_config
 from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
 from capsule_drake.navigation.plugin import Plugin, check_plugin
 from capsule_drake.perception.lumen import check_lumen_params, load_detector

@@ -25,6 +25,7 @@ and epm.status (the arm's controller's report).
 from __future__ import annotations
 
 import dataclasses
+import types
 
 from pydrake.systems.framework import DiagramBuilder
 
@@ -39,7 +40,8 @@ from capsule_drake.scene import (add_block, add_scene, add_table_and_colon, fini
 
 def blocks_of(config):
     """The block configs in `config` (a scenario or part of one), depth first in field
-    order: each set field whose type a block module registered (scene.block)."""
+    order: each set field whose type a block module registered (scene.block). A field that
+    may be null (`X | None`) is a block that may be absent: its type must be registered."""
     for item in dataclasses.fields(config):
         value = getattr(config, item.name)
         if value is None:
@@ -47,6 +49,9 @@ def blocks_of(config):
         if is_block(value):
             yield value
         elif dataclasses.is_dataclass(value):
+            if isinstance(item.type, types.UnionType) and type(None) in item.type.__args__:
+                raise TypeError(f"{type(config).__name__}.{item.name}: no block registered "
+                                f"for {type(value).__name__} (scene.block)")
             yield from blocks_of(value)
 
 

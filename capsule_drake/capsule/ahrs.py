@@ -248,3 +248,22 @@ class MahonyAhrs(LeafSystem):
         discrete_state.get_mutable_vector(self._q_WB_state).SetFromVector(
             _quat_multiply(q, self._q_SB))
         discrete_state.get_mutable_vector(self._bias_state).SetFromVector(bias)
+
+
+@block(AhrsConfig)
+def add_ahrs(builder, parts, config: AhrsConfig):
+    """`capsule.ahrs` on the IMU's samples (the scenario's checks make sure there is an
+    IMU), starting from the capsule's true start attitude unless `initial_q_WB` is given;
+    exports capsule.ahrs.q_WB and capsule.ahrs.gyro_bias."""
+    imu = builder.GetSubsystemByName("capsule.imu")
+    if not config.initial_q_WB:
+        q = parts.X_WB0.rotation().ToQuaternion()
+        config = dataclasses.replace(config, initial_q_WB=[q.w(), q.x(), q.y(), q.z()])
+    ahrs = builder.AddNamedSystem("capsule.ahrs", MahonyAhrs(
+        imu.config.sample_rate, config, R_BS=imu.config.X_BS().rotation(),
+        gravity=parts.gravity))
+    builder.Connect(parts.output("capsule.imu.accel"), ahrs.get_accel_input_port())
+    builder.Connect(parts.output("capsule.imu.gyro"), ahrs.get_gyro_input_port())
+    parts.export(ahrs.get_q_WB_output_port(), "capsule.ahrs.q_WB")
+    parts.export(ahrs.get_gyro_bias_output_port(), "capsule.ahrs.gyro_bias")
+    return ahrs
