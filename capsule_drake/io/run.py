@@ -158,8 +158,10 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         simulator.Initialize()
         chunk = max(scenario.duration / 200.0, 0.05)
         t = 0.0
-        while t < scenario.duration - 1e-12:
-            t = min(scenario.duration, t + chunk)
+        while t < scenario.duration:
+            t = t + chunk
+            if t > scenario.duration - 1e-9:  # end on the duration, not an ulp short of it
+                t = scenario.duration
             status = simulator.AdvanceTo(t)
             bar.update(simulator.get_context().get_time())
             if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
