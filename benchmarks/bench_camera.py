@@ -20,11 +20,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import CAPSULE_BODY, capsule_start_pose, colon_for
+from capsule_drake.anatomy import ColonParams, load_colon
 from capsule_drake.capsule.camera import CameraConfig, LensRenderer
-from capsule_drake.perception.views import camera_scene
+from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception import LensConfig
+from capsule_drake.perception.views import camera_scene
 
 # name: (lens, face_resolution_scale)
 LENSES = {
@@ -58,7 +58,7 @@ def main():
 
     config = CameraConfig()
     diagram, context, plant, scene_graph, walls = camera_scene(config=config)
-    colon = colon_for(Scenario())
+    colon, _ = load_colon(ColonParams())
     body = plant.GetBodyByName(CAPSULE_BODY)
     plant_context = plant.GetMyMutableContextFromRoot(context)
     body_frame = plant.GetBodyFrameIdOrThrow(body.index())
@@ -76,7 +76,7 @@ def main():
                                                     face_resolution_scale=scale))
         both_ms, rgb_ms, depth_ms = [], [], []
         for place, s in enumerate(places):
-            X_WB = capsule_start_pose(colon, s)
+            X_WB = start_pose(colon, s)
             plant.SetFreeBodyPose(plant_context, body, X_WB)
             query_object = scene_graph.get_query_output_port().Eval(
                 scene_graph.GetMyContextFromRoot(context))

@@ -12,8 +12,8 @@ peak memory, real-time factor (median of the repeats), the capsule's largest exc
 the analytic wall and how far it moved along the centreline.
 
 The wall and the capsule's contact properties are registered exactly as the station does
-(`capsule_drake.station.add_colon_wall` and `set_capsule_contact`), from a Scenario whose
-`contact.model` is "hydroelastic" or "convex_pieces".
+(`capsule_drake.physics.contact.add_colon_wall` and `set_capsule_contact`), from a
+ContactConfig whose `model` is "hydroelastic" or "convex_pieces".
 """
 
 from __future__ import annotations
@@ -39,19 +39,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, VectorLogSink
 
-from capsule_drake.anatomy import ColonParams, build_colon, colon_assets
+from capsule_drake.anatomy import ColonParams, colon_wall_pieces, load_colon
+from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model, start_pose
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
-from capsule_drake.scenario import ContactConfig, Scenario
-from capsule_drake.station import (
-    add_colon_wall,
-    capsule_start_pose,
-    configure_parser,
-    set_capsule_contact,
-    wall_pieces_for,
-)
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact import ContactConfig, add_colon_wall, set_capsule_contact
 
-CAPSULE_RADIUS = 0.0058
-CAPSULE_LENGTH = 0.0199
 START_S = 0.75            # middle of the default colon's transverse segment [m]
 PRESS_N = 1.0             # external load toward the wall [N]
 DRAG_N = 0.3              # external load along the colon [N]
@@ -69,10 +62,10 @@ def build(model: str, colon, axial_length: float, chord_depth: float):
     """Diagram, capsule state logger and wall geometry count; times the two build stages."""
     contact = ContactConfig(model="convex_pieces" if model == "pieces" else "hydroelastic",
                             piece_axial_length=axial_length, piece_max_chord_depth=chord_depth)
-    scenario = Scenario(colon=colon.params, contact=contact)
     start = time.perf_counter()
-    if model == "pieces":
-        wall_pieces_for(scenario, colon)  # generated once per process: timed on its own
+    if model == "pieces":  # generated once per process: timed on its own
+        colon_wall_pieces(colon.params, contact.piece_axial_length,
+                          contact.piece_max_chord_depth)
     geometry_seconds = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -81,12 +74,12 @@ def build(model: str, colon, axial_length: float, chord_depth: float):
                                   use_sampled_output_ports=(model != "pieces"))
     plant, scene_graph = AddMultibodyPlant(config, builder)
     capsule_instance, = configure_parser(Parser(plant)).AddModels(
-        url="package://capsule_drake/capsule.sdf")
-    body = plant.GetBodyByName("capsule")
-    count = add_colon_wall(plant, scenario, colon)
-    set_capsule_contact(plant, scene_graph, scenario)
+        url=model_url("capsule.sdf"))
+    body = plant.GetBodyByName(CAPSULE_BODY)
+    count = add_colon_wall(plant, contact, colon.params, colon)
+    set_capsule_contact(plant, scene_graph, contact)
     plant.Finalize()
-    plant.SetDefaultFloatingBaseBodyPose(body, capsule_start_pose(colon, START_S))
+    plant.SetDefaultFloatingBaseBodyPose(body, start_pose(colon, START_S))
 
     force = ExternallyAppliedSpatialForce()
     force.body_index = body.index()
@@ -102,9 +95,9 @@ def build(model: str, colon, axial_length: float, chord_depth: float):
 
 def run_one(model: str, axial_length: float, chord_depth: float, sim_seconds: float,
             repeats: int) -> dict:
-    colon = build_colon(ColonParams())
-    if model == "hydroelastic":
-        colon_assets(colon.params)  # generated once and cached: not part of the build
+    # The colon and its mesh files, built (or read from the cache) once: not part of the
+    # build (the wall pieces are generated from this colon, timed, in build()).
+    colon, _ = load_colon(ColonParams())
     diagram, logger, count, geometry_s, build_s = build(model, colon, axial_length,
                                                         chord_depth)
     factors = []
@@ -116,8 +109,9 @@ def run_one(model: str, axial_length: float, chord_depth: float, sim_seconds: fl
         factors.append(sim_seconds / (time.perf_counter() - start))
     log = logger.FindLog(simulator.get_context())
     R_WC, p_WC = capsule_poses(log.data())
+    capsule = capsule_model()
     excursion = wall_excursion(colon, R_WC, p_WC,
-                               capsule_surface_points_C(CAPSULE_RADIUS, CAPSULE_LENGTH, 24))
+                               capsule_surface_points_C(capsule.radius, capsule.length, 24))
     s, _, _ = colon.centerline.closest(p_WC)
     settled = log.sample_times() >= 0.5  # after the drop from the centreline onto the wall
     return {

@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
+from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.ex_vivo import write_segment
 from capsule_drake.anatomy.imported import import_colon_mesh
 from capsule_drake.scenario import load_scenario
-from capsule_drake.station import colon_for, make_station
+from capsule_drake.station import make_station
 
 STAGES = ("reading", "repairing", "centreline", "wall table")
 
@@ -62,7 +63,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         procedural = folder / "procedural_colon.obj"
-        colon_for(load_scenario(name="Default")).visual_mesh().export(procedural)
+        colon, _ = load_colon(load_scenario(name="Default").colon)
+        colon.visual_mesh().export(procedural)
         segment = write_segment(folder / "ex_vivo")
         print(f"{'mesh':<18}" + "".join(f"{s:>12}" for s in STAGES) + f"{'total':>10}  [s]")
         for name, path in (("procedural (OBJ)", procedural), ("ex vivo segment", segment)):

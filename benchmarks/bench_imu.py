@@ -28,15 +28,15 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.capsule.allan import allan_deviation, white_noise_coefficient
 from capsule_drake.capsule.ahrs import AhrsConfig, MahonyAhrs, mahony_update
+from capsule_drake.capsule.allan import allan_deviation, white_noise_coefficient
 from capsule_drake.capsule.imu import Imu, ImuConfig, add_random_sources, imu_channels
-from capsule_drake.physics.magnet_force import MagnetSpec
 from capsule_drake.capsule.magnetometer import (
     Magnetometer,
     MagnetometerConfig,
     field_in_sensor_frame,
 )
+from capsule_drake.physics.magnet_force import MagnetSpec
 from timing import median_us  # benchmarks/timing.py
 
 VARIANTS = ("plant only", "+ Imu", "+ Imu + MahonyAhrs", "+ Magnetometer")

@@ -21,9 +21,10 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.physics.magnetics import (cylinder_moment, cylinder_pair_interaction_float,
-                                     dipole_pair_interaction_float, meshed_reference_wrench)
 from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.physics.magnetics import (cylinder_moment, cylinder_pair_interaction_float,
+                                             dipole_pair_interaction_float,
+                                             meshed_reference_wrench)
 from timing import median_us  # benchmarks/timing.py
 
 D, L, BR = 0.1016, 0.1016, 1.48

@@ -9,10 +9,10 @@ Prints the median microseconds per call of:
   - one 1 ms simulator step with and without the magnets,
   - the default station's 1 ms step (``--station``): as built, with the magnet moments
     set to zero (same Python work, no magnetic physics), and with MagneticForce's
-    output not applied (``apply_magnet_force=False``). The last two follow identical
-    trajectories, so their difference is what MagneticForce costs inside the
-    simulation. The simulators advance in interleaved 50 ms chunks and chunk times
-    are compared pairwise, so load from other processes mostly cancels.
+    output not applied (scenario ``magnet_force: {apply: false}``). The last two
+    follow identical trajectories, so their difference is what MagneticForce costs
+    inside the simulation. The simulators advance in interleaved 50 ms chunks and chunk
+    times are compared pairwise, so load from other processes mostly cancels.
 
 Run: python benchmarks/bench_magnetics.py [--station [--sim-seconds 3]]
 """
@@ -32,6 +32,7 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.physics.magnetics import (
     dipole_force,
     dipole_pair_interaction,
@@ -39,7 +40,6 @@ from capsule_drake.physics.magnetics import (
     dipole_pair_wrench,
     dipole_torque,
 )
-from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 from timing import median_us  # benchmarks/timing.py
 
 # Only for --station (imports the colon builder).
@@ -96,23 +96,25 @@ def _patched(module, name, value):
 
 
 def build_station(variant):
-    """The default station, or a variant of it built by patching ``make_station``."""
-    from capsule_drake import station
+    """The default station, or a variant of it: its magnet force block patched to zero
+    moments, or the scenario's ``magnet_force: {apply: false}``."""
+    from capsule_drake.physics import magnet_force
     from capsule_drake.scenario import load_scenario
+    from capsule_drake.station import make_station
 
-    scenario = load_scenario()
     if variant == "as built":
-        return station.make_station(scenario)
+        return make_station(load_scenario())
     if variant == "zero moments":
-        def zero_moment_force(plant, magnets):
+        def zero_moment_force(plant, magnets, **kwargs):
             return MagneticForce(
-                plant, [dataclasses.replace(m, moment=0.0) for m in magnets]
+                plant, [dataclasses.replace(m, moment=0.0) for m in magnets], **kwargs
             )
 
-        with _patched(station, "MagneticForce", zero_moment_force):
-            return station.make_station(scenario)
+        # add_magnet_force (physics/magnet_force.py) builds the system by this name.
+        with _patched(magnet_force, "MagneticForce", zero_moment_force):
+            return make_station(load_scenario())
     assert variant == "no MagneticForce"
-    return station.make_station(scenario, apply_magnet_force=False)
+    return make_station(load_scenario(override="magnet_force: {apply: false}"))
 
 
 def station_steps(sim_seconds, chunk=0.05, seed=0):

@@ -25,9 +25,10 @@ def run(args):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
 
-    from capsule_drake.scenario import layered, load_scenario
-    from capsule_drake.station import colon_for, make_station
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.physics.contact_monitor import ContactMonitor
+    from capsule_drake.scenario import layered, load_scenario
+    from capsule_drake.station import make_station
 
     import yaml
 
@@ -36,7 +37,7 @@ def run(args):
         override["pseudo_force"] = None
     override = yaml.safe_dump(override, default_flow_style=True)
     scenario = load_scenario(name=scenario_name, override=override)
-    colon = colon_for(scenario)
+    colon, _ = load_colon(scenario.colon)
     builder = DiagramBuilder()
     station = builder.AddSystem(make_station(scenario))
     monitor = builder.AddSystem(ContactMonitor())

@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from capsule_drake.scenario import load_scenario
-from capsule_drake.station import colon_for
+from capsule_drake.anatomy import load_colon
 from capsule_drake.perception.views import contact_sheet, darkest_spot, views_along_colon
+from capsule_drake.scenario import load_scenario
 
 
 def main():
@@ -26,7 +26,8 @@ def main():
     scenario = load_scenario()
     scenario = dataclasses.replace(scenario, colon=dataclasses.replace(scenario.colon,
                                                                        seed=args.seed))
-    length = colon_for(scenario).centerline.length
+    colon, _ = load_colon(scenario.colon)
+    length = colon.centerline.length
     s_values = np.linspace(0.08, length - 0.08, 12)
     views = views_along_colon(scenario, s_values)
     for view in views:

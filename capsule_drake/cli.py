@@ -8,8 +8,18 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
+from pydrake.geometry import Meshcat, MeshcatParams
 
+from capsule_drake.anatomy.imported import import_colon_mesh, write_import
+from capsule_drake.io.record import record
+from capsule_drake.io.run import StepBar, simulate
+from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
+                                                run_suite, segment_table, summary,
+                                                task_scenario, write_outputs)
+from capsule_drake.perception.evaluation import sample_frames, save_evaluation
+from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario
 
 
@@ -152,9 +162,6 @@ def _seeds(text: str) -> list[int]:
 
 
 def _benchmark(args) -> int:
-    from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
-                                                    run_suite, segment_table, summary,
-                                                    task_scenario, write_outputs)
 
     seeds = _seeds(args.seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
@@ -215,7 +222,6 @@ def _load(args, *flags: str):
 
 def _record(args) -> int:
     scenario = _load(args)
-    from capsule_drake.io.record import record
 
     name = args.scenario or "Default"
     out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -252,10 +258,6 @@ def _teleop(args) -> int:
     if live and scenario.simulator.target_realtime_rate == 0.0:
         # A person at the device: paced to the wall clock.
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
-
-    from pydrake.geometry import Meshcat, MeshcatParams
-
-    from capsule_drake.io.run import simulate
 
     drake_log = logging.getLogger("drake")
     level = drake_log.level
@@ -298,8 +300,6 @@ def _eval_lumen(args) -> int:
         raise ScenarioError("--frames and --colons must be >= 1")
     if not 0.0 <= args.wall_fraction <= 1.0:
         raise ScenarioError(f"--wall-fraction must be in [0, 1], got {args.wall_fraction}")
-    from capsule_drake.perception.evaluation import save_evaluation, sample_frames
-    from capsule_drake.perception.lumen import load_detector
 
     names = args.detector or ["gaussian", "median"]
     try:
@@ -327,11 +327,6 @@ def _eval_lumen(args) -> int:
 def _run(args) -> int:
     # A live page is paced to the wall clock.
     scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
-
-    # Imported here so that `capsule-sim --help` and argument errors answer at once.
-    from pydrake.geometry import Meshcat, MeshcatParams
-
-    from capsule_drake.io.run import simulate
 
     meshcat = None
     if args.meshcat:
@@ -377,11 +372,6 @@ def _run(args) -> int:
 
 
 def _import_colon(args) -> int:
-    import numpy as np
-
-    from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-    from capsule_drake.io.run import StepBar
-
     stages = ["reading", "repairing", "centreline", "wall table"]
     bar = StepBar(len(stages), enabled=not args.quiet, unit="stages")
 

@@ -150,6 +150,7 @@ def check_camera_config(config: CameraConfig) -> None:
         raise ValueError("camera face_resolution_scale must be positive")
     if not config.latency >= 0.0:
         raise ValueError(f"camera latency {config.latency} must be >= 0")
+    Lens(config.lens)  # raises ValueError naming a bad lens field
     tick = camera_tick(config)
     if config.latency >= tick:
         raise ValueError(f"camera latency {config.latency} s must be below the camera's "

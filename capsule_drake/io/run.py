@@ -116,9 +116,10 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             every simulated half second: a text ends the run there (a goal reached), and
             becomes the metrics' "stopped_at".
     """
-    colon, _ = load_colon(scenario.colon)
     builder = DiagramBuilder()
+    # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
     station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    colon, _ = load_colon(scenario.colon)   # cached: the station's own
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
     period = scenario.outputs.log_period

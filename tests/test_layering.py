@@ -1,0 +1,146 @@
+"""The package's layering, read from its source with ast: no import circles, no imports of the
+package's own modules inside functions, the station built only by the runners, station.py
+short."""
+
+import ast
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1] / "capsule_drake"
+
+# The top-level runners: the only modules that may import the station (they run whole
+# stations; everything else is a block the station adds, or works without a station).
+STATION_RUNNERS = {"capsule_drake.cli", "capsule_drake.io.run"}
+STATION_MAX_LINES = 300
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(path): path for path in sorted(PACKAGE_DIR.rglob("*.py"))}
+
+
+def imported_modules(node, module: str, is_package: bool) -> list[str]:
+    """The capsule_drake modules an Import/ImportFrom node imports: `from a.b import c` is
+    module a.b.c if that is a module, else a.b (a name from a.b, e.g. its __init__)."""
+    if isinstance(node, ast.Import):
+        names = [alias.name for alias in node.names]
+    else:
+        base = node.module or ""
+        if node.level:  # relative: from the module's package, `level - 1` packages up
+            package = module.split(".") if is_package else module.split(".")[:-1]
+            package = package[:len(package) - (node.level - 1)]
+            base = ".".join(package + ([base] if base else []))
+        names = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base
+                 for alias in node.names]
+    return sorted({name for name in names if name.split(".")[0] == "capsule_drake"})
+
+
+def imports_of(path: Path):
+    """(lineno, imported module, at_top_level) of every capsule_drake import in a module;
+    at_top_level is False inside a def or class body (it runs when that is called or
+    defined, not when the module is imported at its top)."""
+    module = module_name(path)
+    is_package = path.name == "__init__.py"
+    found = []
+
+    def visit(node, top):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.Import, ast.ImportFrom)):
+                for target in imported_modules(child, module, is_package):
+                    found.append((child.lineno, target, top))
+            inner = top and not isinstance(
+                child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Lambda))
+            visit(child, inner)
+
+    visit(ast.parse(path.read_text(), str(path)), True)
+    return found
+
+
+def import_graph(top_level_only: bool) -> dict[str, set[str]]:
+    """module -> the capsule_drake modules it imports. Importing a.b.c also runs the
+    __init__ of package a.b (unless the importer is inside a.b, which is then already
+    being imported): that is an edge too."""
+    graph = {}
+    for module, path in MODULES.items():
+        edges = set()
+        for _, target, top in imports_of(path):
+            if top_level_only and not top:
+                continue
+            edges.add(target)
+            parts = target.split(".")
+            for i in range(2, len(parts)):
+                package = ".".join(parts[:i])
+                if not (module == package or module.startswith(package + ".")):
+                    edges.add(package)
+        graph[module] = edges - {module}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle (a list of modules, the first repeated at the end), or None."""
+    state, stack = {}, []
+
+    def visit(node):
+        state[node] = "open"
+        stack.append(node)
+        for target in sorted(graph.get(node, ())):
+            if state.get(target) == "open":
+                return stack[stack.index(target):] + [target]
+            if target not in state:
+                cycle = visit(target)
+                if cycle:
+                    return cycle
+        stack.pop()
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state:
+            cycle = visit(node)
+            if cycle:
+                return cycle
+    return None
+
+
+def test_the_import_graph_is_read():
+    # The checks below are not vacuous: the modules are found and their imports resolved.
+    graph = import_graph(top_level_only=True)
+    assert {"capsule_drake.station", "capsule_drake.scenario", "capsule_drake.cli",
+            "capsule_drake.io.run", "capsule_drake.anatomy"} <= set(graph)
+    assert "capsule_drake.station" in graph["capsule_drake.io.run"]
+    assert "capsule_drake.anatomy.source" in graph["capsule_drake.anatomy"]  # the __init__
+    assert all(target in MODULES for edges in graph.values() for target in edges)
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_circles():
+    cycle = find_cycle(import_graph(top_level_only=True))
+    assert cycle is None, "import circle: " + " -> ".join(cycle)
+
+
+def test_no_imports_of_the_package_inside_functions():
+    # Lazy imports of other packages' heavy optional dependencies are fine; the package's
+    # own modules are imported at the top, where the import graph shows them.
+    lazy = [f"{path.relative_to(PACKAGE_DIR.parent)}:{line} imports {target}"
+            for module, path in MODULES.items()
+            for line, target, top in imports_of(path) if not top]
+    assert not lazy, "capsule_drake imported inside a function or class:\n" + "\n".join(lazy)
+
+
+def test_only_the_runners_import_the_station_and_nothing_imports_the_cli():
+    assert STATION_RUNNERS <= set(MODULES)
+    graph = import_graph(top_level_only=False)  # an import anywhere in a module counts
+    station = sorted(m for m, edges in graph.items() if "capsule_drake.station" in edges)
+    assert set(station) <= STATION_RUNNERS, (
+        f"capsule_drake.station imported by {station}; only the runners "
+        f"{sorted(STATION_RUNNERS)} may build whole stations")
+    cli = sorted(m for m, edges in graph.items() if "capsule_drake.cli" in edges)
+    assert not cli, f"capsule_drake.cli imported by {cli}"
+
+
+def test_station_is_short():
+    lines = len((PACKAGE_DIR / "station.py").read_text().splitlines())
+    assert lines < STATION_MAX_LINES, f"station.py has {lines} lines"
