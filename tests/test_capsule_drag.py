@@ -8,8 +8,10 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from capsule_drake.capsule.model import CAPSULE_BODY
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact import add_capsule_drag
 from capsule_drake.scenario import ScenarioError, load_scenario
-from capsule_drake.station import CAPSULE_BODY, PACKAGE, add_capsule_drag, configure_parser
 
 
 def _free_capsule(override):
@@ -17,8 +19,8 @@ def _free_capsule(override):
     scenario = load_scenario(override=override)
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_capsule_drag(plant, scenario)
+    configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
+    add_capsule_drag(plant, scenario.contact)
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
     plant.Finalize()
     diagram = builder.Build()

@@ -159,7 +159,8 @@ def test_finite_magnet_model_scenario_runs_and_checks_its_shapes():
 
     from capsule_drake.station import make_station
 
-    scenario = load_scenario(name="Default", override="{magnet_model: finite, duration: 0.2}")
+    scenario = load_scenario(name="Default",
+                             override="{magnet_force: {field_model: finite}, duration: 0.2}")
     station = make_station(scenario)
     simulator = Simulator(station)
     simulator.AdvanceTo(0.2)
@@ -167,22 +168,25 @@ def test_finite_magnet_model_scenario_runs_and_checks_its_shapes():
     assert np.all(np.isfinite(state))
     with pytest.raises(ScenarioError) as error:
         load_scenario(name="Default", override=(
-            "{magnet_model: finite, epm: {magnet: {shape: cuboid,"
+            "{magnet_force: {field_model: finite}, epm: {magnet: {shape: cuboid,"
             " dimensions: [0.08, 0.08, 0.1]}}}"))
     assert "epm.magnet is a cuboid" in str(error.value) and "\n" not in str(error.value)
-    with pytest.raises(ScenarioError, match="magnet_model must be"):
-        load_scenario(name="Default", override="{magnet_model: exact}")
+    with pytest.raises(ScenarioError, match="magnet_force.field_model must be"):
+        load_scenario(name="Default", override="{magnet_force: {field_model: exact}}")
 
 
 def test_magnetometer_reads_the_finite_field_with_the_finite_model():
-    """With magnet_model finite the magnetometer reads the EPM's exact cylinder field at the
-    sensor (the same field the force uses), not the dipole's."""
-    from capsule_drake.station import CAPSULE_BODY, EPM_BODY, make_station
+    """With magnet_force.field_model finite the magnetometer reads the EPM's exact cylinder
+    field at the sensor (the same field the force uses), not the dipole's."""
+    from capsule_drake.capsule.model import CAPSULE_BODY
+    from capsule_drake.epm.mount import EPM_BODY
+    from capsule_drake.station import make_station
 
     for model, field in (("dipole", lambda m, p: dipole_field(m, p)),
                          ("finite", lambda m, p: cylinder_field(m, [p], D, L)[0])):
         scenario = load_scenario(name="Default", override=(
-            f"{{magnet_model: {model}, duration: 0.0, capsule: {{magnetometer: {{}}}}}}"))
+            f"{{magnet_force: {{field_model: {model}}}, duration: 0.0, "
+            f"capsule: {{magnetometer: {{}}}}}}"))
         station = make_station(scenario)
         poses = station.GetOutputPort("body_poses").Eval(station.CreateDefaultContext())
         plant = station.GetSubsystemByName("plant")

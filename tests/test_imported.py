@@ -122,10 +122,10 @@ def test_the_tabulated_wall_matches_the_procedural_wall(tmp_path):
     imported colon's wall (its excursion, from the table of sections, is ~0) and the
     midpoint between wall and centreline is well inside. (The drag's metrics and the
     lumen truth read the wall through this table.)"""
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.imported import ImportedColon, import_colon_mesh, write_import
-    from capsule_drake.station import colon_for
 
-    colon = colon_for(load_scenario(name="Default"))
+    colon, _ = load_colon(load_scenario(name="Default").colon)
     path = tmp_path / "colon.obj"
     colon.visual_mesh().export(path)
     write_import(import_colon_mesh(path), tmp_path / "import")
@@ -157,13 +157,13 @@ def _inside(scenario_name, override, duration):
     """Runs the drag; returns (advance, smallest distance from the capsule's axis to the
     wall mesh, capsule radius): the capsule stayed inside if its axis never came nearer
     the wall than its radius (less the contact's compliance)."""
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.io.run import simulate
-    from capsule_drake.station import colon_for
 
     scenario = load_scenario(name=scenario_name, override=override)
     scenario = dataclasses.replace(scenario, duration=duration)
     result = simulate(scenario, progress=False)
-    colon = colon_for(scenario)
+    colon, _ = load_colon(scenario.colon)
     q, p = result.capsule_state[:4].T, result.capsule_state[4:7].T
     from pydrake.common.eigen_geometry import Quaternion
     from pydrake.math import RotationMatrix
@@ -181,11 +181,11 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     capsule stays inside the imported wall. (The drag is stick-slip: the capsule first
     slides back 3.6 cm, then jumps forward between 6 and 10 s; at 4, 6, 10 and 12 s the two
     runs agree within 1 mm, at 8 s, mid-jump, they are 7.1 and 9.9 cm along.)"""
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.io.run import simulate
-    from capsule_drake.station import colon_for
 
     path = tmp_path / "colon.obj"
-    colon_for(load_scenario(name="Default")).visual_mesh().export(path)
+    load_colon(load_scenario(name="Default").colon)[0].visual_mesh().export(path)
     moved, nearest = _inside("Default", f"{{colon: {{source: {path}}}}}", 16.0)
     original = simulate(dataclasses.replace(load_scenario(name="Default"), duration=16.0),
                         progress=False).metrics["advance_m"]
@@ -216,9 +216,10 @@ def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
     from pydrake.systems.analysis import Simulator
 
     from capsule_drake.anatomy.ex_vivo import TRAY_FLOOR
-    from capsule_drake.station import CAPSULE_BODY, make_station
+    from capsule_drake.capsule.model import CAPSULE_BODY
+    from capsule_drake.station import make_station
 
-    scenario = load_scenario(name="ExVivoSegment", override="{epm: {path: !HoldAbove "
+    scenario = load_scenario(name="ExVivoSegment", override="{epm: {driver: !HoldAbove "
                                                             "{height: 0.5}}}")
     diagram = make_station(scenario)
     simulator = Simulator(diagram)
@@ -236,15 +237,16 @@ def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
 def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp_path, capsys):
     """`capsule-sim import-colon` writes a folder a scenario runs on; a source that is not a
     colon (a point cloud, an empty folder) stops the run with one line, no traceback."""
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.ex_vivo import write_segment
     from capsule_drake.cli import main
-    from capsule_drake.station import colon_for, make_station
+    from capsule_drake.station import make_station
 
     mesh = write_segment(tmp_path / "scan")
     assert main(["import-colon", str(mesh), "--out", str(tmp_path / "colon"), "--quiet"]) == 0
     scenario = load_scenario(override=f"{{colon: {{source: {tmp_path / 'colon'}}}, "
                                       "capsule: {start_s: 0.03}}")
-    colon = colon_for(scenario)
+    colon, _ = load_colon(scenario.colon)
     assert 0.16 < colon.centerline.length < 0.2
     make_station(scenario)  # builds: collision chunks, visuals
     capsys.readouterr()

@@ -144,11 +144,11 @@ def test_centreline_of_a_bent_tube_is_its_axis_with_its_radius():
 def procedural_round_trip(request, tmp_path_factory):
     """The procedural colon (seeds 0, 3 and 4) exported as an OBJ, imported as a user's
     mesh, its centreline extracted."""
+    from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.centerline_extraction import extract_centerline
     from capsule_drake.scenario import load_scenario
-    from capsule_drake.station import colon_for
 
-    colon = colon_for(load_scenario(override=f"{{colon: {{seed: {request.param}}}}}"))
+    colon, _ = load_colon(load_scenario(override=f"{{colon: {{seed: {request.param}}}}}").colon)
     path = tmp_path_factory.mktemp("export") / "colon.obj"
     colon.visual_mesh().export(path)
     mesh = load_colon_mesh(path)

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from pydrake.math import RollPitchYaw, RotationMatrix
 
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import start_pose
 from capsule_drake.io.metrics import capsule_surface_points_C, wall_excursion
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import capsule_start_pose, colon_for
 
 RADIUS, LENGTH = 0.0058, 0.0199
 
@@ -46,7 +47,7 @@ def test_excursion_of_a_capsule_pushed_into_a_straight_tube():
 def test_sampled_excursion_matches_a_dense_surface_sampling():
     # In the real colon, the sampled surface points find the capsule's largest excursion
     # as well as 20,000 random points on its surface do, within 0.3 mm.
-    colon = colon_for(Scenario())
+    colon, _ = load_colon(Scenario().colon)
     rng = np.random.default_rng(3)
     angle = rng.uniform(0, 2 * np.pi, 10000)
     cylinder = np.column_stack([RADIUS * np.cos(angle), RADIUS * np.sin(angle),
@@ -56,7 +57,7 @@ def test_sampled_excursion_matches_a_dense_surface_sampling():
     caps[:, 2] += np.sign(caps[:, 2]) * LENGTH / 2
     dense = np.vstack([cylinder, caps])
     for s in (0.3, 0.8, 1.2):
-        X = capsule_start_pose(colon, s)
+        X = start_pose(colon, s)
         R = X.rotation().matrix()
         side = R[:, 0]
         p = X.translation() + side * 0.01  # pressed toward the wall

@@ -22,8 +22,9 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from capsule_drake.anatomy import ColonParams, build_colon
 from capsule_drake.anatomy.pieces import wall_pieces
+from capsule_drake.capsule.model import start_pose
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
-from capsule_drake.station import capsule_start_pose, configure_parser
+from capsule_drake.models import configure_parser
 
 CHORD = 0.0005       # the default max_chord_depth [m]
 THICKNESS = 0.003    # the default thickness [m]
@@ -200,7 +201,7 @@ def test_capsule_pressed_on_pieces_stays_at_the_wall(colon, pieces):
         scene_graph.AssignRole(plant.get_source_id(), geometry_id, props(),
                                RoleAssign.kReplace)
     plant.Finalize()
-    plant.SetDefaultFloatingBaseBodyPose(body, capsule_start_pose(colon, start_s))
+    plant.SetDefaultFloatingBaseBodyPose(body, start_pose(colon, start_s))
     force = ExternallyAppliedSpatialForce()
     force.body_index = body.index()
     force.p_BoBq_B = np.zeros(3)
