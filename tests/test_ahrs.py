@@ -36,11 +36,11 @@ from capsule_drake.capsule.ahrs import (
     AhrsConfig,
     MahonyAhrs,
     mahony_update,
-    quaternion_to_rotation,
     tilt_and_heading_error,
     tilt_quaternion,
 )
 from capsule_drake.capsule.imu import STANDARD_GRAVITY, Imu, ImuConfig, imu_channels
+from capsule_drake.capsule.model import rotation_from_quaternion
 
 DEG = math.pi / 180.0
 CALIBRATED = dataclasses.replace(ImuConfig(), accel_initial_bias_sigma=0.0)
@@ -85,7 +85,7 @@ def _filter(a, w, fs, ahrs=AhrsConfig(), q0=None):
 
 def _errors(qs, R_true):
     """(tilt, heading) errors in degrees; qs[k] against R_true[k + 1]."""
-    out = np.array([tilt_and_heading_error(quaternion_to_rotation(q).matrix(),
+    out = np.array([tilt_and_heading_error(rotation_from_quaternion(q),
                                            R_true[k + 1].as_matrix())
                     for k, q in enumerate(qs)])
     return np.degrees(out[:, 0]), np.degrees(out[:, 1])
@@ -161,10 +161,11 @@ def test_initial_tilt_from_the_accelerometer():
     R = RotationMatrix(RollPitchYaw(0.4, -0.7, 2.0))
     up_S = R.inverse() @ np.array([0.0, 0.0, 9.81])
     q = tilt_quaternion(up_S)
-    tilt, _ = tilt_and_heading_error(quaternion_to_rotation(q), R)
+    tilt, _ = tilt_and_heading_error(RotationMatrix(rotation_from_quaternion(q)), R)
     assert tilt < 1e-12
-    assert tilt_and_heading_error(quaternion_to_rotation(tilt_quaternion([0, 0, -9.8])),
-                                  RotationMatrix(RollPitchYaw(math.pi, 0, 0)))[0] < 1e-12
+    assert tilt_and_heading_error(
+        RotationMatrix(rotation_from_quaternion(tilt_quaternion([0, 0, -9.8]))),
+        RotationMatrix(RollPitchYaw(math.pi, 0, 0)))[0] < 1e-12
 
 
 def test_leaf_system_equals_the_pure_filter_and_reports_the_body_frame():
@@ -185,8 +186,9 @@ def test_leaf_system_equals_the_pure_filter_and_reports_the_body_frame():
         dut.get_gyro_input_port().FixValue(context, w[k])
         context.SetDiscreteState(dut.EvalUniquePeriodicDiscreteUpdate(context))
     q_WB = dut.get_q_WB_output_port().Eval(context)
-    R_WB_expected = quaternion_to_rotation(qs[-1]) @ R_BS.inverse()
-    assert quaternion_to_rotation(q_WB).IsNearlyEqualTo(R_WB_expected, 1e-12)
+    R_WB_expected = RotationMatrix(rotation_from_quaternion(qs[-1])) @ R_BS.inverse()
+    assert RotationMatrix(rotation_from_quaternion(q_WB)).IsNearlyEqualTo(R_WB_expected,
+                                                                          1e-12)
     np.testing.assert_allclose(dut.get_gyro_bias_output_port().Eval(context), bs[-1],
                                atol=1e-15)
 
@@ -200,7 +202,8 @@ def test_given_initial_orientation():
     dut.get_gyro_input_port().FixValue(context, np.zeros(3))
     context.SetDiscreteState(dut.EvalUniquePeriodicDiscreteUpdate(context))
     q = dut.get_q_WB_output_port().Eval(context)
-    assert quaternion_to_rotation(q).IsNearlyEqualTo(R0, 1e-9)  # heading kept too
+    # heading kept too
+    assert RotationMatrix(rotation_from_quaternion(q)).IsNearlyEqualTo(R0, 1e-9)
 
 
 def test_imu_and_ahrs_on_a_spinning_plant_body():
@@ -241,7 +244,8 @@ def test_imu_and_ahrs_on_a_spinning_plant_body():
     tilts = []
     for k in range(int(20 / period), len(x)):
         R_true = RotationMatrix(Quaternion(x[k, :4] / np.linalg.norm(x[k, :4])))
-        tilts.append(tilt_and_heading_error(quaternion_to_rotation(q_est[k]), R_true)[0])
+        tilts.append(tilt_and_heading_error(
+            RotationMatrix(rotation_from_quaternion(q_est[k])), R_true)[0])
     assert np.degrees(max(tilts)) < 0.05 + 0.5 * 0.5
     b_est = b_log.FindLog(context).data().T[-1]
     b_true = true_b_log.FindLog(context).data().T

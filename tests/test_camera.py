@@ -20,12 +20,12 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.station import (PACKAGE, configure_parser)
 from capsule_drake.capsule.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
-from capsule_drake.perception.views import camera_scene
+from capsule_drake.models import configure_parser, model_url
 from capsule_drake.perception import LensConfig
+from capsule_drake.perception.views import camera_scene
 
 # Images of the test scenes go here, to be looked at.
 IMAGE_DIR = Path(os.environ.get("CAPSULE_CAMERA_TEST_IMAGES",
@@ -171,7 +171,7 @@ def _moving_capsule_diagram(config, speed, static_scene=None):
     diagram holds two cameras, the given one last, the other first."""
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
+    configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
     plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0.0, 0.0, 0.06]),
                                  Box(1.0, 1.0, 0.01), "plate", np.array([0.8, 0.4, 0.3, 1.0]))
     if static_scene is not None:

@@ -10,16 +10,19 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
+from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.windows import CameraWindows, sight_reach
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer, add_camera_walls
+from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
+from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact import add_colon_visuals
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import (CAPSULE_BODY, PACKAGE, add_camera_walls, add_colon_visuals,
-                                   capsule_start_pose, colon_for, configure_parser)
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 
 
 @pytest.fixture(scope="module")
 def colon():
-    return colon_for(Scenario())
+    colon, _ = load_colon(Scenario().colon)
+    return colon
 
 
 def test_sight_reach_is_the_range_on_straight_stretches_and_longer_in_bends(colon):
@@ -51,11 +54,11 @@ def test_windowed_frames_equal_whole_wall_frames(colon):
     scenario = Scenario()
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
-    add_colon_visuals(plant, scenario, perception=False)
+    configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
+    add_colon_visuals(plant, scenario.colon, colon, perception=False)
     config = CameraConfig()
-    renderer_for = add_camera_walls(plant, scene_graph, scenario, colon, config)
-    add_camera_walls(plant, scene_graph, scenario, colon,
+    renderer_for = add_camera_walls(plant, scene_graph, scenario.colon, colon, config)
+    add_camera_walls(plant, scene_graph, scenario.colon, colon,
                      dataclasses.replace(config, renderer_name="whole", window_spacing=0.0))
     plant.Finalize()
     diagram = builder.Build()
@@ -70,7 +73,7 @@ def test_windowed_frames_equal_whole_wall_frames(colon):
     used, windows_used = 0, set()
     while used < 40:
         s = rng.uniform(0.03, length - 0.03)
-        X_WB = capsule_start_pose(colon, s)
+        X_WB = start_pose(colon, s)
         turn = RotationMatrix(RollPitchYaw(*rng.uniform(-1.2, 1.2, 3)))
         X_WB = RigidTransform(X_WB.rotation().multiply(turn), X_WB.translation())
         offset = rng.uniform(0.0, 0.6) * float(colon.max_wall_radius(s)[0])

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import capsule_start_pose, colon_for
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import start_pose
 from capsule_drake.perception.lumen_truth import LumenTruth, lumen_target
+from capsule_drake.scenario import Scenario
 
 
 class IdealPinhole:
@@ -32,7 +33,8 @@ def state_of(X_WB: RigidTransform) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def colon():
-    return colon_for(Scenario())
+    colon, _ = load_colon(Scenario().colon)
+    return colon
 
 
 def truth_for(colon, X_WB, lookahead=0.03):
@@ -45,7 +47,7 @@ def truth_for(colon, X_WB, lookahead=0.03):
 
 
 def test_target_is_ahead_in_the_direction_the_camera_looks(colon):
-    X = capsule_start_pose(colon, 0.4)
+    X = start_pose(colon, 0.4)
     z = X.rotation().col(2)
     point, s = lumen_target(colon, X.translation(), z, 0.05)
     assert s == pytest.approx(0.45, abs=2e-3)
@@ -54,7 +56,7 @@ def test_target_is_ahead_in_the_direction_the_camera_looks(colon):
 
 
 def test_lumen_projects_where_a_pinhole_puts_it(colon):
-    X_WB = capsule_start_pose(colon, 0.4)
+    X_WB = start_pose(colon, 0.4)
     pixel, visible, point = truth_for(colon, X_WB)
     # Closed form: the target in the camera frame, through f x / z + c.
     p_C = X_WB.inverse().multiply(point[:3])
@@ -66,7 +68,7 @@ def test_lumen_projects_where_a_pinhole_puts_it(colon):
 
 
 def test_lumen_behind_the_camera_or_outside_the_view_is_not_visible(colon):
-    X_WB = capsule_start_pose(colon, 0.4)
+    X_WB = start_pose(colon, 0.4)
     # Turned to look at the wall (90 degrees about its x axis), the 90-degree pinhole
     # cannot see a point that lies along the colon.
     side = X_WB.multiply(RigidTransform(RotationMatrix(RollPitchYaw(np.pi / 2, 0, 0)), [0, 0, 0]))

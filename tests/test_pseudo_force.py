@@ -15,23 +15,31 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import capsule_model as sdf_capsule_model
+from capsule_drake.capsule.model import start_pose
 from capsule_drake.guidance import terms as guidance
-from capsule_drake.guidance.terms import (PseudoForceConfig, capsule_axis_points,
-                                    check_pseudo_force_config, colon_potential,
-                                    colon_potential_force, lumen_attraction, pseudo_force,
-                                    wall_avoidance, wall_clearance)
-from capsule_drake.scenario import Scenario
-from capsule_drake.station import capsule_start_pose, colon_for, configure_parser
 from capsule_drake.guidance.pseudo_force import PseudoForceField
+from capsule_drake.guidance.terms import (PseudoForceConfig, capsule_axis_points,
+                                          check_pseudo_force_config, colon_potential,
+                                          colon_potential_force, lumen_attraction,
+                                          pseudo_force, wall_avoidance, wall_clearance)
+from capsule_drake.models import configure_parser
+from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
 
 # The device frame of the default config, written out: x_D = x_C (image right), y_D = -y_C
 # (image up), z_D = -z_C (toward the operator, so camera forward is pushing the stylus away).
 R_DC = np.diag([1.0, -1.0, -1.0])
 
+# The capsule's collision shape (radius, cylinder length), as the package reads it from
+# models/capsule.sdf; test_capsule_shape_matches_the_model checks it against the SDF.
+RADIUS, LENGTH = sdf_capsule_model().radius, sdf_capsule_model().length
+
 
 @pytest.fixture(scope="module")
 def colon():
-    return colon_for(Scenario())
+    colon, _ = load_colon(Scenario().colon)
+    return colon
 
 
 @pytest.fixture(scope="module")
@@ -63,12 +71,13 @@ def segment_middle(colon, name: str) -> float:
 def near_wall(colon, s: float, direction_B, clearance: float):
     """The capsule at arc length s, body z down the lumen, moved along a body direction in its
     cross-section until its wall distance first drops below `clearance`; (X_WB, e_W)."""
-    X = capsule_start_pose(colon, s)
+    X = start_pose(colon, s)
     R = X.rotation().matrix()
     e_W = R @ np.asarray(direction_B, dtype=float)
     for offset in np.arange(0.0, 0.04, 2e-4):
         p = X.translation() + offset * e_W
-        if wall_clearance(colon, R, p, np.zeros(3), np.zeros(3)).distance < clearance:
+        if wall_clearance(colon, R, p, np.zeros(3), np.zeros(3), RADIUS,
+                          LENGTH).distance < clearance:
             return RigidTransform(X.rotation(), p), e_W
     raise AssertionError("never reached the wall")
 
@@ -121,8 +130,9 @@ def test_lumen_pull_vanishes_when_unseen_and_scales_with_confidence():
 def lumen_only_force(colon, r, X_BC, visible=1.0):
     """F_D of the lumen term alone: the capsule on the centreline, far from the wall."""
     config = PseudoForceConfig(wall_weight=0.0)
-    state = state_of(capsule_start_pose(colon, segment_middle(colon, "transverse")))
-    return pseudo_force(colon, config, X_BC.rotation().matrix(), r, visible, 1.0, state).F_D
+    state = state_of(start_pose(colon, segment_middle(colon, "transverse")))
+    return pseudo_force(colon, config, X_BC.rotation().matrix(), r, visible, 1.0, state,
+                        RADIUS, LENGTH).F_D
 
 
 def test_default_device_frame_is_diag_1_minus1_minus1():
@@ -154,7 +164,7 @@ def test_wall_push_in_the_device_frame(colon, capsule_model):
     for direction_B, axis, sign in (([1.0, 0.0, 0.0], 0, -1.0), ([0.0, 1.0, 0.0], 1, 1.0)):
         X_WB, _ = near_wall(colon, s, direction_B, 0.002)
         F_D = pseudo_force(colon, config, X_BC.rotation().matrix(), np.zeros(3), 0.0, 1.0,
-                           state_of(X_WB)).F_D
+                           state_of(X_WB), RADIUS, LENGTH).F_D
         assert sign * F_D[axis] > 0.95 * np.linalg.norm(F_D) > 0.0
 
 
@@ -162,8 +172,8 @@ def test_wall_push_in_the_device_frame(colon, capsule_model):
 
 def test_capsule_shape_matches_the_model(capsule_model):
     _, shape = capsule_model
-    assert shape.radius() == guidance.CAPSULE_RADIUS
-    assert shape.length() == guidance.CAPSULE_LENGTH
+    assert shape.radius() == RADIUS
+    assert shape.length() == LENGTH
 
 
 @pytest.mark.parametrize("segment, direction_B", [
@@ -171,13 +181,13 @@ def test_capsule_shape_matches_the_model(capsule_model):
     ("transverse", [0.6, 0.8, 0.0])])
 def test_wall_push_grows_toward_the_wall_and_points_back(colon, segment, direction_B):
     config = PseudoForceConfig()
-    X = capsule_start_pose(colon, segment_middle(colon, segment))
+    X = start_pose(colon, segment_middle(colon, segment))
     R = X.rotation().matrix()
     e_W = R @ direction_B
     magnitudes, distances = [], []
     for offset in np.arange(0.0, 0.04, 5e-4):
         p = X.translation() + offset * e_W
-        clearance = wall_clearance(colon, R, p, np.zeros(3), np.zeros(3))
+        clearance = wall_clearance(colon, R, p, np.zeros(3), np.zeros(3), RADIUS, LENGTH)
         F = wall_avoidance(clearance.distance, clearance.rate, clearance.normal_W,
                            config.k_wall, config.c_wall, config.wall_distance)
         magnitudes.append(np.linalg.norm(F))
@@ -216,9 +226,9 @@ def test_wall_distance_agrees_with_the_wall_mesh(colon):
         angle = rng.uniform(0.0, 2.0 * np.pi)
         X_WB, _ = near_wall(colon, s, [math.cos(angle), math.sin(angle), 0.0], 0.004)
         R, p = X_WB.rotation().matrix(), X_WB.translation()
-        d = wall_clearance(colon, R, p, np.zeros(3), np.zeros(3)).distance
-        _, to_mesh, _ = query.on_surface(capsule_axis_points(R, p, samples=41))
-        errors.append(d - (to_mesh.min() - guidance.CAPSULE_RADIUS))
+        d = wall_clearance(colon, R, p, np.zeros(3), np.zeros(3), RADIUS, LENGTH).distance
+        _, to_mesh, _ = query.on_surface(capsule_axis_points(R, p, LENGTH, samples=41))
+        errors.append(d - (to_mesh.min() - RADIUS))
     assert np.max(np.abs(errors)) < 1e-3
     assert np.median(np.abs(errors)) < 3e-4
 
@@ -230,17 +240,17 @@ def test_approaching_the_wall_pushes_harder(colon):
     speed = 0.01
     pushes = {}
     for label, v in (("toward", speed * e_W), ("still", np.zeros(3)), ("away", -speed * e_W)):
-        c = wall_clearance(colon, R, p, np.zeros(3), v)
+        c = wall_clearance(colon, R, p, np.zeros(3), v, RADIUS, LENGTH)
         pushes[label] = np.linalg.norm(wall_avoidance(
             c.distance, c.rate, c.normal_W, config.k_wall, config.c_wall, config.wall_distance))
         # Independent route for d_dot: the distance a moment later, minus now.
         h = 1e-4
-        later = wall_clearance(colon, R, p + h * v, np.zeros(3), v).distance
+        later = wall_clearance(colon, R, p + h * v, np.zeros(3), v, RADIUS, LENGTH).distance
         assert c.rate == pytest.approx((later - c.distance) / h, abs=0.05 * speed)
     assert pushes["toward"] > pushes["still"] > pushes["away"] > 0.0
     assert pushes["toward"] - pushes["still"] == pytest.approx(config.c_wall * speed, rel=0.05)
     # Leaving fast enough cancels the spring, but never pulls toward the wall.
-    c = wall_clearance(colon, R, p, np.zeros(3), -1.0 * e_W)
+    c = wall_clearance(colon, R, p, np.zeros(3), -1.0 * e_W, RADIUS, LENGTH)
     F = wall_avoidance(c.distance, c.rate, c.normal_W, config.k_wall, config.c_wall,
                        config.wall_distance)
     np.testing.assert_array_equal(F, np.zeros(3))
@@ -253,11 +263,11 @@ def test_rotation_moves_the_capsule_ends(colon):
     X_WB, e_W = near_wall(colon, segment_middle(colon, "descending"), [1.0, 0.0, 0.0], 0.002)
     R, p = X_WB.rotation().matrix(), X_WB.translation()
     w_W = 0.5 * R[:, 1]  # about body y: the ends swing along body x
-    c = wall_clearance(colon, R, p, w_W, np.zeros(3))
+    c = wall_clearance(colon, R, p, w_W, np.zeros(3), RADIUS, LENGTH)
     assert abs(c.rate) > 0.001  # an end, not the middle, is nearest (the colon bends)
     h = 1e-4
     R_later = RotationMatrix(RollPitchYaw(0.0, 0.5 * h, 0.0)).matrix()
-    later = wall_clearance(colon, R @ R_later, p, w_W, np.zeros(3)).distance
+    later = wall_clearance(colon, R @ R_later, p, w_W, np.zeros(3), RADIUS, LENGTH).distance
     assert c.rate == pytest.approx((later - c.distance) / h, rel=0.1)
 
 
@@ -310,7 +320,8 @@ def test_saturation_keeps_the_direction(colon, capsule_model):
     _, r, state = busy_inputs(colon)
     huge = PseudoForceConfig(potential_weight=1.0, k_lateral=1e4, k_forward=1e4, k_wall=1e6,
                              c_wall=1e4, k_along=1e4, k_radial=1e6)
-    result = pseudo_force(colon, huge, X_BC.rotation().matrix(), r, 1.0, 1.0, state)
+    result = pseudo_force(colon, huge, X_BC.rotation().matrix(), r, 1.0, 1.0, state, RADIUS,
+                          LENGTH)
     total = result.terms_D.sum(axis=0)
     assert np.linalg.norm(total) > 100.0 * huge.force_limit
     assert np.linalg.norm(result.F_D) == pytest.approx(huge.force_limit, abs=1e-9)
@@ -319,7 +330,8 @@ def test_saturation_keeps_the_direction(colon, capsule_model):
     # Below the limit the sum passes unchanged.
     gentle = PseudoForceConfig(potential_weight=0.2, k_lateral=0.5, k_forward=0.2, k_wall=50.0,
                                c_wall=5.0, k_along=0.2, k_radial=10.0)
-    result = pseudo_force(colon, gentle, X_BC.rotation().matrix(), r, 1.0, 1.0, state)
+    result = pseudo_force(colon, gentle, X_BC.rotation().matrix(), r, 1.0, 1.0, state, RADIUS,
+                          LENGTH)
     assert 0.0 < np.linalg.norm(result.F_D) < gentle.force_limit
     np.testing.assert_array_equal(result.F_D, result.terms_D.sum(axis=0))
 
@@ -331,7 +343,7 @@ def expected_terms_D(colon, config, X_BC, X_WB, r, confidence, state):
     R_CW = X_WB.rotation().multiply(X_BC.rotation()).inverse().matrix()
     lumen = lumen_attraction(r, True, confidence, config.k_lateral, config.k_forward)
     c = wall_clearance(colon, X_WB.rotation().matrix(), X_WB.translation(), state[7:10],
-                       state[10:13])
+                       state[10:13], RADIUS, LENGTH)
     wall = wall_avoidance(c.distance, c.rate, c.normal_W, config.k_wall, config.c_wall,
                           config.wall_distance)
     potential = colon_potential_force(colon.centerline, X_WB.translation(), config.k_along,
@@ -348,7 +360,8 @@ def test_system_samples_and_holds_the_pure_functions(colon, capsule_model):
     config = PseudoForceConfig(lumen_weight=1.5, wall_weight=2.0, potential_weight=0.5,
                                update_period=0.001)
     builder = DiagramBuilder()
-    dut = builder.AddNamedSystem("pseudo_force", PseudoForceField(colon, config, X_BC))
+    dut = builder.AddNamedSystem("pseudo_force",
+                                 PseudoForceField(colon, config, X_BC, RADIUS, LENGTH))
     for port, value in ((dut.get_lumen_ray_input_port(), r),
                         (dut.get_lumen_visible_input_port(), [1.0]),
                         (dut.get_lumen_confidence_input_port(), [0.7]),
@@ -389,7 +402,7 @@ def run_fixed(dut, values, duration=0.0025):
 def test_non_finite_inputs_give_a_finite_force_and_are_counted(colon, capsule_model):
     X_BC, _ = capsule_model
     dut = PseudoForceField(colon, PseudoForceConfig(potential_weight=1.0, update_period=0.001),
-                           X_BC)
+                           X_BC, RADIUS, LENGTH)
     X_WB, r, state = busy_inputs(colon)
     nan_velocity = state.copy()
     nan_velocity[10] = np.nan
@@ -424,7 +437,7 @@ def test_non_finite_inputs_give_a_finite_force_and_are_counted(colon, capsule_mo
 
 def test_unconnected_inputs_mean_no_information(colon, capsule_model):
     X_BC, _ = capsule_model
-    dut = PseudoForceField(colon, PseudoForceConfig(), X_BC)
+    dut = PseudoForceField(colon, PseudoForceConfig(), X_BC, RADIUS, LENGTH)
     X_WB, r, state = busy_inputs(colon)
     context = run_fixed(dut, {dut.get_capsule_state_input_port(): state})
     terms = dut.get_terms_D_output_port().Eval(context).reshape(3, 3)
@@ -456,10 +469,20 @@ def test_config_yaml_round_trip_and_unknown_keys():
     ("wall_distance", -0.001), ("update_period", 0.0), ("k_radial", -5.0),
     ("device_from_camera_rpy_deg", [180.0, 0.0]),
     ("device_from_camera_rpy_deg", [180.0, math.nan, 0.0])])
-def test_bad_config_values_name_the_field(colon, capsule_model, field, value):
+def test_bad_config_values_name_the_field(field, value):
     config = dataclasses.replace(PseudoForceConfig(), **{field: value})
     with pytest.raises(ValueError, match=field) as error:
         check_pseudo_force_config(config)
     assert "\n" not in str(error.value)
-    with pytest.raises(ValueError, match=field):
-        PseudoForceField(colon, config, capsule_model[0])
+    # The system trusts its config; a scenario is checked when it is loaded.
+    with pytest.raises(ScenarioError, match=f"^scenario: pseudo_force: .*{field}") as error:
+        load_scenario(override=f"pseudo_force: {{{field}: {_yaml(value)}}}")
+    assert "\n" not in str(error.value)
+
+
+def _yaml(value) -> str:
+    """A number or a list of numbers as YAML (.inf, .nan for the non-finite)."""
+    if isinstance(value, list):
+        return "[" + ", ".join(_yaml(v) for v in value) + "]"
+    return {math.inf: ".inf", -math.inf: "-.inf"}.get(value, ".nan" if math.isnan(value)
+                                                       else repr(value))

@@ -5,17 +5,18 @@ import json
 import numpy as np
 import pytest
 
+from capsule_drake.anatomy import load_colon
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io.dataset import read_depth_png
-from capsule_drake.scenario import load_scenario
-from capsule_drake.station import colon_for
 from capsule_drake.perception.views import darkest_spot, views_along_colon
+from capsule_drake.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")
 def views():
     scenario = load_scenario()
-    length = colon_for(scenario).centerline.length
+    colon, _ = load_colon(scenario.colon)
+    length = colon.centerline.length
     return views_along_colon(scenario, np.linspace(0.1, length - 0.1, 8))
 
 
