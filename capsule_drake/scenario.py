@@ -314,7 +314,7 @@ def validate(scenario: Scenario) -> None:
         checked("capsule.lumen_tracker: ", check_lumen_params, tracker.params)
         checked("capsule.lumen_tracker: ", load_detector, tracker.detector, tracker.params)
     if scenario.pseudo_force is not None:
-        checked("pseudo_force: ", check_pseudo_force_config, scenario.pseudo_force)
+        checked("", check_pseudo_force_config, scenario.pseudo_force)
         need(scenario.pseudo_force.lumen_weight == 0 or tracker is not None,
              "pseudo_force.lumen_weight needs capsule.lumen_tracker (and a camera), or set "
              "lumen_weight: 0")

@@ -1,7 +1,6 @@
 """Procedural mucosa texture, the visual wall's texture coordinates and the textured assets."""
 
 import dataclasses
-import time
 
 import cv2
 import numpy as np
@@ -130,10 +129,7 @@ def test_textured_mesh_is_the_visual_wall(colon, textured):
 
 def test_assets_textured_and_collision_unchanged(tmp_path):
     params = ColonParams(seed=4)
-    start = time.perf_counter()
     assets = colon_assets(params, cache_dir=tmp_path / "a")
-    # Texture, UVs and all meshes: a cold build stays within a few seconds.
-    assert time.perf_counter() - start < 5.0
     folder = assets.visual_obj.parent
     mtl = (folder / "colon_visual.mtl").read_text()
     assert "map_Kd colon_mucosa.png" in mtl and "Ks " in mtl and "Ns " in mtl

@@ -58,7 +58,7 @@ class PseudoForceField(LeafSystem):
 
     Args:
         colon: the scenario's Colon (wall and centreline).
-        config: a ``PseudoForceConfig`` (checked and copied).
+        config: a ``PseudoForceConfig`` (copied; the scenario checked it).
         X_BC: the camera frame's pose in the capsule body (the ``camera`` frame of
             models/capsule.sdf: ``plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()``).
         capsule_radius, capsule_length: the capsule's collision shape (m).
