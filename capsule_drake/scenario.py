@@ -301,6 +301,16 @@ def validate(scenario: Scenario) -> None:
         need(sensor is None or sensor.sample_rate > 0,
              f"capsule.{name}.sample_rate must be > 0, got "
              f"{getattr(sensor, 'sample_rate', None)}")
+    for name, fields in (("imu", ("p_BS", "rpy_BS_deg", "accel_initial_bias",
+                                  "gyro_initial_bias")),
+                         ("magnetometer", ("p_BS", "rpy_BS_deg", "initial_bias"))):
+        sensor = getattr(capsule, name)
+        for item in fields if sensor is not None else ():
+            value = getattr(sensor, item)
+            need(len(value) == 3, f"capsule.{name}.{item} must have 3 entries, got {value}")
+    need(capsule.ahrs is None or len(capsule.ahrs.initial_q_WB) in (0, 4),
+         "capsule.ahrs.initial_q_WB must be empty (the true start) or a quaternion "
+         f"[w, x, y, z], got {getattr(capsule.ahrs, 'initial_q_WB', None)}")
     need(capsule.ahrs is None or capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
     if capsule.contact_sensor is not None:

@@ -5,17 +5,20 @@ import json
 
 import numpy as np
 import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.primitives import LogVectorOutput
 
+from capsule_drake.anatomy import load_colon
 from capsule_drake.cli import main as cli_main
-from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
 from capsule_drake.io.run import simulate
-from capsule_drake.station import colon_for, make_station
+from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
+from capsule_drake.station import make_station
 
 
 def test_station_exports_named_ports():
     diagram = make_station(Scenario())
     names = {diagram.get_output_port(i).get_name() for i in range(diagram.num_output_ports())}
-    assert {"capsule.state", "capsule.B_C", "epm.state", "epm.desired_state", "epm.F_W",
+    assert {"capsule.state", "capsule.ipm_field_B", "epm.state", "epm.desired_state", "epm.F_W",
             "body_poses", "contact_results", "query_object"} <= names
 
 
@@ -27,19 +30,11 @@ def test_capsule_outside_the_colon_is_a_scenario_error():
 
 
 def test_bad_sensor_settings_are_scenario_errors():
-    # Checked by the systems they configure (load_scenario checks some earlier still).
-    from capsule_drake.capsule.camera import CameraConfig
-    from capsule_drake.capsule.imu import ImuConfig
-    from capsule_drake.perception import LensConfig
-
-    scenario = Scenario()
-    scenario.capsule.camera = CameraConfig(lens=LensConfig(model="fancy"))
+    # Checked once, when the scenario is loaded (scenario.validate).
     with pytest.raises(ScenarioError, match="capsule.camera: lens model 'fancy'"):
-        make_station(scenario)
-    scenario = Scenario()
-    scenario.capsule.imu = ImuConfig(sample_rate=-5.0)
-    with pytest.raises(ScenarioError, match="capsule sensors: sample_rate must be positive"):
-        make_station(scenario)
+        load_scenario(override="capsule: {camera: {lens: {model: fancy}}}")
+    with pytest.raises(ScenarioError, match="capsule.imu.sample_rate must be > 0, got -5.0"):
+        load_scenario(override="capsule: {imu: {sample_rate: -5.0}}")
 
 
 def test_magnet_field_at_capsule_points_down_the_colon():
@@ -49,7 +44,7 @@ def test_magnet_field_at_capsule_points_down_the_colon():
     scenario = Scenario()
     diagram = make_station(scenario)
     context = diagram.CreateDefaultContext()
-    B_C = diagram.GetOutputPort("capsule.B_C").Eval(context)
+    B_C = diagram.GetOutputPort("capsule.ipm_field_B").Eval(context)
     assert np.linalg.norm(B_C) > 1e-3  # tens of mT at 15-25 cm
     np.testing.assert_allclose(B_C / np.linalg.norm(B_C), [0, 0, 1], atol=0.05)
 
@@ -60,6 +55,7 @@ def drag_run():
     return simulate(scenario, progress=False)
 
 
+@pytest.mark.slow
 def test_default_drag_advances_30cm_inside_the_lumen(drag_run):
     m = drag_run.metrics
     print(json.dumps(m, indent=1))
@@ -70,6 +66,7 @@ def test_default_drag_advances_30cm_inside_the_lumen(drag_run):
     assert np.all(np.isfinite(drag_run.capsule_state))
 
 
+@pytest.mark.slow
 def test_default_drag_with_the_arm_advances_as_with_the_stage(drag_run):
     scenario = load_scenario(name="WithArm", override="duration: 40.0")
     arm = simulate(scenario, progress=False).metrics
@@ -91,12 +88,12 @@ def test_capsule_stays_put_with_magnet_50cm_away():
     scenario = load_scenario(name="FarMagnet")
     p = settled_positions(scenario)
     assert np.linalg.norm(p - p[0], axis=1).max() < 1e-3
-    s, _, _ = colon_for(scenario).centerline.closest(p)
+    s, _, _ = load_colon(scenario.colon)[0].centerline.closest(p)
     assert abs(s[-1] - s[0]) < 1e-3
     # The same magnet 24 cm above does move it (~0.2 N of pull > its 0.12 N weight, so it
     # ends on the upper wall instead of the lower one): the test can fail.
     near = dataclasses.replace(scenario, epm=dataclasses.replace(
-        scenario.epm, path=dataclasses.replace(scenario.epm.path, height=0.24)))
+        scenario.epm, driver=dataclasses.replace(scenario.epm.driver, height=0.24)))
     p_near = settled_positions(near)
     assert np.linalg.norm(p_near[-1] - p[-1]) > 0.01
 
@@ -112,16 +109,55 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
     assert (out / "logs.npz").exists() and (out / "scenario.yaml").exists()
 
 
-@pytest.mark.parametrize("name", ["Default", "WithSensors", "OneOfEverything"])
+# OneOfEverything and OneOfEverythingElse set every option that selects behaviour
+# (tests/test_scenario.py); Navigation and NavigationDetected hold the lumen follower.
+# Measured wall times (2 shared cores, colons cached): OneOfEverything ~20 s (building its
+# convex wall pieces takes most of it, and ~1.8 GB), OneOfEverythingElse ~4 s (~11 s when it
+# first imports the ex vivo colon), the others 1-4 s.
+@pytest.mark.parametrize("name", [
+    "Default", "WithSensors", "Navigation", "NavigationDetected",
+    pytest.param("OneOfEverything", marks=pytest.mark.slow),
+    pytest.param("OneOfEverythingElse", marks=pytest.mark.slow)])
 def test_named_scenarios_simulate(name):
     scenario = load_scenario(name=name)
     scenario = dataclasses.replace(scenario, duration=min(scenario.duration, 0.5))
-    result = simulate(scenario, progress=False)
+    logs = {}
+
+    def extend(builder, station):
+        logs["F_W"] = LogVectorOutput(station.GetOutputPort("epm.F_W"), builder, 0.05)
+
+    result = simulate(scenario, progress=False, extend=extend)
     assert result.metrics["stopped_early"] is None
     assert np.all(np.isfinite(result.capsule_state))
     assert result.metrics["max_wall_excursion_m"] < 1e-3
+    # The magnet force is computed (by the scenario's field model) ...
+    F_W = logs["F_W"].FindLog(result.context).data()
+    assert np.all(np.isfinite(F_W)) and np.all(np.linalg.norm(F_W[3:], axis=0) > 1e-3)
+    if not scenario.magnet_force.apply:
+        # ... but not applied: the capsule only settles on the tissue (measured: with the
+        # force applied, OneOfEverythingElse's capsule rises 12 mm to the lumen's roof).
+        z = result.capsule_state[6]
+        assert z.max() - z[0] < 1e-3
 
 
+def test_external_driver_takes_the_epm_command_input():
+    # !External: the station's epm.command is an input, and the stage follows it.
+    scenario = load_scenario(override="epm: {driver: !External {}}")
+    station = make_station(scenario)
+    assert station.HasSubsystemNamed("epm_stage_command")
+    assert not station.HasSubsystemNamed("epm_path")
+    simulator = Simulator(station)
+    context = simulator.get_mutable_context()
+    start = station.GetOutputPort("epm.pose").Eval(context).copy()
+    command = start.copy()
+    command[:3] += [0.02, 0.0, 0.02]  # 2 cm along x, 2 cm higher
+    station.GetInputPort("epm.command").FixValue(context, command)
+    simulator.AdvanceTo(0.5)
+    pose = station.GetOutputPort("epm.pose").Eval(context)
+    np.testing.assert_allclose(pose, command, atol=1e-4)  # measured: within 2.3e-5
+
+
+@pytest.mark.slow
 def test_fast_contact_model_drags_the_capsule_inside_the_wall():
     # The convex-pieces wall (point contact) keeps the capsule inside as the hydroelastic one
     # does. 12 s: the capsule is dragged out of the rectum into the sigmoid.
@@ -152,6 +188,7 @@ def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch)
     assert logs["times"][-1] > 0.15 and len(logs["times"]) == len(result.times)
 
 
+@pytest.mark.slow
 def test_sensors_are_wired_and_seeded():
     scenario = dataclasses.replace(load_scenario(name="WithSensors"), duration=0.3)
     diagram = make_station(scenario)
@@ -161,7 +198,6 @@ def test_sensors_are_wired_and_seeded():
             "capsule.lumen.lumen_pixel"} <= names
 
     from pydrake.common import RandomGenerator
-    from pydrake.systems.analysis import Simulator
 
     def accel_after(seed, port="capsule.imu.accel"):
         simulator = Simulator(diagram)

@@ -259,14 +259,15 @@ class LensRenderer:
             y_F = np.array(down)
             R_CF = RotationMatrix(np.column_stack([np.cross(y_F, z_F), y_F, z_F]))
             r_F = rays @ R_CF.matrix()  # (H, W, 3): every pixel's ray in the face frame
+            # Face pixel density: match the lens's sharpest sampling over this face, from the
+            # Jacobian of face coordinates with respect to output pixels (infinite behind
+            # the face, and not used there).
             with np.errstate(divide="ignore", invalid="ignore"):
                 a = r_F[..., 0] / r_F[..., 2]
                 b = r_F[..., 1] / r_F[..., 2]
-            # Face pixel density: match the lens's sharpest sampling over this face, from the
-            # Jacobian of face coordinates with respect to output pixels.
-            da_du, da_dv = np.gradient(a, axis=1), np.gradient(a, axis=0)
-            db_du, db_dv = np.gradient(b, axis=1), np.gradient(b, axis=0)
-            det = np.abs(da_du * db_dv - da_dv * db_du)
+                da_du, da_dv = np.gradient(a, axis=1), np.gradient(a, axis=0)
+                db_du, db_dv = np.gradient(b, axis=1), np.gradient(b, axis=0)
+                det = np.abs(da_du * db_dv - da_dv * db_du)
             inner = mine & np.isfinite(det) & (det > 0.0)
             density = np.percentile(1.0 / np.sqrt(det[inner]), 95.0)
             density *= self.config.face_resolution_scale
