@@ -9,7 +9,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RevoluteJoint
 
-from capsule_drake.station import configure_parser
+from capsule_drake.models import configure_parser
 
 URL = "package://capsule_drake/epm_arm.sdf"
 G = 9.81

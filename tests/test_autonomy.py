@@ -14,9 +14,9 @@ from pydrake.systems.primitives import LogVectorOutput
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.physics.magnetics import cylinder_moment, dipole_field, dipole_force
 from capsule_drake.navigation.autonomy import (BACKOFF, COAST, CRUISE, PUSH, SEARCH,
-                                               LumenFollower, LumenFollowerConfig,
-                                               add_lumen_follower,
+                                               LumenFollowerConfig, LumenFollowerController,
                                                check_lumen_follower_config)
+from capsule_drake.schema import ScenarioError
 
 FLOOR = 0.15  # a flat floor for the EPM's centre (m)
 # The Navigation scenario's magnets (N52 cylinders, 101.6 mm and 11.1 mm) and a 12 g capsule.
@@ -36,7 +36,8 @@ def _pose(R=R_WB, p=P_WB):
 
 
 def _new_follower(config, floor=FLOOR):
-    return LumenFollower(config, X_BC, P_BM, lambda x, y, m: floor, M_EPM, M_IPM, WEIGHT)
+    return LumenFollowerController(config, X_BC, P_BM, lambda x, y, m: floor, M_EPM, M_IPM,
+                                   WEIGHT)
 
 
 def _follower(config=None, floor=FLOOR):
@@ -84,8 +85,8 @@ def test_max_force_below_min_force_raises():
 
 def test_bad_magnet_moment_raises_one_line():
     with pytest.raises(ValueError, match="epm_moment"):
-        LumenFollower(LumenFollowerConfig(), X_BC, P_BM, lambda x, y, m: FLOOR, float("nan"),
-                      M_IPM, WEIGHT)
+        LumenFollowerController(LumenFollowerConfig(), X_BC, P_BM, lambda x, y, m: FLOOR,
+                                float("nan"), M_IPM, WEIGHT)
 
 
 def _net_force(command, heading):
@@ -262,29 +263,37 @@ def test_non_finite_pose_holds_the_command():
 
 
 def _station(name, override):
-    """A scenario, its station taking an external EPM command, and a builder holding it."""
+    """A scenario whose EPM the lumen follower drives (`epm.driver: !LumenFollower`, in
+    `override`), its station, and a builder holding it."""
     from capsule_drake.scenario import load_scenario
     from capsule_drake.station import make_station
     scenario = load_scenario(name=name, override=override)
-    station = make_station(scenario, external_epm_command=True)
+    station = make_station(scenario)
+    assert isinstance(station.GetSubsystemByName("lumen_follower"), LumenFollowerController)
     builder = DiagramBuilder()
     builder.AddSystem(station)
     return scenario, station, builder
 
 
-def test_add_lumen_follower_needs_a_camera():
-    scenario, station, builder = _station("Default", "{duration: 1.0}")
-    with pytest.raises(ValueError, match="camera"):
-        add_lumen_follower(builder, station, scenario, LumenFollowerConfig())
+def _load(name, override):
+    from capsule_drake.scenario import load_scenario
+    return load_scenario(name=name, override=override)
+
+
+def test_the_lumen_follower_needs_a_camera():
+    with pytest.raises(ScenarioError, match=r"epm.driver \(LumenFollower\) needs "
+                       "capsule.camera") as error:
+        _load("Default", "{duration: 1.0, epm: {driver: !LumenFollower {}}}")
+    assert "\n" not in str(error.value)
 
 
 def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
-    from capsule_drake.station import colon_for
+    from capsule_drake.anatomy import load_colon
     scenario, station, builder = _station("Default", (
         "{colon: {seed: 0}, duration: 12.0, capsule: {camera: {fps: 5.0}},"
-        " contact: {drag_translational: 2.0, drag_rotational: 6.0e-5}}"))
-    colon = colon_for(scenario)
-    add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen="truth")
+        " contact: {drag_translational: 2.0, drag_rotational: 6.0e-5},"
+        " epm: {driver: !LumenFollower {lumen: truth}}}"))
+    colon, _ = load_colon(scenario.colon)
     log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, 0.5)
     diagram = builder.Build()
     simulator = Simulator(diagram)
@@ -298,33 +307,39 @@ def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
     assert axis @ colon.centerline.tangent_at(s[-1]) > 0.5  # still facing the cecum
 
 
-def test_add_lumen_follower_pose_source_errors_are_one_line():
-    scenario, station, builder = _station("Navigation", "{duration: 1.0}")
-    with pytest.raises(ValueError, match="pose source 'gps'"):
-        add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), pose="gps")
-    with pytest.raises(ValueError, match="needs capsule.imu, capsule.ahrs and capsule.magn"):
-        add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), pose="sensors")
+def test_lumen_follower_pose_source_errors_are_one_line():
+    with pytest.raises(ScenarioError, match=r"epm.driver \(LumenFollower\): pose must be one "
+                       "of truth, sensors, got 'gps'") as error:
+        _load("Navigation", "{duration: 1.0, epm: {driver: !LumenFollower {pose: gps}}}")
+    assert "\n" not in str(error.value)
+    with pytest.raises(ScenarioError, match=r"epm.driver \(LumenFollower\) pose sensors needs "
+                       "capsule.imu, capsule.ahrs and capsule.magn") as error:
+        _load("Navigation", "{duration: 1.0, epm: {driver: !LumenFollower {pose: sensors}}}")
+    assert "\n" not in str(error.value)
 
 
 def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
     """The pose from the AHRS and the magnetic localiser instead of the truth: the capsule
     advances, and the estimate the follower acts on stays near the truth over 15 s."""
-    from capsule_drake.station import colon_for
+    from capsule_drake.anatomy import load_colon
     scenario, station, builder = _station("Navigation", (
         "{colon: {seed: 0}, duration: 15.0, capsule: {camera: {latency: 0.0},"
-        " imu: {}, ahrs: {}, magnetometer: {}}}"))
-    colon = colon_for(scenario)
-    add_lumen_follower(builder, station, scenario, LumenFollowerConfig(), lumen="truth",
-                       pose="sensors")
-    log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, 0.5)
-    estimate = LogVectorOutput(
-        builder.GetSubsystemByName("lumen_follower.localizer").GetOutputPort("capsule_pose"),
-        builder, 0.5)
+        " imu: {}, ahrs: {}, magnetometer: {}},"
+        " epm: {driver: !LumenFollower {lumen: truth, pose: sensors}}}"))
+    colon, _ = load_colon(scenario.colon)
+    # The localizer is inside the station: its estimate is read every 0.5 s, with the truth.
+    localizer = station.GetSubsystemByName("lumen_follower.localizer")
     diagram = builder.Build()
     simulator = Simulator(diagram)
-    simulator.AdvanceTo(scenario.duration)
-    x = log.FindLog(simulator.get_context()).data()
-    est = estimate.FindLog(simulator.get_context()).data()
+    context = simulator.get_context()
+    x, est = [], []
+    for t in np.arange(0.0, scenario.duration + 1e-9, 0.5):
+        simulator.AdvanceTo(t)
+        x.append(station.GetOutputPort("capsule.state").Eval(
+            station.GetMyContextFromRoot(context)).copy())
+        est.append(localizer.GetOutputPort("capsule_pose").Eval(
+            localizer.GetMyContextFromRoot(context)).copy())
+    x, est = np.array(x).T, np.array(est).T
     s = colon.centerline.closest(x[4:7].T)[0]
     assert s[-1] - s[0] > 0.05, f"advanced only {100 * (s[-1] - s[0]):.1f} cm"
     # Measured: 2-3 mm over the first 20 s on this colon (the AHRS's heading drift grows

@@ -173,7 +173,7 @@ def test_the_meshcat_page_draws_the_scene_and_the_camera_view(tmp_path):
     exe = _chromium()
     meshcat = Meshcat(MeshcatParams(port=0))
     scenario = load_scenario(name="Teleop", override=(
-        "{teleop: {operator: browser}, epm: {mount: stage}}"))
+        "{epm: {mount: !Stage {}, driver: !Teleop {operator: browser}}}"))
     diagram = make_station(scenario, meshcat)
     simulator = Simulator(diagram)
     simulator.set_target_realtime_rate(0.0)

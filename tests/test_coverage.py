@@ -10,18 +10,18 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.navigation.coverage import WallPatches, seen_in_frame
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import add_camera_walls, colon_for
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.camera import CameraConfig, LensRenderer, add_camera_walls
 
 
 @pytest.fixture(scope="module")
 def scene():
     scenario = Scenario()
-    colon = colon_for(scenario)
+    colon, _ = load_colon(scenario.colon)
     config = CameraConfig()
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    walls = add_camera_walls(plant, scene_graph, scenario, colon, config)
+    walls = add_camera_walls(plant, scene_graph, scenario.colon, colon, config)
     plant.Finalize()
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()

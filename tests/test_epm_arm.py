@@ -2,8 +2,6 @@
 tracking slow EPM trajectories in the plant within 1 mm and 1 degree without leaving the
 joint limits; unreachable and corrupt commands; the arm in the station."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 from pydrake.math import RotationMatrix
@@ -13,13 +11,16 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
+from capsule_drake.anatomy import load_colon
+from capsule_drake.epm.arm import (ARM_JOINTS, SHOULDER_HEIGHT, Arm, ArmMount,
+                                   EpmArmController, arm_base_pose, rotate_axis_onto,
+                                   solve_posture)
+from capsule_drake.epm.guard import EpmGuard
+from capsule_drake.epm.mount import MagnetPose
 from capsule_drake.epm.poses import skin_gap
+from capsule_drake.models import configure_parser
 from capsule_drake.physics.magnetics import MagnetGeometry
 from capsule_drake.scenario import Scenario
-from capsule_drake.station import (ArmMount, colon_for, configure_parser)
-from capsule_drake.epm.arm import (ARM_JOINTS, SHOULDER_HEIGHT, ArmConfig,
-                                           EpmArmController, EpmGuard, MagnetPose,
-                                           arm_base_pose, rotate_axis_onto, solve_posture)
 
 GEOMETRY = MagnetGeometry()
 CLEARANCE = 0.02
@@ -27,10 +28,10 @@ CLEARANCE = 0.02
 
 @pytest.fixture(scope="module")
 def colon():
-    return colon_for(Scenario())
+    return load_colon(Scenario().colon)[0]
 
 
-def _guard(colon, config=ArmConfig()):
+def _guard(colon, config=Arm()):
     shoulder = arm_base_pose(config).multiply([0.0, 0.0, SHOULDER_HEIGHT])
     return EpmGuard(colon.abdomen, GEOMETRY, CLEARANCE, shoulder, config.reach)
 
@@ -105,14 +106,12 @@ class _Waypoints(LeafSystem):
         output.SetFromVector(self.command(t))
 
 
-def _arm_diagram(colon, waypoints, config=ArmConfig(), **waypoint_args):
+def _arm_diagram(colon, waypoints, config=Arm(), **waypoint_args):
     """The arm alone in a plant (its PD servos, no gravity on it) with the controller
     following `waypoints`; logs the EPM pose, the command and the arm state."""
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
-    scenario = dataclasses.replace(Scenario(), epm=dataclasses.replace(
-        Scenario().epm, mount="arm", arm=config, clearance=CLEARANCE))
-    mount = ArmMount(scenario)
+    mount = ArmMount(config)
     instance = mount.add_models(plant, configure_parser(Parser(plant)))
     plant.Finalize()
     guard = _guard(colon, config)

@@ -38,8 +38,10 @@ def test_the_localizer_follows_the_capsule_in_the_station(sensor_range):
         f"{{range: {sensor_range}}}}}, pseudo_force: null}}"))
     builder = DiagramBuilder()
     station = builder.AddSystem(make_station(scenario))
-    from capsule_drake.station import capsule_start_pose, colon_for
-    start = capsule_start_pose(colon_for(scenario), scenario.capsule.start_s)
+    from capsule_drake.anatomy import load_colon
+    from capsule_drake.capsule.model import start_pose
+    colon, _ = load_colon(scenario.colon)
+    start = start_pose(colon, scenario.capsule.start_s)
     localizer = builder.AddSystem(MagneticLocalizer(
         scenario.capsule.magnetometer.X_BS(), scenario.epm.magnet.moment(),
         start.translation() + [0.01, -0.01, 0.005]))

@@ -10,10 +10,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import start_pose
+from capsule_drake.epm.guard import EpmGuard
 from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.scenario import Scenario, load_scenario
-from capsule_drake.station import capsule_start_pose, colon_for, make_station
-from capsule_drake.epm.arm import EpmGuard
+from capsule_drake.station import make_station
 from capsule_drake.teleop.force_feedback import ForceFeedback
 from capsule_drake.teleop.haptic_master import HapticDeviceConfig, HapticMaster
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping
@@ -26,7 +28,7 @@ from capsule_drake.teleop.udp_client import StylusClient
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 
-from capsule_drake.station import PACKAGE, configure_parser
+from capsule_drake.models import PACKAGE, configure_parser
 
 
 def _device(hand, feedback, buttons=(0.0, 0.0), config=HapticDeviceConfig()):
@@ -108,7 +110,7 @@ def test_force_feedback_is_the_pseudo_force_plus_the_contact_seen_from_the_camer
 
 @pytest.fixture(scope="module")
 def colon():
-    return colon_for(Scenario())
+    return load_colon(Scenario().colon)[0]
 
 
 class _Mapping:
@@ -121,7 +123,7 @@ class _Mapping:
         configure_parser(Parser(plant)).AddModels(url=f"package://{PACKAGE}/capsule.sdf")
         plant.Finalize()
         X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
-        self.X_WB = capsule_start_pose(colon, 0.45)
+        self.X_WB = start_pose(colon, 0.45)
         self.p_WM = self.X_WB.translation()
         h0 = self.X_WB.rotation().col(2)
         p = self.p_WM + [0.0, 0.0, 0.12]
@@ -385,7 +387,7 @@ def test_simulated_operator_advances_indexes_and_steers():
 
 
 def test_teleop_in_the_station_with_the_simulated_operator():
-    scenario = load_scenario(name="Teleop", override="{duration: 20.0, epm: {mount: stage}}")
+    scenario = load_scenario(name="Teleop", override="{duration: 20.0, epm: {mount: !Stage {}}}")
     diagram = make_station(scenario)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -408,8 +410,8 @@ def test_teleop_in_the_station_with_the_simulated_operator():
 
 def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
     scenario = load_scenario(name="Teleop", override=(
-        "{duration: 1.0, epm: {mount: stage}, "
-        "teleop: {operator: udp, mapping: {mode: position, translation_scale: 2.0}}, "
+        "{duration: 1.0, epm: {mount: !Stage {}, driver: !Teleop "
+        "{operator: udp, mapping: {mode: position, translation_scale: 2.0}}}, "
         "capsule: {camera: null, lumen_tracker: null}, pseudo_force: {lumen_weight: 0}}"))
     diagram = make_station(scenario)
     device = diagram.GetSubsystemByName("teleop.device")
@@ -442,8 +444,8 @@ def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
 def test_teleop_from_the_browser_follows_the_sliders():
     meshcat = Meshcat(MeshcatParams(port=0))
     scenario = load_scenario(name="Teleop", override=(
-        "{duration: 1.0, epm: {mount: stage}, "
-        "teleop: {operator: browser, mapping: {mode: position, translation_scale: 2.0}}, "
+        "{duration: 1.0, epm: {mount: !Stage {}, driver: !Teleop "
+        "{operator: browser, mapping: {mode: position, translation_scale: 2.0}}}, "
         "capsule: {camera: {lens: {width: 64, height: 64}}}}"))
     diagram = make_station(scenario, meshcat)
     simulator = Simulator(diagram)
