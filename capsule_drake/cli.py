@@ -20,7 +20,8 @@ from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format
                                                 task_scenario, write_outputs)
 from capsule_drake.perception.evaluation import sample_frames, save_evaluation
 from capsule_drake.perception.lumen import load_detector
-from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario
+from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
+                                    scenario_names)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -112,8 +113,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--duration", type=float, default=600.0, metavar="S",
                        help="simulated seconds per run at most (default 600)")
     bench.add_argument("--scenario", default="Navigation", metavar="NAME",
-                       help="base scenario of the autonomous and user navigators (default "
-                            "Navigation; teleop navigators use Teleop)")
+                       help="the scenario a user's navigator drives (default Navigation); "
+                            "the built-in navigators are named scenarios of their own")
     bench.add_argument("--scenario-text", default="", metavar="YAML",
                        help="YAML layered on every run's scenario")
     bench.add_argument("--workers", type=int, default=2, help="parallel runs (default 2)")
@@ -162,7 +163,6 @@ def _seeds(text: str) -> list[int]:
 
 
 def _benchmark(args) -> int:
-
     seeds = _seeds(args.seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
     if not navigators:
@@ -172,6 +172,10 @@ def _benchmark(args) -> int:
     tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
+    names = scenario_names(DEFAULT_SCENARIO_FILE)
+    if args.scenario not in names:
+        raise ScenarioError(f"--scenario {args.scenario!r}: no scenario of that name in "
+                            f"{DEFAULT_SCENARIO_FILE.name} (it has: {', '.join(names)})")
     for navigator in navigators:
         try:
             task_scenario(Task(navigator, seeds[0], args.duration, args.scenario,

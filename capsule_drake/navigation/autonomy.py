@@ -253,6 +253,11 @@ class LumenFollowerController(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period, 0.0, self._update)
 
+    @property
+    def config(self) -> LumenFollowerConfig:
+        """The control law's gains, limits and timings (as the scenario gave them)."""
+        return self._config
+
     def command_for(self, drive, heading, p_WM, previous=None):
         """[p_WE, m_hat_W]: the EPM where its pull on the capsule's magnet at p_WM plus the
         capsule's weight is `drive` newtons along `heading`, at least `height_margin` above
@@ -570,6 +575,7 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
         builder.Connect(parts.output("capsule.ahrs.q_WB"), localizer.GetInputPort("q_WB"))
         builder.Connect(parts.output("epm.pose"), localizer.GetInputPort("epm_pose"))
         pose_port = localizer.GetOutputPort("capsule_pose")
+        parts.export(pose_port, f"{name}.capsule_pose")
     builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
     camera = builder.GetSubsystemByName("capsule.camera")
     if config.lumen == "truth":
