@@ -144,3 +144,25 @@ def test_only_the_runners_import_the_station_and_nothing_imports_the_cli():
 def test_station_is_short():
     lines = len((PACKAGE_DIR / "station.py").read_text().splitlines())
     assert lines < STATION_MAX_LINES, f"station.py has {lines} lines"
+
+
+# The layers from the top: each module may import only modules of its own layer or below.
+# A block (everything not listed) is below the scenario, which collects the blocks' configs;
+# the station is above the scenario; the runners above the station; the CLI on top.
+LAYERS = [
+    {"capsule_drake.cli"},
+    {"capsule_drake.io.run", "capsule_drake.io.record", "capsule_drake.navigation.benchmark"},
+    {"capsule_drake.station"},
+    {"capsule_drake.scenario"},
+]
+
+
+def test_no_block_imports_a_layer_above_it():
+    graph = import_graph(top_level_only=False)
+    upward = []
+    for level, layer in enumerate(LAYERS):
+        assert layer <= set(MODULES), layer - set(MODULES)
+        below = set(MODULES) - set().union(*LAYERS[:level + 1])
+        upward += [f"{module} imports {target}" for module in sorted(below)
+                   for target in sorted(graph[module] & layer)]
+    assert not upward, "imports from a lower layer to a higher one:\n" + "\n".join(upward)
