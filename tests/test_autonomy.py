@@ -287,6 +287,7 @@ def test_the_lumen_follower_needs_a_camera():
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.slow
 def test_closed_loop_with_the_lumen_truth_advances_the_capsule():
     from capsule_drake.anatomy import load_colon
     scenario, station, builder = _station("Default", (
@@ -318,6 +319,7 @@ def test_lumen_follower_pose_source_errors_are_one_line():
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.slow
 def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
     """The pose from the AHRS and the magnetic localiser instead of the truth: the capsule
     advances, and the estimate the follower acts on stays near the truth over 15 s."""
@@ -348,6 +350,7 @@ def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
     assert error.max() < 0.01, f"pose estimate off by {1000 * error.max():.1f} mm"
 
 
+@pytest.mark.slow
 def test_the_followers_gains_from_yaml_change_what_it_does():
     """`epm.driver: !LumenFollower {control: {force_gain: ...}}` reaches the follower in the
     station, and changes its behaviour: with ten times the gain its drive force grows ten

@@ -30,6 +30,7 @@ def local_results(finished_rows):
                      on_result=RowWriter(finished_rows))
 
 
+@pytest.mark.slow
 def test_each_run_is_written_as_it_finishes(local_results, finished_rows):
     with open(finished_rows) as f:
         written = list(csv.DictReader(f))
@@ -37,6 +38,7 @@ def test_each_run_is_written_as_it_finishes(local_results, finished_rows):
     assert list(written[0]) == list(COLUMNS)
 
 
+@pytest.mark.slow
 def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, tmp_path):
     rows = [r["row"] for r in local_results]
     assert [row["seed"] for row in rows] == [0, 1]
@@ -61,6 +63,7 @@ def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, t
     assert "plugins.navigators:creep" in table and "0/2" in table
 
 
+@pytest.mark.slow
 def test_the_same_seeds_give_the_same_table_on_a_dask_cluster(local_results):
     results = run_suite(_tasks(), workers=2, engine="dask", progress=False)
     for a, b in zip(local_results, results):
@@ -90,6 +93,7 @@ NOISY = ("{capsule: {camera: {fps: 2.0, latency: 0.0}, imu: {}, ahrs: {}, magnet
          " epm: {driver: !LumenFollower {pose: sensors}}, random_seed: %d}")
 
 
+@pytest.mark.slow
 def test_the_benchmark_honours_the_random_seed():
     tasks = [Task("autonomy-truth", 0, duration=2.0, scenario_text=NOISY % seed)
              for seed in (1, 1, 2)]

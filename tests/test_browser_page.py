@@ -169,6 +169,7 @@ def _unwarp(image: np.ndarray, region: np.ndarray, size: int) -> np.ndarray:
     return cv2.cvtColor(cv2.warpPerspective(image, warp, (size, size)), cv2.COLOR_BGR2GRAY)
 
 
+@pytest.mark.slow
 def test_the_meshcat_page_draws_the_scene_and_the_camera_view(tmp_path):
     exe = _chromium()
     meshcat = Meshcat(MeshcatParams(port=0))

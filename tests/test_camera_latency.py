@@ -53,6 +53,7 @@ def runs():
     return out
 
 
+@pytest.mark.slow
 def test_a_frame_arrives_latency_after_its_exposure(runs):
     (_, info_before), (_, info_after) = runs["worker"]
     # [exposure time of the last frame delivered, frames delivered, delivered now, rate]
@@ -77,6 +78,7 @@ def test_the_worker_draws_the_frame_the_camera_would(runs):
     assert np.any(runs["worker"][0][0] != worker)
 
 
+@pytest.mark.slow
 def test_a_dead_worker_changes_nothing_but_the_speed(caplog):
     simulator, camera = _station(LATENCY)
     _outputs(simulator, camera, 0.05)

@@ -47,6 +47,7 @@ def test_window_index_serves_half_a_spacing_either_side():
     assert CameraWindows(np.array([0.7]), [], np.zeros(1), 0.2).index_at(0.1) == 0
 
 
+@pytest.mark.slow
 def test_windowed_frames_equal_whole_wall_frames(colon):
     """Random camera poses anywhere in the colon (turned up to ~70 degrees from the axis,
     up to 60 % of the radius off the centreline, at least 3 mm inside the wall): depth and

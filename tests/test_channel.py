@@ -191,6 +191,7 @@ def _teleop_loop(delay, enabled, target, x0, wall_stiffness, duration, jitter=0.
                                  jitter, loss))
 
 
+@pytest.mark.slow
 def test_passivity_control_stabilises_a_stiff_wall_behind_100_ms_round_trip():
     """50 ms each way; hand + stylus 0.3 kg gripped at 200 N/m and 3 N s/m toward a target
     moving at 2 mm/s from 2 mm outside to 3 mm inside a virtual wall of 800 N/m (robot

@@ -299,6 +299,7 @@ def test_face_normals_point_into_lumen(colon, visual):
     assert visual.is_watertight and visual.volume < 0
 
 
+@pytest.mark.slow
 def test_assets_cached_and_chunks_cover_tube(tmp_path):
     params = ColonParams(seed=5)
     t0 = time.perf_counter()

@@ -156,6 +156,7 @@ def _random_waypoints(colon, count, rng):
     return points
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 4, 5])
 def test_arm_tracks_slow_epm_trajectories_within_1_mm_and_1_degree(colon, seed):
     rng = np.random.default_rng(seed)

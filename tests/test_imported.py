@@ -83,6 +83,7 @@ def ex_vivo(tmp_path_factory):
     return path, import_colon_mesh(path)
 
 
+@pytest.mark.slow
 def test_the_ex_vivo_segment_is_a_textured_thick_wall_with_ragged_ends(ex_vivo):
     from capsule_drake.anatomy.ex_vivo import INNER_RADIUS, LENGTH, THICKNESS
     from capsule_drake.anatomy.importer import geometry_of, load_colon_mesh
@@ -117,6 +118,7 @@ def test_the_ex_vivo_segment_is_a_textured_thick_wall_with_ragged_ends(ex_vivo):
     assert np.mean(np.einsum("ij,ij->i", toward, mesh.face_normals[inner]) > 0) > 0.99
 
 
+@pytest.mark.slow
 def test_the_tabulated_wall_matches_the_procedural_wall(tmp_path):
     """The procedural colon exported and imported: points on its analytic wall are on the
     imported colon's wall (its excursion, from the table of sections, is ~0) and the
@@ -175,6 +177,7 @@ def _inside(scenario_name, override, duration):
     return result.metrics["advance_m"], float(distance.min())
 
 
+@pytest.mark.slow
 def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_path):
     """The procedural colon exported as a user's OBJ and imported: the drag moves the
     capsule as far as in the original over 16 s (measured: 16.0 against 16.1 cm), and the
@@ -195,6 +198,7 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     assert nearest > 0.0048
 
 
+@pytest.mark.slow
 def test_the_drag_runs_on_the_ex_vivo_segment_with_the_capsule_inside():
     """The shipped scenario (measured over its 16 s: 10.4 cm)."""
     moved, nearest = _inside("ExVivoSegment", None, 12.0)
@@ -234,6 +238,7 @@ def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
     assert z == pytest.approx(TRAY_FLOOR + 0.0058, abs=0.001)
 
 
+@pytest.mark.slow
 def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp_path, capsys):
     """`capsule-sim import-colon` writes a folder a scenario runs on; a source that is not a
     colon (a point cloud, an empty folder) stops the run with one line, no traceback."""

@@ -197,6 +197,7 @@ def rendered_frames():
     return sample_frames(36, colons=2, seed=20, wall_fraction=0.3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("detector", ["gaussian", "median"])
 def test_detector_on_rendered_frames_against_the_lumen_truth(rendered_frames, detector):
     summary = evaluate(rendered_frames, load_detector(detector)).summary()

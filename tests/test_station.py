@@ -84,6 +84,7 @@ def settled_positions(scenario):
     return result.capsule_state[4:7].T[result.times >= 1.0]
 
 
+@pytest.mark.slow
 def test_capsule_stays_put_with_magnet_50cm_away():
     scenario = load_scenario(name="FarMagnet")
     p = settled_positions(scenario)

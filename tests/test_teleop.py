@@ -386,6 +386,7 @@ def test_simulated_operator_advances_indexes_and_steers():
     assert 1.0 in phases and 0.0 in phases
 
 
+@pytest.mark.slow
 def test_teleop_in_the_station_with_the_simulated_operator():
     scenario = load_scenario(name="Teleop", override="{duration: 20.0, epm: {mount: !Stage {}}}")
     diagram = make_station(scenario)

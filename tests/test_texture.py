@@ -127,6 +127,7 @@ def test_textured_mesh_is_the_visual_wall(colon, textured):
     assert area == pytest.approx(colon.visual_mesh().area, rel=2e-3)
 
 
+@pytest.mark.slow
 def test_assets_textured_and_collision_unchanged(tmp_path):
     params = ColonParams(seed=4)
     assets = colon_assets(params, cache_dir=tmp_path / "a")

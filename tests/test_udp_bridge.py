@@ -211,6 +211,7 @@ def test_replayed_trajectory_drives_the_simulation(bench):
     assert_array_equal(np.array([r.force for r in replies]), np.tile(FORCE, (len(rows), 1)))
 
 
+@pytest.mark.slow
 def test_cli_client_against_a_realtime_simulation(bench, tmp_path):
     """`python -m capsule_drake.teleop.udp_client` in its own process at the recorded
     timestamps, the simulation paced to the wall clock in small steps."""

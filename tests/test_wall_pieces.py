@@ -142,6 +142,7 @@ def test_end_caps_close_the_tube(colon, hulls):
         assert not np.any(hulls.contains(inner - outward_sign * 2.5e-4 * t))
 
 
+@pytest.mark.slow
 def test_pieces_stay_out_of_a_fold_free_lumen():
     # Without folds the only bridged concavities are the round lumen (chords at most
     # max_chord_depth deep around), the lumen's curvature along its length (flexures, radius
