@@ -175,10 +175,14 @@ def test_cli_missing_file(tmp_path):
 TESTS_DIR = Path(__file__).resolve().parent
 
 # Selectors that OneOfEverything and OneOfEverythingElse cannot hold beside their own
-# choices (one driver per scenario: those two hold !AlongColon and !Teleop), held by other
-# named scenarios of diagrams/default.yaml that the tests simulate.
+# choices (one driver per scenario: those two hold !AlongColon and !Teleop) or that would
+# make their brief test slow, held by other named scenarios of diagrams/default.yaml that
+# the tests simulate.
 # path -> (scenario that sets it, the test that simulates that scenario); both are checked.
 ELSEWHERE = {
+    "contact.model": (  # convex_pieces: its build (~15 s, ~2 GB) is that test's
+        "FastContact",
+        "test_station.py::test_fast_contact_model_drags_the_capsule_inside_the_wall"),
     "epm.driver[HoldAbove]": (
         "FarMagnet", "test_station.py::test_capsule_stays_put_with_magnet_50cm_away"),
     "epm.driver[LumenFollower]": (

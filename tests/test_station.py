@@ -112,13 +112,11 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
 
 # OneOfEverything and OneOfEverythingElse set every option that selects behaviour
 # (tests/test_scenario.py); Navigation and NavigationDetected hold the lumen follower.
-# Measured wall times (2 shared cores, colons cached): OneOfEverything ~20 s (building its
-# convex wall pieces takes most of it, and ~1.8 GB), OneOfEverythingElse ~4 s (~11 s when it
-# first imports the ex vivo colon), the others 1-4 s.
+# Measured wall times (2 cores, colons cached): OneOfEverything ~2 s, OneOfEverythingElse
+# ~3 s (~11 s when it first imports the ex vivo colon), the others 1-4 s.
 @pytest.mark.parametrize("name", [
     "Default", "WithSensors", "Navigation", "NavigationDetected",
-    pytest.param("OneOfEverything", marks=pytest.mark.slow),
-    pytest.param("OneOfEverythingElse", marks=pytest.mark.slow)])
+    "OneOfEverything", "OneOfEverythingElse"])
 def test_named_scenarios_simulate(name):
     scenario = load_scenario(name=name)
     scenario = dataclasses.replace(scenario, duration=min(scenario.duration, 0.5))
