@@ -25,11 +25,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
+
+from capsule_drake.capsule.model import rotation_from_quaternion
 
 README = __doc__
 
@@ -139,8 +140,8 @@ class DatasetWriter(LeafSystem):
         cv2.imwrite(str(self._out / "Frames" / f"Depth_{index:04d}.png"),
                     encoded.astype(np.uint16))
         state = self._state.Eval(context)
-        q = np.asarray(state[:4]) / np.linalg.norm(state[:4])
-        X_WC = RigidTransform(Quaternion(q), state[4:7]).multiply(self._X_BC)
+        X_WC = RigidTransform(RotationMatrix(rotation_from_quaternion(state[:4])),
+                              state[4:7]).multiply(self._X_BC)
         q_WC = X_WC.rotation().ToQuaternion()
         p = X_WC.translation()
         self._write("position", f"{p[0]:.9f} {p[1]:.9f} {p[2]:.9f}")

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
-from pydrake.math import RotationMatrix
 
+from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.epm.poses import skin_gap
 
 
@@ -35,9 +34,7 @@ def capsule_surface_points_C(radius: float, length: float, n_around: int = 24) -
 
 def capsule_poses(state_log: np.ndarray):
     """Rotation matrices (K, 3, 3) and positions (K, 3) from logged capsule states (13, K)."""
-    q = state_log[:4].T
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    R = np.array([RotationMatrix(Quaternion(w, x, y, z)).matrix() for w, x, y, z in q])
+    R = np.array([rotation_from_quaternion(q) for q in state_log[:4].T])
     return R, state_log[4:7].T.copy()
 
 

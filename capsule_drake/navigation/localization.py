@@ -15,9 +15,9 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.physics.magnetics import dipole_field
 
 
@@ -137,9 +137,8 @@ class MagneticLocalizer(LeafSystem):
                 and np.linalg.norm(q) > 0.5 and np.linalg.norm(epm[3:]) > 0.5):
             discrete_state.set_value(self._state, x)
             return
-        q = q / np.linalg.norm(q)
-        R_WB = Quaternion(q).rotation()
-        x[:4] = q
+        R_WB = rotation_from_quaternion(q)
+        x[:4] = q / np.linalg.norm(q)
         B_W = R_WB @ (self._R_BS @ B_S)
         m_E = self._moment * epm[3:] / np.linalg.norm(epm[3:])
         p_S_guess = x[4:7] + R_WB @ self._p_BS

@@ -2,10 +2,11 @@
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform
-from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageDepth32F
+
+from capsule_drake.capsule.model import rotation_from_quaternion
 
 
 def lumen_target(colon, p_WC, z_WC, lookahead: float):
@@ -104,8 +105,8 @@ class LumenTruth(LeafSystem):
 
     def camera_pose(self, state) -> RigidTransform:
         """X_WC from the capsule state vector."""
-        q = np.asarray(state[:4], dtype=float)
-        X_WB = RigidTransform(Quaternion(q / np.linalg.norm(q)), np.asarray(state[4:7]))
+        X_WB = RigidTransform(RotationMatrix(rotation_from_quaternion(state[:4])),
+                              np.asarray(state[4:7]))
         return X_WB.multiply(self._X_BC)
 
     def _calc_truth(self, context, abstract_value):

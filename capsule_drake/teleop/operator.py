@@ -23,8 +23,9 @@ only through its impedance, so a guiding force moves the stylus: the operator yi
 import dataclasses
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
+
+from capsule_drake.capsule.model import rotation_from_quaternion
 
 
 @dataclasses.dataclass
@@ -358,8 +359,7 @@ class ForwardSpeed(LeafSystem):
 
     def _calc(self, context, output):
         x = np.asarray(self._state.Eval(context), dtype=float)
-        q = x[:4] / np.linalg.norm(x[:4])
-        output.SetAtIndex(0, float(x[10:13] @ (Quaternion(q).rotation() @ self._z_BC)))
+        output.SetAtIndex(0, float(x[10:13] @ (rotation_from_quaternion(x[:4]) @ self._z_BC)))
 
 
 class WayForward(LeafSystem):
@@ -405,6 +405,5 @@ class WayForward(LeafSystem):
         if not np.isfinite(distance) or distance < self._min:
             output.SetFromVector(np.zeros(3))
             return
-        q = x[:4] / np.linalg.norm(x[:4])
-        R_WC = Quaternion(q).rotation() @ self._R_BC
+        R_WC = rotation_from_quaternion(x[:4]) @ self._R_BC
         output.SetFromVector(R_WC.T @ (way / distance))
