@@ -226,7 +226,6 @@ def _load(args, *flags: str):
 
 def _record(args) -> int:
     scenario = _load(args)
-
     name = args.scenario or "Default"
     out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     if out_dir.exists() and any(out_dir.iterdir()):

@@ -336,11 +336,10 @@ class ArmMount:
 
     def connect(self, builder, parts, trajectory):
         """After Finalize: the controller and the arm's start posture (solved to reach the
-        first pose of `trajectory`, a stage trajectory); exports epm.state (arm [q, v]),
+        EPM's start pose, parts.epm.start_command); exports epm.state (arm [q, v]),
         epm.desired_state and epm.status (see EpmArmController)."""
         plant = parts.plant
-        poses = pose_trajectory(trajectory)
-        first = poses.value(poses.start_time()).ravel()
+        first = parts.epm.start_command
         shoulder = arm_base_pose(self.config).multiply([0.0, 0.0, SHOULDER_HEIGHT])
         epm = parts.epm
         guard = EpmGuard(parts.colon.abdomen, epm.magnet, epm.clearance, shoulder,

@@ -17,7 +17,7 @@ from pydrake.systems.framework import LeafSystem
 from capsule_drake.epm.arm import Arm, ArmMount
 from capsule_drake.epm.guard import EpmGuard, floor_guard
 from capsule_drake.epm.paths import stage_trajectory
-from capsule_drake.epm.poses import pose_trajectory
+from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import StageMount
 
 EPM_BODY = "epm"
@@ -46,12 +46,11 @@ def add_epm_models(parts, config):
 
 def add_epm_mount(builder, parts, config):
     """After Finalize: the carrier starts where the driver's path begins (or over the
-    capsule's start), and `epm_pose` reports the magnet's pose as epm.pose."""
+    capsule's start); sets parts.epm.trajectory and parts.epm.start_command."""
     epm = parts.epm
     epm.trajectory = stage_trajectory(config.driver, parts.colon, parts.start_s,
                                       config.magnet, config.clearance)
-    poses = pose_trajectory(epm.trajectory)
-    epm.start_command = poses.value(epm.trajectory.start_time()).ravel()
+    epm.start_command = stage_to_pose(epm.trajectory.value(epm.trajectory.start_time()).ravel())
     epm.mount.connect(builder, parts, epm.trajectory)
 
 
