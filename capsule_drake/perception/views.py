@@ -31,16 +31,15 @@ class View:
 
 
 def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None,
-                 scenario=None, colon: ColonParams | None = None):
+                 colon: ColonParams | None = None):
     """A minimal scene for camera checks and benchmarks: the capsule at `start_s` in the
-    scenario's colon (default: the default colon), whose wall the camera sees as in the
+    colon of `colon` (default: the default colon), whose wall the camera sees as in the
     station (windows and their renderers, from `config`), with no EPM, sensors or magnet.
 
     Returns (diagram, context, plant, scene_graph, renderer_for), renderer_for(p_WC) naming
     the renderer for a camera at p_WC.
     """
-    colon_params = (colon if colon is not None else
-                    scenario.colon if scenario is not None else ColonParams())
+    colon_params = colon if colon is not None else ColonParams()
     colon, _ = load_colon(colon_params)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
@@ -78,7 +77,7 @@ def views_along_colon(scenario, s_values, tilt_deg: float = 0.0,
     config = scenario.capsule.camera or CameraConfig()
     colon, _ = load_colon(scenario.colon)
     diagram, context, plant, scene_graph, renderer_for = camera_scene(
-        scenario.capsule.start_s, config, scenario)
+        scenario.capsule.start_s, config, scenario.colon)
     camera = capsule_camera_for_frame(plant, plant.GetFrameByName("camera"), config,
                                       renderer_for, static_scene=True)
     plant_context = plant.GetMyMutableContextFromRoot(context)
