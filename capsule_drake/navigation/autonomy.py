@@ -58,9 +58,9 @@ from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.navigation.localization import MagneticLocalizer
+from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.scene import block
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
-from capsule_drake.teleop.operator import LumenRayFromTruth
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
 POSE_SOURCES = ("truth", "sensors")
@@ -579,10 +579,7 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
     builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
     camera = builder.GetSubsystemByName("capsule.camera")
     if config.lumen == "truth":
-        seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromTruth(camera.lens))
-        builder.Connect(parts.output("capsule.lumen.lumen_pixel"), seen.GetInputPort("pixel"))
-        builder.Connect(parts.output("capsule.lumen.lumen_visible"),
-                        seen.GetInputPort("visible"))
+        seen = add_lumen_ray_from_truth(builder, parts, f"{name}.lumen_seen")
         ray, visible = seen.GetOutputPort("ray"), seen.GetOutputPort("visible")
     elif config.lumen == "truth_point":
         seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromPoint(

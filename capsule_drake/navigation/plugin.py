@@ -16,10 +16,10 @@ import dataclasses
 
 import numpy as np
 
+from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.plugins import load_function
 from capsule_drake.scene import block
 from capsule_drake.schema import ScenarioError
-from capsule_drake.teleop.operator import LumenRayFromTruth
 
 PLUGIN_INPUTS = {
     "capsule_state": None, "epm_pose": "epm.pose",
@@ -97,11 +97,7 @@ def add_plugin(builder, parts, config: Plugin):
                 "the lumen tracker)")
         if input_name.startswith("lumen_truth_"):
             if truth is None:
-                truth = builder.AddNamedSystem("lumen_truth_ray", LumenRayFromTruth(camera.lens))
-                builder.Connect(parts.output("capsule.lumen.lumen_pixel"),
-                                truth.GetInputPort("pixel"))
-                builder.Connect(parts.output("capsule.lumen.lumen_visible"),
-                                truth.GetInputPort("visible"))
+                truth = add_lumen_ray_from_truth(builder, parts, "lumen_truth_ray")
             builder.Connect(truth.GetOutputPort(input_name.removeprefix("lumen_truth_")), port)
         elif source is None:
             builder.Connect(parts.capsule_state, port)

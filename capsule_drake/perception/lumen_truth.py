@@ -143,3 +143,47 @@ def add_lumen_truth(builder, parts, camera):
     parts.export_outputs(lumen, "capsule.lumen",
                          ("lumen_pixel", "lumen_visible", "lumen_point_W"))
     return lumen
+
+
+class LumenRayFromTruth(LeafSystem):
+    """The lumen truth's pixel as a ray through the lens, for an operator who sees the truth.
+
+    .. pydrake_system::
+
+        name: LumenRayFromTruth
+        input_ports:
+        - pixel
+        - visible
+        output_ports:
+        - ray
+        - visible
+    """
+
+    def __init__(self, lens):
+        super().__init__()
+        self._lens = lens
+        self._pixel = self.DeclareVectorInputPort("pixel", 2)
+        self._visible = self.DeclareVectorInputPort("visible", 1)
+        self.DeclareVectorOutputPort("ray", 3, self._calc_ray)
+        self.DeclareVectorOutputPort("visible", 1, self._calc_visible)
+
+    def _ok(self, context):
+        pixel = np.asarray(self._pixel.Eval(context), dtype=float)
+        return float(self._visible.Eval(context)[0]) > 0.5 and np.all(np.isfinite(pixel)), pixel
+
+    def _calc_ray(self, context, output):
+        ok, pixel = self._ok(context)
+        output.SetFromVector(self._lens.unproject(pixel[None, :])[0] if ok else np.zeros(3))
+
+    def _calc_visible(self, context, output):
+        output.SetAtIndex(0, 1.0 if self._ok(context)[0] else 0.0)
+
+
+def add_lumen_ray_from_truth(builder, parts, name: str):
+    """`name`, a LumenRayFromTruth on the lumen truth (capsule.lumen) through the capsule
+    camera's lens: what an operator or navigator who sees the true lumen is given."""
+    lens = builder.GetSubsystemByName("capsule.camera").lens
+    seen = builder.AddNamedSystem(name, LumenRayFromTruth(lens))
+    builder.Connect(parts.output("capsule.lumen.lumen_pixel"), seen.GetInputPort("pixel"))
+    builder.Connect(parts.output("capsule.lumen.lumen_visible"), seen.GetInputPort("visible"))
+    return seen

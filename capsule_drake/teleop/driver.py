@@ -13,6 +13,7 @@ import dataclasses
 from pydrake.systems.primitives import Demultiplexer
 
 from capsule_drake.perception.lumen_range import LumenRange
+from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.scene import block
 from capsule_drake.teleop.browser import BrowserOperator
@@ -22,7 +23,7 @@ from capsule_drake.teleop.force_feedback import ForceFeedback
 from capsule_drake.teleop.haptic_master import (STYLUS_SIZE, HapticDeviceConfig, HapticMaster,
                                                 check_haptic_device_config)
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping, check_mapping_config
-from capsule_drake.teleop.operator import (ForwardSpeed, LumenRayFromTruth, OperatorConfig,
+from capsule_drake.teleop.operator import (ForwardSpeed, OperatorConfig,
                                            SimulatedOperator, WayForward, check_operator_config)
 from capsule_drake.teleop.udp import UdpBridgeConfig, UdpHapticDevice, check_udp_bridge_config
 
@@ -167,12 +168,7 @@ def add_teleop(builder, parts, teleop: Teleop):
                             hand.GetInputPort("lumen_visible"))
             builder.Connect(tracker.GetOutputPort("lumen_ray"), hand.GetInputPort("lumen_ray"))
         else:
-            truth = builder.AddNamedSystem("teleop.lumen_seen", LumenRayFromTruth(
-                builder.GetSubsystemByName("capsule.camera").lens))
-            lumen = builder.GetSubsystemByName("capsule.lumen")
-            builder.Connect(lumen.GetOutputPort("lumen_pixel"), truth.GetInputPort("pixel"))
-            builder.Connect(lumen.GetOutputPort("lumen_visible"),
-                            truth.GetInputPort("visible"))
+            truth = add_lumen_ray_from_truth(builder, parts, "teleop.lumen_seen")
             builder.Connect(truth.GetOutputPort("visible"), hand.GetInputPort("lumen_visible"))
             builder.Connect(truth.GetOutputPort("ray"), hand.GetInputPort("lumen_ray"))
         builder.ExportOutput(hand.GetOutputPort("intent"), "teleop.intent")

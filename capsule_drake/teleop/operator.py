@@ -299,40 +299,6 @@ class SimulatedOperator(LeafSystem):
         discrete_state.set_value(self._state, x)
 
 
-class LumenRayFromTruth(LeafSystem):
-    """The lumen truth's pixel as a ray through the lens, for an operator who sees the truth.
-
-    .. pydrake_system::
-
-        name: LumenRayFromTruth
-        input_ports:
-        - pixel
-        - visible
-        output_ports:
-        - ray
-        - visible
-    """
-
-    def __init__(self, lens):
-        super().__init__()
-        self._lens = lens
-        self._pixel = self.DeclareVectorInputPort("pixel", 2)
-        self._visible = self.DeclareVectorInputPort("visible", 1)
-        self.DeclareVectorOutputPort("ray", 3, self._calc_ray)
-        self.DeclareVectorOutputPort("visible", 1, self._calc_visible)
-
-    def _ok(self, context):
-        pixel = np.asarray(self._pixel.Eval(context), dtype=float)
-        return float(self._visible.Eval(context)[0]) > 0.5 and np.all(np.isfinite(pixel)), pixel
-
-    def _calc_ray(self, context, output):
-        ok, pixel = self._ok(context)
-        output.SetFromVector(self._lens.unproject(pixel[None, :])[0] if ok else np.zeros(3))
-
-    def _calc_visible(self, context, output):
-        output.SetAtIndex(0, 1.0 if self._ok(context)[0] else 0.0)
-
-
 class ForwardSpeed(LeafSystem):
     """The capsule's speed along its camera's axis (m/s): what the video's motion shows
     the operator (forward positive).
