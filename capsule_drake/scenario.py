@@ -38,6 +38,7 @@ from capsule_drake.epm.arm import Arm, check_arm_config
 from capsule_drake.epm.paths import AlongColon, External, HoldAbove, check_path
 from capsule_drake.epm.stage import Stage
 from capsule_drake.guidance.pseudo_force import PseudoForceConfig, check_pseudo_force_config
+from capsule_drake.io.guard import GuardConfig, check_guard_config
 from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
 from capsule_drake.navigation.plugin import Plugin, check_plugin
 from capsule_drake.perception.lumen import check_lumen_params, load_detector
@@ -165,6 +166,9 @@ class Scenario:
     simulator: SimulatorConfig = field(default_factory=SimulatorConfig)
     # What a run records.
     outputs: OutputsConfig = field(default_factory=OutputsConfig)
+    # When a run is stopped as no longer physical: a state that is not finite, a capsule
+    # faster than max_speed, through the wall, out of the colon (io/guard.py).
+    guard: GuardConfig = field(default_factory=GuardConfig)
     # Seed of the sensors' noise (the patient's seed is colon.seed): the same seed gives the
     # same recording.
     random_seed: int = 0
@@ -287,6 +291,7 @@ def validate(scenario: Scenario) -> None:
     checked("", check_magnet_force_config, scenario.magnet_force,
             {"epm.magnet": epm.magnet, "capsule.ipm": capsule.ipm})
     checked("", check_contact_config, scenario.contact)
+    checked("", check_guard_config, scenario.guard)
     checked("", check_colon_params, scenario.colon)
     need(scenario.contact.model != "convex_pieces" or scenario.colon.source == "procedural",
          "contact.model convex_pieces needs the procedural colon (its pieces are cut from "
