@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -14,7 +16,8 @@ from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.io.record import record
-from capsule_drake.io.run import StepBar, simulate
+from capsule_drake.io.outputs import RUN_OUTPUTS, OutputError, claim_folder, new_run_folder
+from capsule_drake.io.run import Interrupted, StepBar, WriteError, simulate
 from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, segment_table, summary,
                                                 task_scenario, write_outputs)
@@ -22,6 +25,13 @@ from capsule_drake.perception.evaluation import sample_frames, save_evaluation
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
                                     scenario_names)
+
+# Servers (Meshcat, the UDP bridge) listen on this machine only unless --host says otherwise.
+LOOPBACK = "127.0.0.1"
+# What a benchmark and an import write (a previous one's are replaced by --force).
+BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
+                     "runs-as-finished.csv")
+IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,9 +47,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--meshcat", action="store_true",
                      help="serve a live Meshcat page, pace the run to real time, and keep "
                           "serving after the run until Ctrl-C")
-    run.add_argument("--port", type=int, default=7000, help="Meshcat port with --meshcat")
-    run.add_argument("--out", type=Path, metavar="DIR",
-                     help="output folder (default: runs/<scenario>-<date-time>)")
+    run.add_argument("--port", type=_port, default=7000, help="Meshcat port with --meshcat")
+    _host_argument(run, "Meshcat")
+    _out_arguments(run, "runs/<scenario>-<date-time>")
     run.add_argument("--no-recording", action="store_true",
                      help="skip the Meshcat recording (a little faster)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -51,8 +61,7 @@ def _parser() -> argparse.ArgumentParser:
                     "frames, camera poses, IMU, AHRS, magnetometer and lumen ground truth "
                     "into a folder laid out like SimCol3D's (see README.txt written there).")
     _scenario_arguments(rec)
-    rec.add_argument("--out", type=Path, metavar="DIR",
-                     help="dataset folder (default: datasets/<scenario>-<date-time>)")
+    _out_arguments(rec, "datasets/<scenario>-<date-time>")
     rec.add_argument("--quiet", action="store_true", help="no progress bar")
 
     tel = verbs.add_parser(
@@ -70,10 +79,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="the pseudo-force on the operator's hand (default on)")
     tel.add_argument("--delay", type=float, metavar="S",
                      help="one-way delay of the channel, both ways (s)")
-    tel.add_argument("--port", type=int, default=7000,
+    tel.add_argument("--port", type=_port, default=7000,
                      help="Meshcat port (browser) or UDP port (udp; 0 = any free one)")
-    tel.add_argument("--out", type=Path, metavar="DIR",
-                     help="output folder (default: runs/teleop-<operator>-<date-time>)")
+    _host_argument(tel, "Meshcat and the UDP bridge")
+    _out_arguments(tel, "runs/teleop-<operator>-<date-time>")
     tel.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = verbs.add_parser(
@@ -93,8 +102,7 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--detector", action="append", metavar="NAME",
                     help="'gaussian', 'median' or 'package.module:function' (repeatable; "
                          "default: gaussian and median)")
-    ev.add_argument("--out", type=Path, default=Path("eval_lumen"), metavar="DIR",
-                    help="folder for the contact sheets and results.json (default eval_lumen)")
+    _out_arguments(ev, "eval_lumen/<date-time>")
     ev.add_argument("--quiet", action="store_true", help="no progress")
 
     bench = verbs.add_parser(
@@ -123,8 +131,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--address", metavar="HOST:PORT",
                        help="an existing Dask scheduler (with --engine dask; default: a "
                             "local cluster of --workers processes)")
-    bench.add_argument("--out", type=Path, metavar="DIR",
-                       help="output folder (default runs/benchmark-<date-time>)")
+    _out_arguments(bench, "runs/benchmark-<date-time>")
     bench.add_argument("--quiet", action="store_true", help="no progress line")
 
     imp = verbs.add_parser(
@@ -139,6 +146,8 @@ def _parser() -> argparse.ArgumentParser:
                     "A scenario runs on it with colon: {source: DIR}.")
     imp.add_argument("mesh", type=Path, help="the mesh file")
     imp.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    imp.add_argument("--force", action="store_true",
+                     help="replace a previous import's files in --out")
     imp.add_argument("--scale", type=float, default=1.0,
                      help="multiply the coordinates by this first (e.g. 0.001 from mm)")
     imp.add_argument("--max-faces", type=int, default=150000, metavar="N",
@@ -147,6 +156,77 @@ def _parser() -> argparse.ArgumentParser:
                      help="start the centreline at the wider end instead of the narrower")
     imp.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
+
+
+def _port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is not a port (0-65535; 0 = any free one)")
+    return port
+
+
+def _host_argument(parser, what: str):
+    parser.add_argument("--host", default=LOOPBACK, metavar="ADDRESS",
+                        help=f"address {what} listen on (default {LOOPBACK}: this machine "
+                             "only; 0.0.0.0 opens it to the network, which has no "
+                             "authentication: only on a network you trust)")
+
+
+def _out_arguments(parser, default: str):
+    parser.add_argument("--out", type=Path, metavar="DIR",
+                        help=f"output folder (default: {default}, a new folder each run); "
+                             "an existing folder that holds files is refused unless --force")
+    parser.add_argument("--force", action="store_true",
+                        help="write into an existing --out folder, replacing a previous "
+                             "run's outputs there")
+
+
+def _output_folder(args, parent: str, name: str, outputs=RUN_OUTPUTS) -> Path:
+    """The folder a command writes into: --out (refused if it holds files, unless --force),
+    or a new folder parent/name-<date-time> that no other run uses."""
+    if args.out is not None:
+        return claim_folder(args.out, args.force, outputs=outputs)
+    return new_run_folder(parent, name)
+
+
+def _meshcat(host: str, port: int, announce: bool) -> Meshcat:
+    """A Meshcat server on (host, port); its address printed when `announce` (a person will
+    open it), Drake's own line silenced otherwise (a recording's server is noise)."""
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    if not announce:
+        drake_log.setLevel(logging.WARNING)
+    try:
+        meshcat = Meshcat(MeshcatParams(host=host, port=port))
+    except RuntimeError as e:
+        raise ScenarioError(f"--host {host} --port {port}: cannot start Meshcat "
+                            f"({str(e).splitlines()[0]})") from None
+    finally:
+        drake_log.setLevel(level)
+    if announce:
+        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
+    return meshcat
+
+
+def _exit_code(result) -> int:
+    """0 for a run that ran its course (or reached its goal); 128 + the signal for an
+    interrupted one; 1 for one the guard stopped or an error ended."""
+    if result.status in ("completed", "goal"):
+        return 0
+    if result.status == "interrupted":
+        return 128 + signal.Signals[result.metrics.get("signal", "SIGINT")].value
+    return 1
+
+
+def _report_stop(result) -> None:
+    m = result.metrics
+    if m.get("stopped_early"):
+        print(f"stopped early: {m['stopped_early']}"
+              + ("; the simulation diverged, so no distance or force is reported from it"
+                 if result.status == "diverged" else ""), file=sys.stderr)
 
 
 def _seeds(text: str) -> list[int]:
@@ -167,8 +247,10 @@ def _benchmark(args) -> int:
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
     if not navigators:
         raise ScenarioError("--navigators: none given")
-    if args.duration <= 0 or args.workers < 1:
-        raise ScenarioError("--duration must be > 0 and --workers >= 1")
+    if not (np.isfinite(args.duration) and 0 < args.duration <= 1e5):
+        raise ScenarioError(f"--duration must be > 0 and <= 1e5 s, got {args.duration}")
+    if not 1 <= args.workers <= 64:
+        raise ScenarioError(f"--workers must be 1-64, got {args.workers}")
     tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
@@ -182,7 +264,7 @@ def _benchmark(args) -> int:
                                args.scenario_text))
         except ValueError as e:
             raise ScenarioError(str(e)) from None
-    out_dir = Path(args.out or Path("runs") / f"benchmark-{time.strftime('%Y%m%d-%H%M%S')}")
+    out_dir = _output_folder(args, "runs", "benchmark", outputs=BENCHMARK_OUTPUTS)
     # Rows as the runs finish, in the order they finish; runs.csv is written at the end.
     partial = RowWriter(out_dir / "runs-as-finished.csv")
     results = run_suite(tasks, workers=args.workers, engine=args.engine,
@@ -226,19 +308,17 @@ def _load(args, *flags: str):
 
 def _record(args) -> int:
     scenario = _load(args)
-    name = args.scenario or "Default"
-    out_dir = args.out or Path("datasets") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    if out_dir.exists() and any(out_dir.iterdir()):
-        raise ScenarioError(f"{out_dir}: output folder exists and is not empty")
+    if args.out is not None and args.force:
+        raise ScenarioError("record --force: a dataset folder is not replaced; remove it, or "
+                            "choose another --out")
+    out_dir = _output_folder(args, "datasets", args.scenario or "Default")
     result = record(scenario, out_dir, progress=not args.quiet)
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
     m = result.metrics
     print(f"recorded {frames} frames over {m.get('sim_time_s', 0.0):.2f} s into {out_dir}/ "
           f"(README.txt there describes the layout)")
-    if m.get("stopped_early"):
-        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
-        return 1 if "error" in m["stopped_early"] else 0
-    return 0
+    _report_stop(result)
+    return _exit_code(result)
 
 
 def _teleop(args) -> int:
@@ -246,7 +326,7 @@ def _teleop(args) -> int:
         args.scenario = "Teleop"
     # The verb makes the operator drive the EPM: `!Teleop` merges into the scenario's own
     # Teleop driver (or replaces another driver with the default one).
-    teleop = {"udp": {"port": args.port}}
+    teleop = {"udp": {"port": args.port, "host": args.host}}
     if args.operator is not None:
         teleop["operator"] = args.operator
     if args.delay is not None:
@@ -262,20 +342,9 @@ def _teleop(args) -> int:
         # A person at the device: paced to the wall clock.
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
 
-    drake_log = logging.getLogger("drake")
-    level = drake_log.level
-    if not live:
-        drake_log.setLevel(logging.WARNING)
-    try:
-        meshcat = Meshcat(MeshcatParams(port=args.port if teleop.operator == "browser" else 0))
-    except RuntimeError as e:
-        raise ScenarioError(f"--port {args.port}: cannot start Meshcat "
-                            f"({str(e).splitlines()[0]})") from None
-    drake_log.setLevel(level)
-    if live:
-        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
-    out_dir = args.out or Path("runs") / (f"teleop-{teleop.operator}-"
-                                          f"{time.strftime('%Y%m%d-%H%M%S')}")
+    out_dir = _output_folder(args, "runs", f"teleop-{teleop.operator}")
+    meshcat = _meshcat(args.host, args.port if teleop.operator == "browser" else 0,
+                       announce=live)
 
     def announce(builder, station):
         if teleop.operator == "udp":
@@ -287,15 +356,14 @@ def _teleop(args) -> int:
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,
                       live_meshcat=live, extend=announce)
     m = result.metrics
-    if "advance_m" in m:
+    if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline in "
               f"{m['sim_time_s']:.1f} s (x{m['real_time_factor']:.2f} real time); peak "
               f"contact force {m['peak_contact_force_N']:.2f} N; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
-    if m.get("stopped_early"):
-        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
+    _report_stop(result)
     print(f"outputs in {out_dir}/ (metrics.json, recording.html)")
-    return 1 if m.get("stopped_early") and "error" in m["stopped_early"] else 0
+    return _exit_code(result)
 
 
 def _eval_lumen(args) -> int:
@@ -319,11 +387,12 @@ def _eval_lumen(args) -> int:
         elif done % max(1, args.frames // 10) == 0 or done == args.frames:
             print(f"rendered {done} / {args.frames} frames", file=sys.stderr)
 
+    out_dir = _output_folder(args, "eval_lumen", "eval", outputs=())
     frames = sample_frames(args.frames, args.colons, args.seed, args.wall_fraction,
                            progress=progress)
-    for table in save_evaluation(frames, detectors, args.out):
+    for table in save_evaluation(frames, detectors, out_dir):
         print(table)
-    print(f"contact sheets and results.json in {args.out}/")
+    print(f"contact sheets and results.json in {out_dir}/")
     return 0
 
 
@@ -331,27 +400,16 @@ def _run(args) -> int:
     # A live page is paced to the wall clock.
     scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
 
+    out_dir = _output_folder(args, "runs", args.scenario or "Default")
     meshcat = None
     if args.meshcat:
-        try:
-            meshcat = Meshcat(MeshcatParams(port=args.port))
-        except RuntimeError as e:
-            raise ScenarioError(f"--port {args.port}: cannot start Meshcat "
-                                f"({str(e).splitlines()[0]})") from None
-        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
-    elif not args.no_recording:
-        # Only for the recording: its server's address would be noise.
-        drake_log = logging.getLogger("drake")
-        level = drake_log.level
-        drake_log.setLevel(logging.WARNING)
-        meshcat = Meshcat(MeshcatParams(port=0))
-        drake_log.setLevel(level)
-    name = args.scenario or "Default"
-    out_dir = args.out or Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        meshcat = _meshcat(args.host, args.port, announce=True)
+    elif not args.no_recording:  # only for the recording
+        meshcat = _meshcat(args.host, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       progress=not args.quiet, live_meshcat=args.meshcat)
     m = result.metrics
-    if "advance_m" in m:
+    if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
               f"{m['start_s_m'] * 100:.1f} cm to s = {m['final_s_m'] * 100:.1f} cm of "
               f"{m['colon_length_m'] * 100:.1f} cm; stopped in the {m['stop_segment']}")
@@ -360,8 +418,7 @@ def _run(args) -> int:
               f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
-    if m.get("stopped_early"):
-        print(f"stopped early: {m['stopped_early']}", file=sys.stderr)
+    _report_stop(result)
     print(f"outputs in {out_dir}/ (metrics.json"
           f"{', recording.html' if meshcat is not None else ''})")
     if args.meshcat:
@@ -371,7 +428,7 @@ def _run(args) -> int:
                 time.sleep(1.0)
         except KeyboardInterrupt:
             pass
-    return 1 if m.get("stopped_early") and "error" in m["stopped_early"] else 0
+    return _exit_code(result)
 
 
 def _import_colon(args) -> int:
@@ -385,6 +442,7 @@ def _import_colon(args) -> int:
         raise ScenarioError(f"--scale must be > 0, got {args.scale}")
     if args.max_faces < 1000:
         raise ScenarioError(f"--max-faces must be >= 1000, got {args.max_faces}")
+    claim_folder(args.out, args.force, outputs=IMPORT_OUTPUTS)
     try:
         wall = import_colon_mesh(args.mesh, args.scale, args.max_faces, args.reverse,
                                  progress=say)
@@ -406,8 +464,17 @@ def _import_colon(args) -> int:
     return 0
 
 
+def _raise_interrupted(signal_number, frame):
+    raise Interrupted(signal_number)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    # A termination signal (kill, timeout, a closed terminal) ends a run as Ctrl-C does:
+    # what was logged is written, then the exit status says which signal it was.
+    if threading.current_thread() is threading.main_thread():
+        for number in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(number, _raise_interrupted)
     try:
         if args.verb == "run":
             return _run(args)
@@ -421,12 +488,19 @@ def main(argv=None) -> int:
             return _benchmark(args)
         if args.verb == "import-colon":
             return _import_colon(args)
-    except ScenarioError as e:
+    except (ScenarioError, WriteError) as e:  # WriteError: after the run, outputs on disk
+        print(f"capsule-sim: error: {e}", file=sys.stderr)
+        return 1 if isinstance(e, WriteError) else 2
+    except OutputError as e:
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("capsule-sim: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        name = getattr(e, "signal_name", "SIGINT")
+        print(f"capsule-sim: interrupted ({name})", file=sys.stderr)
+        return 128 + signal.Signals[name].value
+    except BrokenPipeError:  # the output piped into a command that stopped reading
+        sys.stderr.close()
+        return 1
     return 0
 
 

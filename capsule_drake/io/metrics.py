@@ -45,8 +45,14 @@ def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarr
     return excursion.max(axis=1)
 
 
+# What a run achieved along and against the colon: not reported for a run that diverged.
+OUTCOMES = ("final_s_m", "max_s_m", "advance_m", "stop_segment", "peak_contact_force_N",
+            "max_wall_excursion_m", "time_of_max_wall_excursion_s", "min_epm_capsule_distance_m")
+
+
 def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_radius,
-                capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None):
+                capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None,
+                diverged=False):
     """Metrics of one run as a JSON-ready dict.
 
     Args:
@@ -61,7 +67,25 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         sim_time: simulated seconds.
         wall_time: seconds of wall-clock time the simulation took.
         stopped_early: None, or why the run ended before its duration.
+        diverged: the run guard found the simulation no longer physical: the outcomes
+            (OUTCOMES: how far the capsule got, its contact, its excursion) are null, since
+            numbers from such a run mean nothing.
+
+    Samples whose capsule state is not finite are left out.
     """
+    times, capsule_state = np.asarray(times), np.asarray(capsule_state)
+    finite = np.all(np.isfinite(capsule_state), axis=0) if capsule_state.size else \
+        np.zeros(len(times), dtype=bool)
+    times, capsule_state = times[finite], capsule_state[:, finite]
+    contact_load, epm_pose = np.asarray(contact_load)[finite], np.asarray(epm_pose)[:, finite]
+    timing = {"sim_time_s": float(sim_time), "wall_time_s": float(wall_time),
+              "real_time_factor": sim_time / wall_time if wall_time > 0 else None,
+              "colon_length_m": float(colon.centerline.s[-1]),
+              "scenario_start_s_m": float(start_s), "stopped_early": stopped_early,
+              "diverged": bool(diverged)}
+    if len(times) == 0:
+        return {**timing, **{key: None for key in OUTCOMES}, "start_s_m": None,
+                "min_epm_skin_gap_m": None}
     R_WC, p_WC = capsule_poses(capsule_state)
     s, _, _ = colon.centerline.closest(p_WC)
     excursion = wall_excursion(colon, R_WC, p_WC, capsule_surface_points_C(capsule_radius,
@@ -71,7 +95,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
     gaps = [skin_gap(colon, epm_pose[:3, k], epm_pose[3:6, k], epm_geometry)
             for k in range(0, len(times), max(1, len(times) // 400))]
     distance = np.linalg.norm(epm_pose[:3].T - p_WC, axis=1)
-    return {
+    metrics = {
         "start_s_m": float(s[0]),
         "scenario_start_s_m": float(start_s),
         "final_s_m": final_s,
@@ -88,4 +112,8 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         "min_epm_skin_gap_m": float(np.min(gaps)),
         "min_epm_capsule_distance_m": float(np.min(distance)),
         "stopped_early": stopped_early,
+        "diverged": bool(diverged),
     }
+    if diverged:
+        metrics.update({key: None for key in OUTCOMES})
+    return metrics

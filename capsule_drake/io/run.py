@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import sys
+import threading
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +20,10 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import capsule_model
+from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
+from capsule_drake.io.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
+                                      run_output_bytes, write_atomic)
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.scenario import Scenario, dump_scenario
 from capsule_drake.station import make_station
@@ -35,6 +42,24 @@ class RunResult:
     diagram: object = None     # the simulated diagram ("station" inside), its final
     context: object = None     # context (for the loggers an `extend` added), and the
     station: object = None     # station
+    # How the run ended: "completed" (its duration), "goal" (stop_when), "diverged" or
+    # "left_colon" (the run guard), "error" (inside the simulation), "interrupted".
+    status: str = "completed"
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) turned into an interrupt, so that a run ends
+    as it does on Ctrl-C: outputs written, then the process exits 128 + the signal."""
+
+    def __init__(self, signal_number: int):
+        super().__init__(signal.Signals(signal_number).name)
+        self.signal_number = signal_number
+        self.signal_name = signal.Signals(signal_number).name
+
+
+class WriteError(OutputError):
+    """A run's outputs could not be written after the run (one line; what had been written
+    as the run went stays on disk)."""
 
 
 class Progress:
@@ -101,12 +126,19 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     It applies `scenario.simulator` (Drake's SimulatorConfig: target_realtime_rate 1 paces
     the run to the wall clock), seeds the diagram's random context with
     `scenario.random_seed`, logs the capsule's state, the contact load and the EPM's pose
-    every `scenario.outputs.log_period`, and shows progress.
+    every `scenario.outputs.log_period`, shows progress, and guards the run
+    (io/guard.py: a state that stops being physical ends it).
+
+    However the run ends (its duration, a goal, the guard, an error inside the simulation,
+    Ctrl-C or a termination signal), what was logged is kept and written; `status` in the
+    result and in metrics.json says which it was.
 
     Args:
         meshcat: a pydrake Meshcat to draw into and record, or None.
-        out_dir: if given, writes metrics.json, scenario.yaml, logs.npz and (with meshcat)
-            recording.html there. A simulation error or Ctrl-C still writes what was logged.
+        out_dir: if given, a folder (created if need be) that is checked for room, then
+            gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
+            see io/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
+            recording.html and (after an error) error.txt with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
@@ -115,26 +147,36 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         stop_when: optional `stop_when(station, station_context) -> str | None`, asked
             every simulated half second: a text ends the run there (a goal reached), and
             becomes the metrics' "stopped_at".
+
+    Raises:
+        OutputError: `out_dir` cannot be written or has no room (before simulating), or
+            the outputs could not be written at the end (WriteError; what was written as
+            the run went stays on disk).
     """
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        prepare_folder(out, scenario, meshcat is not None)
     builder = DiagramBuilder()
     # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
     station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
     colon, _ = load_colon(scenario.colon)   # cached: the station's own
+    model = capsule_model()
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
+    guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
+                                                         scenario.guard))
+    builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     period = scenario.outputs.log_period
-    capsule_log = LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period)
-    contact_log = LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period)
-    epm_log = LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
+    loggers = (LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
+               LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
+               LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period))
     finish = extend(builder, station) if extend is not None else None
     diagram = builder.Build()
-    model = capsule_model()
 
     simulator = Simulator(diagram)
     ApplySimulatorConfig(scenario.simulator, simulator)
     diagram.SetRandomContext(simulator.get_mutable_context(),
                              RandomGenerator(scenario.random_seed))
-    stopped_at = None
     if stop_when is not None:
         last_check = [-np.inf]
 
@@ -152,8 +194,25 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
                                set_visualizations_while_recording=live_meshcat)
+    spool = LogSpool(out)
+    context = simulator.get_mutable_context()
+
+    def drain():
+        """Moves the loggers' samples into the spool (which writes them every few seconds)."""
+        logs = [logger.FindMutableLog(context) for logger in loggers]
+        # A run cut short may stop between two loggers' samples: keep the common part.
+        k = min(log.num_samples() for log in logs)
+        # Copies: the logs' arrays are views of storage that Clear() hands back.
+        chunk = dict(zip(LOG_KEYS, (np.array(logs[0].sample_times()[:k]),
+                                    np.array(logs[0].data()[:, :k]),
+                                    np.array(logs[1].data()[0, :k]),
+                                    np.array(logs[2].data()[:, :k]))))
+        for log in logs:
+            log.Clear()
+        spool.add(chunk, context.get_time())
+
     bar = Progress(scenario.duration, enabled=progress)
-    stopped_early = None
+    status, stopped_early, stopped_at, signal_name, error = "completed", None, None, None, None
     wall_start = time.perf_counter()
     try:
         simulator.Initialize()
@@ -163,62 +222,117 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             t = t + chunk
             if t > scenario.duration - 1e-9:  # end on the duration, not an ulp short of it
                 t = scenario.duration
-            status = simulator.AdvanceTo(t)
-            bar.update(simulator.get_context().get_time())
-            if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-                stopped_at = status.message()
+            result = simulator.AdvanceTo(t)
+            bar.update(context.get_time())
+            drain()
+            if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                found = parse_guard_reason(result.message())
+                if found is None:
+                    status, stopped_at = "goal", result.message()
+                else:
+                    kind, text = found
+                    status = "diverged" if kind in DIVERGED else "left_colon"
+                    stopped_early = f"stopped by the run guard at {text}"
                 break
-    except KeyboardInterrupt:
-        stopped_early = f"interrupted at t = {simulator.get_context().get_time():.3f} s"
-    except (RuntimeError, ValueError) as e:
-        stopped_early = (f"simulation error at t = {simulator.get_context().get_time():.3f} s: "
-                         f"{str(e).splitlines()[0]}")
-    finally:
+    except KeyboardInterrupt as e:  # Ctrl-C, or a termination signal (cli: Interrupted)
+        status, signal_name = "interrupted", getattr(e, "signal_name", "SIGINT")
+        stopped_early = f"interrupted ({signal_name}) at t = {context.get_time():.3f} s"
+    except (Exception, SystemExit) as e:  # Drake's errors; its failed assertions exit
+        status, error = "error", traceback.format_exc()
+        text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        stopped_early = (f"simulation error at t = {context.get_time():.3f} s: "
+                         f"{type(e).__name__}: {text}")
+    # However it ended: close what the run opened, score it, write it, with Ctrl-C and the
+    # termination signals held until the files are whole.
+    with signals_held():
+        wall_time = time.perf_counter() - wall_start
         bar.close()
+        try:
+            drain()
+        except Exception:  # the loggers of a diagram that failed mid-publish
+            pass
         if finish is not None:
-            finish()
+            try:
+                finish()
+            except Exception as e:  # e.g. a dataset writer on a full disk
+                if status in ("completed", "goal"):
+                    status, error = "error", traceback.format_exc()
+                    stopped_early = f"could not finish the run's extension: {e}"
         if station.HasSubsystemNamed("capsule.camera"):
             # The render worker is a process: end it with the run, not when a pool process
             # that runs the next run gets round to collecting this diagram.
             worker = station.GetSubsystemByName("capsule.camera").worker
             if worker is not None:
                 worker.close()
-    wall_time = time.perf_counter() - wall_start
-
-    context = simulator.get_context()
-    logs = [log.FindLog(context) for log in (capsule_log, contact_log, epm_log)]
-    # A run cut short may stop between two loggers' samples: keep the common part.
-    k = min(log.num_samples() for log in logs)
-    times = logs[0].sample_times()[:k]
-    result = RunResult(metrics={}, times=times, capsule_state=logs[0].data()[:, :k],
-                       contact_load=logs[1].data()[0, :k], epm_pose=logs[2].data()[:, :k],
-                       out_dir=Path(out_dir) if out_dir is not None else None,
-                       diagram=diagram, context=context, station=station)
-    if k > 0:
+        logs = spool.joined()
+        result = RunResult(metrics={}, times=logs["times"], capsule_state=logs["capsule_state"],
+                           contact_load=logs["contact_load"], epm_pose=logs["epm_pose"],
+                           out_dir=out, diagram=diagram, context=context, station=station,
+                           status=status)
         result.metrics = run_metrics(
-            colon, times, result.capsule_state, result.contact_load, result.epm_pose,
+            colon, result.times, result.capsule_state, result.contact_load, result.epm_pose,
             capsule_radius=model.radius, capsule_length=model.length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
-            sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early)
-    else:
-        result.metrics = {"stopped_early": stopped_early, "wall_time_s": wall_time}
-    if stopped_at:
-        result.metrics["stopped_at"] = stopped_at
-
-    if meshcat is not None:
-        meshcat.StopRecording()
-        meshcat.PublishRecording()
-    if result.out_dir is not None:
-        _write_outputs(result, scenario, meshcat)
+            sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early,
+            diverged=status == "diverged")
+        result.metrics["status"] = status
+        if signal_name:
+            result.metrics["signal"] = signal_name
+        if stopped_at:
+            result.metrics["stopped_at"] = stopped_at
+        if meshcat is not None:
+            meshcat.StopRecording()
+            meshcat.PublishRecording()
+        if out is not None:
+            _write_outputs(result, spool, meshcat, error)
     return result
 
 
-def _write_outputs(result: RunResult, scenario: Scenario, meshcat):
+def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
+    """Creates `out` if need be, checks it can take the run's outputs, writes scenario.yaml."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{out}: cannot create the output folder "
+                          f"({e.strerror or e})") from None
+    check_room(out, run_output_bytes(scenario.duration, scenario.outputs.log_period, recording))
+    try:
+        write_atomic(out / "scenario.yaml", dump_scenario(scenario))
+    except OSError as e:
+        raise OutputError(f"{out}: cannot write scenario.yaml ({e.strerror or e})") from None
+
+
+def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | None):
+    """The run's outputs, each written whole or not at all; WriteError names the first
+    that could not be written (what is on disk already stays)."""
     out = result.out_dir
-    out.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out / "logs.npz", times=result.times, capsule_state=result.capsule_state,
-                        contact_load=result.contact_load, epm_pose=result.epm_pose)
-    (out / "scenario.yaml").write_text(dump_scenario(scenario))
-    (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+    steps = [("logs.npz", spool.finish),
+             ("metrics.json", lambda: write_atomic(
+                 out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n"))]
+    if error is not None:
+        steps.append(("error.txt", lambda: write_atomic(out / "error.txt", error)))
     if meshcat is not None:
-        (out / "recording.html").write_text(meshcat.StaticHtml())
+        steps.append(("recording.html", lambda: write_atomic(out / "recording.html",
+                                                             meshcat.StaticHtml())))
+    for name, write in steps:
+        try:
+            write()
+        except OSError as e:
+            kept = ("; the logs written during the run are in logs.parts/"
+                    if (out / "logs.parts").is_dir() else "")
+            raise WriteError(f"{out}: could not write {name} ({e.strerror or e}){kept}") from None
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Holds Ctrl-C and termination signals while outputs are being written (in the main
+    thread): a second Ctrl-C arrives after the files are whole, not halfway through one."""
+    held = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

@@ -1,0 +1,164 @@
+"""The run guard: stops a simulation that has stopped meaning anything.
+
+A discrete simulation that is pushed past what it can resolve (a time step too long for
+the magnet's stiffness, a capsule squeezed through a wall, a capsule that slides out of an
+open end) does not fail by itself: it carries on and ends with numbers that look like
+results (a capsule "advanced 23.3 cm" after being flung 68 m). The guard watches the
+capsule's state as the run goes and ends the run, with one line saying what happened and
+when, at the first of:
+
+- a state that is not finite (NaN or infinite position, orientation or velocity);
+- a capsule faster than `max_speed` (1 m/s by default: a magnetically dragged capsule
+  moves at millimetres to centimetres per second, and gravity alone brings a capsule
+  released 5 cm above the wall to 1 m/s only after 5 cm of free fall, which the lumen has
+  no room for; faster than that, the integration has gone unstable);
+- any point of the capsule's surface farther than `max_wall_excursion` beyond the colon
+  wall (5 mm by default: the contact lets the capsule into the wall by well under 1 mm,
+  and a fold is a few millimetres thick, so 5 mm means the capsule has gone through it);
+- the capsule's centre past one of the colon's ends (it has left the colon).
+
+The cheap checks (finite, speed) run every `period`; the wall check, which evaluates the
+wall's geometry at ~400 surface points (~2 ms), every `wall_period`.
+
+The guard is a LeafSystem whose periodic publish event returns Drake's
+`EventStatus.ReachedTermination` with the reason: the simulator returns from AdvanceTo
+with that message, and the run loop (io/run.py) writes what was logged and exits non-zero.
+"""
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.io.metrics import capsule_surface_points_C
+
+
+@dataclasses.dataclass
+class GuardConfig:
+    """When a run is stopped as no longer physical (io/guard.py)."""
+
+    # Fastest credible capsule speed (m/s).
+    max_speed: float = 1.0
+    # Farthest any point of the capsule may be beyond the colon wall (m).
+    max_wall_excursion: float = 0.005
+    # Period of the finite-state and speed checks (s).
+    period: float = 0.01
+    # Period of the wall check (s).
+    wall_period: float = 0.1
+
+
+def check_guard_config(config: GuardConfig) -> None:
+    """Raises ValueError naming the first impossible field."""
+    for name in ("max_speed", "max_wall_excursion", "period", "wall_period"):
+        value = getattr(config, name)
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"guard.{name} must be finite and > 0, got {value}")
+    if config.period < 1e-4 or config.wall_period < 1e-4:
+        raise ValueError("guard.period and guard.wall_period must be >= 1e-4 s (the checks "
+                         "cost ~2 ms)")
+
+
+# A GuardTrip's `kind` for the reasons after which a run's distances mean nothing.
+DIVERGED = ("not_finite", "speed", "wall")
+
+
+def guard_reason(kind: str, text: str) -> str:
+    """The message a guard stop carries: 'guard:<kind>: <text>'."""
+    return f"guard:{kind}: {text}"
+
+
+def parse_guard_reason(message: str):
+    """(kind, text) of a guard stop's message, or None for any other message."""
+    if not message or not message.startswith("guard:"):
+        return None
+    kind, _, text = message[len("guard:"):].partition(": ")
+    return kind, text
+
+
+def check_capsule_state(state: np.ndarray, max_speed: float) -> tuple[str, str] | None:
+    """(kind, text) if the capsule state [q_wxyz, p, w, v] is not finite or too fast."""
+    state = np.asarray(state, dtype=float)
+    if not np.all(np.isfinite(state)):
+        parts = [name for name, rows in (("orientation", slice(0, 4)),
+                                          ("position", slice(4, 7)),
+                                          ("angular velocity", slice(7, 10)),
+                                          ("velocity", slice(10, 13)))
+                 if not np.all(np.isfinite(state[rows]))]
+        return "not_finite", f"the capsule's {' and '.join(parts)} became NaN or infinite"
+    speed = float(np.linalg.norm(state[10:13]))
+    if speed > max_speed:
+        return "speed", (f"the capsule moves at {speed:.3g} m/s, faster than the "
+                         f"{max_speed:g} m/s a capsule can (guard.max_speed)")
+    return None
+
+
+def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
+                           max_excursion: float) -> tuple[str, str] | None:
+    """(kind, text) if the capsule's centre is past one of the colon's ends, or a point of
+    its surface is farther than `max_excursion` beyond the wall."""
+    p_WC = np.asarray(state[4:7], dtype=float)
+    centerline = colon.centerline
+    s, _, _ = centerline.closest(p_WC)
+    for s_end, sign, name in ((0.0, -1.0, "start (s = 0)"),
+                              (centerline.length, 1.0, "end")):
+        if s == s_end:
+            past = sign * float((p_WC - centerline.point_at(s_end)) @ centerline.tangent_at(s_end))
+            if past > 0.0:
+                return "left_colon", (f"the capsule left the colon through its {name}, "
+                                      f"{past * 1000:.1f} mm past it")
+    R_WC = rotation_from_quaternion(state[:4])
+    excursion = colon.excursion(points_C @ R_WC.T + p_WC)
+    worst = int(np.argmax(excursion))
+    if excursion[worst] > max_excursion:
+        return "wall", (f"the capsule is {excursion[worst] * 1000:.1f} mm beyond the colon "
+                        f"wall at s = {s * 100:.1f} cm, more than the "
+                        f"{max_excursion * 1000:g} mm guard.max_wall_excursion: it went "
+                        "through the wall")
+    return None
+
+
+class RunGuard(LeafSystem):
+    """Ends the simulation when the capsule's state stops being physical (module docstring).
+
+    .. pydrake_system::
+
+        name: RunGuard
+        input_ports:
+        - capsule_state
+
+    Input: capsule_state (13): [q_WC (wxyz), p_WC (m), w_WC (rad/s), v_WC (m/s)].
+
+    Args:
+        colon: the run's colon (its centreline and wall).
+        capsule_radius, capsule_length: the capsule's shape (m).
+        config: GuardConfig.
+    """
+
+    def __init__(self, colon, capsule_radius: float, capsule_length: float,
+                 config: GuardConfig | None = None):
+        super().__init__()
+        self._colon = colon
+        self._config = config or GuardConfig()
+        self._points_C = capsule_surface_points_C(capsule_radius, capsule_length)
+        self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
+        self.DeclarePeriodicPublishEvent(self._config.period, 0.0, self._check_state)
+        self.DeclarePeriodicPublishEvent(self._config.wall_period, 0.0, self._check_wall)
+
+    def _stop(self, context, found):
+        if found is None:
+            return EventStatus.Succeeded()
+        kind, text = found
+        return EventStatus.ReachedTermination(
+            self, guard_reason(kind, f"t = {context.get_time():.3f} s: {text}"))
+
+    def _check_state(self, context):
+        state = self._state_port.Eval(context)
+        return self._stop(context, check_capsule_state(state, self._config.max_speed))
+
+    def _check_wall(self, context):
+        state = self._state_port.Eval(context)
+        if check_capsule_state(state, self._config.max_speed) is not None:
+            return EventStatus.Succeeded()  # the state check reports it
+        return self._stop(context, check_capsule_in_colon(
+            self._colon, state, self._points_C, self._config.max_wall_excursion))
