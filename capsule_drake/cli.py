@@ -61,7 +61,7 @@ def _parser() -> argparse.ArgumentParser:
                     "frames, camera poses, IMU, AHRS, magnetometer and lumen ground truth "
                     "into a folder laid out like SimCol3D's (see README.txt written there).")
     _scenario_arguments(rec)
-    _out_arguments(rec, "datasets/<scenario>-<date-time>")
+    _out_arguments(rec, "datasets/<scenario>-<date-time>", force=False)
     rec.add_argument("--quiet", action="store_true", help="no progress bar")
 
     tel = verbs.add_parser(
@@ -175,20 +175,22 @@ def _host_argument(parser, what: str):
                              "authentication: only on a network you trust)")
 
 
-def _out_arguments(parser, default: str):
+def _out_arguments(parser, default: str, force: bool = True):
     parser.add_argument("--out", type=Path, metavar="DIR",
                         help=f"output folder (default: {default}, a new folder each run); "
-                             "an existing folder that holds files is refused unless --force")
-    parser.add_argument("--force", action="store_true",
-                        help="write into an existing --out folder, replacing a previous "
-                             "run's outputs there")
+                             "an existing folder that holds files is refused"
+                             + (" unless --force" if force else ""))
+    if force:
+        parser.add_argument("--force", action="store_true",
+                            help="write into an existing --out folder, replacing a previous "
+                                 "run's outputs there")
 
 
 def _output_folder(args, parent: str, name: str, outputs=RUN_OUTPUTS) -> Path:
     """The folder a command writes into: --out (refused if it holds files, unless --force),
     or a new folder parent/name-<date-time> that no other run uses."""
     if args.out is not None:
-        return claim_folder(args.out, args.force, outputs=outputs)
+        return claim_folder(args.out, getattr(args, "force", None), outputs=outputs)
     return new_run_folder(parent, name)
 
 
@@ -308,9 +310,6 @@ def _load(args, *flags: str):
 
 def _record(args) -> int:
     scenario = _load(args)
-    if args.out is not None and args.force:
-        raise ScenarioError("record --force: a dataset folder is not replaced; remove it, or "
-                            "choose another --out")
     out_dir = _output_folder(args, "datasets", args.scenario or "Default")
     result = record(scenario, out_dir, progress=not args.quiet)
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))

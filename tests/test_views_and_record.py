@@ -65,4 +65,4 @@ def test_record_writes_a_dataset(tmp_path):
 def test_record_refuses_a_non_empty_folder(tmp_path, capsys):
     (tmp_path / "keep.txt").write_text("data")
     assert cli_main(["record", "--duration", "0.1", "--out", str(tmp_path)]) == 2
-    assert "exists and is not empty" in capsys.readouterr().err
+    assert "folder exists and holds keep.txt" in capsys.readouterr().err

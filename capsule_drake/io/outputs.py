@@ -66,13 +66,14 @@ def new_run_folder(parent: Path | str, name: str) -> Path:
     raise OutputError(f"{parent}: too many runs named {name}-{stamp}")
 
 
-def claim_folder(folder: Path | str, force: bool = False, what: str = "--out",
+def claim_folder(folder: Path | str, force: bool | None = False, what: str = "--out",
                  outputs: tuple[str, ...] = RUN_OUTPUTS) -> Path:
     """The folder a user named for a run's outputs, created if need be.
 
     An existing folder that holds anything is refused (a previous run's outputs would be
     overwritten, or mixed with the new ones); with `force`, a previous run's outputs
-    (`outputs`) are removed first, and other files are left alone.
+    (`outputs`) are removed first, and other files are left alone. `force` None: the
+    command has no --force (a dataset is never replaced).
     """
     if str(folder) == "":
         raise OutputError(f"{what}: empty path (give a folder, e.g. {what} runs/mine)")
@@ -87,8 +88,9 @@ def claim_folder(folder: Path | str, force: bool = False, what: str = "--out",
         if entries and not force:
             shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
             raise OutputError(f"{what} {folder}: folder exists and holds {shown}; choose "
-                              "another folder, or add --force to replace a previous run's "
-                              "outputs there")
+                              "another folder" + ("" if force is None else
+                                                  ", or add --force to replace a previous "
+                                                  "run's outputs there"))
         for name in outputs if force else ():
             path = folder / name
             try:

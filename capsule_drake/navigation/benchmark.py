@@ -124,12 +124,20 @@ def run_task(task: Task) -> dict:
     if stopped and stopped.startswith("simulation error"):
         stopped = "simulation error: " + stopped.split(": ", 1)[1]
     row = _metrics(task, colon, result, data, camera, stopped)
+    if result.status == "diverged":  # nothing measured in such a run means anything
+        row.update({key: np.nan for key in DIVERGED_NAN})
+        row.update(reached_cecum=False, segments_passed=[])
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
     s = colon.centerline.closest(result.capsule_state[4:7].T)[0]
     step = max(1, int(round(1.0 / period)))
     return {"row": row, "curve": (result.times[::step].tolist(), s[::step].tolist()),
             "segments": colon.centerline.segment_ranges()}
+
+
+# The columns of a run the guard found diverged: not reported.
+DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
+                "peak_contact_force_N", "centring_error_deg", "coverage")
 
 
 def _metrics(task, colon, result, data, camera, stopped) -> dict:
