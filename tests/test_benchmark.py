@@ -76,7 +76,7 @@ def test_the_same_seeds_give_the_same_table_on_a_dask_cluster(local_results):
 
 def test_bad_navigators_get_one_line_errors():
     for navigator, message in (("wander", "navigator 'wander' is not one of autonomy-truth"),
-                               ("nosuchmodule:f", "cannot import 'nosuchmodule'"),
+                               ("nosuchmodule:f", "no module 'nosuchmodule' on the Python path"),
                                ("plugins.navigators:nothing", "has no function 'nothing'")):
         with pytest.raises(ValueError, match=message) as error:
             task_scenario(Task(navigator, 0, duration=0.1, scenario_text=TEXT))

@@ -180,7 +180,7 @@ def test_tracker_runs_a_users_detector_by_name_and_survives_a_broken_one():
 
 def test_bad_detector_names_give_one_line_scenario_errors():
     for name, words in (("nonsense", "is not 'gaussian'"),
-                        ("no_such_module_x:f", "cannot import"),
+                        ("no_such_module_x:f", "no module .no_such_module_x. on the Python path"),
                         ("test_lumen:missing_function", "has no function")):
         with pytest.raises(ScenarioError, match=words) as info:
             load_scenario(name="WithSensors", override=(
