@@ -113,9 +113,14 @@ def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
                 return "left_colon", (f"the capsule left the colon through its {name}, "
                                       f"{past * 1000:.1f} mm past it")
     R_WC = rotation_from_quaternion(state[:4])
-    excursion = colon.excursion(points_C @ R_WC.T + p_WC)
+    points_W = points_C @ R_WC.T + p_WC
+    excursion = colon.excursion(points_W)
     worst = int(np.argmax(excursion))
     if excursion[worst] > max_excursion:
+        s_worst = float(centerline.closest(points_W[worst])[0])
+        if s_worst in (0.0, centerline.length):
+            return "left_colon", (f"the capsule sticks out {excursion[worst] * 1000:.1f} mm "
+                                  f"past the colon's {'start (s = 0)' if s_worst == 0 else 'end'}")
         return "wall", (f"the capsule is {excursion[worst] * 1000:.1f} mm beyond the colon "
                         f"wall at s = {s * 100:.1f} cm, more than the "
                         f"{max_excursion * 1000:g} mm guard.max_wall_excursion: it went "
