@@ -35,10 +35,10 @@ IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json"
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="capsule-sim",
         description="Magnetically actuated endoscopic capsule simulator (Drake).")
-    verbs = parser.add_subparsers(dest="verb", required=True)
+    verbs = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
     run = verbs.add_parser(
         "run", help="simulate a scenario and write its metrics and Meshcat recording",
         description="Simulate a scenario. Writes metrics.json, scenario.yaml, logs.npz and "
@@ -144,8 +144,8 @@ def _parser() -> argparse.ArgumentParser:
                     "around it, and write DIR/wall.obj, DIR/centerline.npz, "
                     "DIR/wall_radius.npz and DIR/import.json with a summary of the repairs. "
                     "A scenario runs on it with colon: {source: DIR}.")
-    imp.add_argument("mesh", type=Path, help="the mesh file")
-    imp.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    imp.add_argument("mesh", type=_path, help="the mesh file")
+    imp.add_argument("--out", type=_path, required=True, metavar="DIR", help="output folder")
     imp.add_argument("--force", action="store_true",
                      help="replace a previous import's files in --out")
     imp.add_argument("--scale", type=float, default=1.0,
@@ -156,6 +156,21 @@ def _parser() -> argparse.ArgumentParser:
                      help="start the centreline at the wider end instead of the narrower")
     imp.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a wrong flag reported in one line (and where to find the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _path(text: str) -> Path:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty path")
+    if "\0" in text:
+        raise argparse.ArgumentTypeError("a path cannot hold a NUL character")
+    return Path(text)
 
 
 def _port(text: str) -> int:
@@ -176,7 +191,7 @@ def _host_argument(parser, what: str):
 
 
 def _out_arguments(parser, default: str, force: bool = True):
-    parser.add_argument("--out", type=Path, metavar="DIR",
+    parser.add_argument("--out", type=_path, metavar="DIR",
                         help=f"output folder (default: {default}, a new folder each run); "
                              "an existing folder that holds files is refused"
                              + (" unless --force" if force else ""))
@@ -285,7 +300,7 @@ def _benchmark(args) -> int:
 
 
 def _scenario_arguments(parser):
-    parser.add_argument("scenario_file", nargs="?", type=Path, default=DEFAULT_SCENARIO_FILE,
+    parser.add_argument("scenario_file", nargs="?", type=_path, default=DEFAULT_SCENARIO_FILE,
                         help="YAML file of named scenarios (default: diagrams/default.yaml)")
     parser.add_argument("--scenario", metavar="NAME",
                         help="which scenario in the file (default: the only one, or 'Default')")
