@@ -210,8 +210,9 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     from dask.distributed import Client, LocalCluster, as_completed
     cluster = None
     if address is None:
+        # This machine only: the scheduler and workers would run whatever they are sent.
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=None, host="127.0.0.1")
     try:
         with Client(address or cluster) as client:
             futures = client.map(run_task, tasks, pure=False)
