@@ -25,8 +25,9 @@ def _sockets(process: subprocess.Popen, want, timeout: float = 120.0):
                 recursive=True):
             try:
                 for c in proc.net_connections("inet"):
-                    if c.laddr and (c.status == psutil.CONN_LISTEN or c.type == 2):  # UDP
-                        sockets.add((c.laddr.ip, c.laddr.port, "udp" if c.type == socket.SOCK_DGRAM else "tcp"))
+                    udp = c.type == socket.SOCK_DGRAM
+                    if c.laddr and (c.status == psutil.CONN_LISTEN or udp):
+                        sockets.add((c.laddr.ip, c.laddr.port, "udp" if udp else "tcp"))
             except psutil.NoSuchProcess:
                 pass
         if want(sockets):
