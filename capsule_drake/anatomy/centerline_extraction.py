@@ -6,29 +6,264 @@
    first centreline. It follows any bend, but its rings tilt where the inner wall is
    shorter than the outer.
 2. Sections. The mesh is cut by the plane through each centreline point normal to the
-   centreline's tangent; the cut's loop around that point (the smallest containing it: in
-   a bend the plane may cut the tube twice, and a wall with thickness gives an inner and an
-   outer loop) gives the new point, the centre of a circle fitted to the loop's outer
-   envelope (folds stand inward and would pull an area centroid off the axis), and an
-   area, the local radius sqrt(A / pi). Repeated, the points settle on the lumen's centre.
-3. Ends. The rings are unreliable near the ends, so the line is cut back there and grown
-   again by marching sections to where the tube ends (an open end's loop) or closes (a cap,
-   found by a ray); then sections and a light smoothing spline once more.
+   centreline's tangent (`MeshSections`: every face the plane crosses gives a segment; the
+   segments join, through the edges they end on, into loops); the cut's closed loop around
+   that point (the smallest containing it: in a bend the plane may cut the tube twice, and
+   a wall with thickness gives an inner and an outer loop) gives the new point, the centre
+   of a circle fitted to the loop's outer envelope (folds stand inward and would pull an
+   area centroid off the axis), and an area, the local radius sqrt(A / pi). Repeated until
+   the points move less than 0.02 mm (at most `iterations` times), they settle on the
+   lumen's centre: for a tube swept by circles along a curve, the curve itself.
+3. Ends. The line is cut back a radius from each end and grown again by marching: a step
+   along the end's tangent (a quadratic fitted to the last 2 cm), a section there, its
+   centre the next point. Before each step a ray along the tangent looks for the wall
+   ahead: a cap (flat or round) is within a third of the radius, and the line ends where
+   the ray meets it (so no section is cut across a cap: a plane not quite parallel to a
+   flat cap cuts it and slides the centre sideways). An open end is passed when the
+   section is no longer a closed loop around the point; the line ends at the end loop's
+   centre. Then sections and a light smoothing spline once more, the ends held.
 
+Accuracy (tests/test_import_tubes.py): on 13 tubes made independently (random smooth curves
+with bends down to 3 radii, radius 12-35 mm with fold-like ripples, open, hemispherical and
+flat ends, uniform, jittered and Delaunay triangulations of 4k-220k faces, in metres and
+millimetres) within 2 mm of the true centreline everywhere, ends included; the same mesh
+with its vertices moved by 1e-6 of its size gives a centreline within 0.2 mm of the first.
 Round trip of the procedural colon (exported, imported, extracted), seeds 0-9: within
 0.5-1.3 mm of the original centreline everywhere.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import trimesh
 from scipy.interpolate import make_smoothing_spline
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .importer import _boundary_loops, geometry_of
 
+
+# --- Plane sections -----------------------------------------------------------------------
+
+@dataclasses.dataclass
+class Section:
+    """One closed loop of a plane section: its segments' end points `a`, `b` (K, 3), each
+    segment running the same way round; the loop's enclosed `area` [m^2] and area
+    `centroid` (3,)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    area: float
+    centroid: np.ndarray
+
+    @property
+    def points(self) -> np.ndarray:
+        """The segments' midpoints (not in order around the loop)."""
+        return 0.5 * (self.a + self.b)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.linalg.norm(self.b - self.a, axis=1)
+
+    @property
+    def radius(self) -> float:
+        """Of the circle with the loop's area."""
+        return float(np.sqrt(self.area / np.pi))
+
+
+def _plane_basis(normal):
+    n = normal / np.linalg.norm(normal)
+    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    return n, a, np.cross(n, a)
+
+
+class MeshSections:
+    """Plane sections of one mesh, vectorised: the plane's signed distance at every vertex,
+    a segment in every face it crosses (a vertex on the plane counts as in front of it), the
+    segments joined into loops by the edges they end on (an edge is shared by two faces).
+    Each segment runs along normal x face normal, so the loops of a consistently wound mesh
+    run one way round and their areas and centroids follow from the shoelace sums without
+    ordering the segments."""
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        self.vertices = np.asarray(mesh.vertices, dtype=float)
+        self.faces = np.asarray(mesh.faces, dtype=np.int64)
+        edges = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        self.edges, inverse = np.unique(edges, axis=0, return_inverse=True)
+        self.face_edges = inverse.reshape(-1, 3)
+        self.face_normals = np.asarray(mesh.face_normals, dtype=float)
+        triangles = self.vertices[self.faces]
+        self._v0 = triangles[:, 0]
+        self._e1 = triangles[:, 1] - self._v0
+        self._e2 = triangles[:, 2] - self._v0
+
+    def loops(self, origin, normal):
+        """(sections, contains, closed): every loop of the plane section through `origin`
+        normal to `normal`; per loop whether it encloses `origin` (an odd number of its
+        segments cross a ray from it in the plane) and whether it is closed (no segment
+        ends on a boundary edge)."""
+        origin = np.asarray(origin, dtype=float)
+        n, ax, bx = _plane_basis(np.asarray(normal, dtype=float))
+        d = (self.vertices - origin) @ n
+        front = d >= 0.0
+        fp = front[self.faces]
+        count = fp.sum(axis=1)
+        crossing = np.flatnonzero((count == 1) | (count == 2))
+        if len(crossing) == 0:
+            return [], np.zeros(0, bool), np.zeros(0, bool)
+        fc = fp[crossing]
+        cut = fc != np.roll(fc, -1, axis=1)  # edge k (k, k+1) crosses: exactly two per face
+        which = np.argsort(~cut, axis=1, kind="stable")[:, :2]
+        face_edge = self.face_edges[crossing[:, None], which]  # (C, 2)
+        used, node = np.unique(face_edge, return_inverse=True)
+        node = node.reshape(-1, 2)
+        va, vb = self.edges[used, 0], self.edges[used, 1]
+        t = d[va] / (d[va] - d[vb])
+        p = self.vertices[va] + t[:, None] * (self.vertices[vb] - self.vertices[va])
+        a, b = p[node[:, 0]], p[node[:, 1]]
+        along = np.cross(n, self.face_normals[crossing])
+        flip = np.einsum("ij,ij->i", b - a, along) < 0.0
+        a[flip], b[flip] = b[flip].copy(), a[flip].copy()
+        m = len(used)
+        graph = coo_matrix((np.ones(len(node)), (node[:, 0], node[:, 1])), shape=(m, m))
+        ncomp, label = connected_components(graph, directed=False)
+        seg_label = label[node[:, 0]]
+        degree = np.bincount(node.reshape(-1), minlength=m)
+        open_comp = np.zeros(ncomp, bool)
+        open_comp[label[degree == 1]] = True
+        # In-plane coordinates from the origin.
+        xa, ya = (a - origin) @ ax, (a - origin) @ bx
+        xb, yb = (b - origin) @ ax, (b - origin) @ bx
+        cross = xa * yb - xb * ya
+        area = 0.5 * np.bincount(seg_label, cross, ncomp)
+        cx = np.bincount(seg_label, (xa + xb) * cross, ncomp)
+        cy = np.bincount(seg_label, (ya + yb) * cross, ncomp)
+        # Parity of the crossings of the ray from the origin along +x.
+        straddle = (ya > 0.0) != (yb > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_at = xa + (xb - xa) * (0.0 - ya) / (yb - ya)
+        hits = np.bincount(seg_label, (straddle & (x_at > 0.0)).astype(float), ncomp)
+        contains = (hits.astype(int) % 2) == 1
+        order = np.argsort(seg_label, kind="stable")
+        bounds = np.searchsorted(seg_label[order], np.arange(ncomp + 1))
+        sections = []
+        for k in range(ncomp):
+            pick = order[bounds[k]:bounds[k + 1]]
+            ar = float(area[k])
+            if abs(ar) > 1e-16:
+                c2 = np.array([cx[k], cy[k]]) / (6.0 * ar)
+            else:
+                c2 = np.array([np.mean(xa[pick]), np.mean(ya[pick])])
+            sections.append(Section(a[pick], b[pick], abs(ar), origin + c2[0] * ax + c2[1] * bx))
+        return sections, contains, ~open_comp
+
+    def around(self, origin, normal):
+        """The smallest closed loop of the section that encloses `origin`, or None."""
+        sections, contains, closed = self.loops(origin, normal)
+        best = None
+        for section, inside, whole in zip(sections, contains, closed):
+            if inside and whole and section.area > 0.0 and (
+                    best is None or section.area < best.area):
+                best = section
+        return best
+
+    def ray(self, origin, direction, reach=np.inf):
+        """Distance along the ray to the nearest face it meets within `reach`
+        (Moller-Trumbore), or inf."""
+        direction = np.asarray(direction, dtype=float)
+        direction = direction / np.linalg.norm(direction)
+        rel = self._v0 - origin
+        if np.isfinite(reach):  # faces whose first corner is near the ray's reach
+            size = np.linalg.norm(self._e1, axis=1) + np.linalg.norm(self._e2, axis=1)
+            near = np.linalg.norm(rel, axis=1) <= reach + size
+            if not near.any():
+                return np.inf
+            e1, e2, v0 = self._e1[near], self._e2[near], self._v0[near]
+        else:
+            e1, e2, v0 = self._e1, self._e2, self._v0
+        p = np.cross(direction, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-18
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tvec = origin - v0
+        u = np.einsum("ij,ij->i", tvec, p) * inv
+        q = np.cross(tvec, e1)
+        v = (q @ direction) * inv
+        dist = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (dist > 1e-9) & (dist <= reach)
+        return float(dist[hit].min()) if hit.any() else np.inf
+
+
+def section_loop(mesh, origin: np.ndarray, normal: np.ndarray, sections=None):
+    """The plane section's closed loop around `origin` (the smallest containing it), or the
+    nearest closed one if none does: (points (K, 3) on the loop (segment midpoints, not in
+    order), area centroid (3,), area), or None. In a bend the plane may cut the tube twice;
+    a wall with thickness gives an inner and an outer loop (the inner one, the lumen, is the
+    smaller). `sections`: a `MeshSections` of `mesh` to reuse."""
+    sections = sections or MeshSections(mesh)
+    found, contains, closed = sections.loops(origin, normal)
+    best = None
+    for section, inside, whole in zip(found, contains, closed):
+        if not whole or section.area <= 0.0:
+            continue
+        distance = 0.0 if inside else float(np.linalg.norm(section.centroid - origin))
+        if best is None or distance < best[0] or (distance == best[0] == 0.0
+                                                   and section.area < best[1].area):
+            best = (distance, section)
+    if best is None:
+        return None
+    return best[1].points, best[1].centroid, best[1].area
+
+
+# --- Section centres ----------------------------------------------------------------------
+
+def envelope_centre(points: np.ndarray, lengths: np.ndarray, start: np.ndarray,
+                    normal: np.ndarray, inside: float = 0.0005, iterations: int = 12):
+    """Centre of the circle fitted to a section loop's outer envelope, or None.
+
+    Haustral folds, valves and taeniae stand inward from the colon's wall: a one-sided
+    perturbation that pulls the area centroid away from them by millimetres where they sit
+    on one side only. Points more than `inside` (m) within the fitted circle count 2 % as
+    much as those on or outside it (iteratively reweighted algebraic circle fit, each point
+    weighted by the length of loop it stands for; the weight falls smoothly over 0.25 mm, so
+    the centre moves smoothly with the mesh), and the circle settles on the wall between
+    the folds."""
+    _, a, b = _plane_basis(normal)
+    d = points - start
+    xy = np.column_stack([d @ a, d @ b])
+    weights = lengths.copy()
+    design = np.column_stack([xy, np.ones(len(xy))])
+    target = -np.sum(xy ** 2, axis=1)
+    centre = np.zeros(2)
+    radius = 0.0
+    for _ in range(iterations):
+        w = np.sqrt(weights)
+        try:
+            sol = np.linalg.lstsq(design * w[:, None], target * w, rcond=None)[0]
+        except np.linalg.LinAlgError:
+            return None
+        centre = -0.5 * sol[:2]
+        radius_sq = centre @ centre - sol[2]
+        if not np.isfinite(radius_sq) or radius_sq <= 0.0:
+            return None
+        radius = np.sqrt(radius_sq)
+        r = np.linalg.norm(xy - centre, axis=1)
+        depth = (radius - inside - r) / 0.00025  # > 0: inside the band
+        weights = lengths * (0.02 + 0.98 / (1.0 + np.exp(np.clip(4.0 * depth, -50, 50))))
+    if np.linalg.norm(centre) > 0.5 * radius:
+        return None  # not a round lumen around the start: keep the centroid
+    return start + centre[0] * a + centre[1] * b
+
+
+def _centre(section: Section, origin, normal):
+    centre = envelope_centre(section.points, section.lengths, origin, normal)
+    return section.centroid if centre is None else centre
+
+
+# --- Helpers ------------------------------------------------------------------------------
 
 def _edge_graph(mesh: trimesh.Trimesh):
     edges = mesh.edges_unique
@@ -42,8 +277,10 @@ def _edge_graph(mesh: trimesh.Trimesh):
 def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
     """One end of the tube: the boundary loop nearest the vertex geodesically farthest from
     vertex 0, or that vertex alone for a closed mesh."""
-    far = int(np.argmax(dijkstra(graph, indices=0)))
-    loops = _boundary_loops(mesh)
+    first = dijkstra(graph, indices=0)
+    first[~np.isfinite(first)] = -1.0
+    far = int(np.argmax(first))
+    loops = [loop for loop in _boundary_loops(mesh) if len(loop) >= 3]
     if loops:
         distance = dijkstra(graph, indices=far)
         return min(loops, key=lambda loop: float(np.min(distance[loop])))
@@ -65,7 +302,11 @@ def ring_centreline(mesh: trimesh.Trimesh, step: float):
         ring = vertices[bins == k]
         if len(ring) >= 3:
             points.append(ring.mean(axis=0))
-    return np.array(points)
+    return np.array(points).reshape(-1, 3)
+
+
+def _arc(points):
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
 def _resample(points: np.ndarray, step: float, smoothing: float | None = None) -> np.ndarray:
@@ -73,235 +314,100 @@ def _resample(points: np.ndarray, step: float, smoothing: float | None = None) -
     d = np.linalg.norm(np.diff(points, axis=0), axis=1)
     keep = np.concatenate([[True], d > 1e-9])
     points = points[keep]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     if len(points) < 5:
         return points
+    s = _arc(points)
     spline = [make_smoothing_spline(s, points[:, k], lam=smoothing) for k in range(3)]
     fine = np.linspace(0.0, s[-1], max(int(s[-1] / (0.2 * step)), 10))
     dense = np.column_stack([f(fine) for f in spline])
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    arc = _arc(dense)
     count = max(int(np.ceil(arc[-1] / step)), 1)
     stations = np.linspace(0.0, arc[-1], count + 1)  # both ends kept
     return np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(3)])
 
 
-def _polygon(loop: np.ndarray):
-    """(area, centroid) of a closed 2-D polyline by the shoelace formula."""
-    x, y = loop[:, 0], loop[:, 1]
-    x1, y1 = np.roll(x, -1), np.roll(y, -1)
-    cross = x * y1 - x1 * y
-    area = 0.5 * cross.sum()
-    if abs(area) < 1e-14:
-        return 0.0, loop.mean(axis=0)
-    cx = ((x + x1) * cross).sum() / (6.0 * area)
-    cy = ((y + y1) * cross).sum() / (6.0 * area)
-    return abs(area), np.array([cx, cy])
+def _tangents(points):
+    tangents = np.gradient(points, axis=0)
+    return tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
 
 
-def section_loop(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
-    """The plane section's closed loop around `origin` (the smallest containing it), or the
-    nearest one if none does: (loop (K, 3) world points, area centroid (3,), area), or None.
-    In a bend the plane may cut the tube twice; a wall with thickness gives an inner and an
-    outer loop (the inner one, the lumen, is the smaller)."""
-    from matplotlib.path import Path as PlanePath
-
-    section = mesh.section(plane_origin=origin, plane_normal=normal)
-    if section is None:
-        return None
-    planar, to_3d = section.to_2D()
-    local_origin = trimesh.transform_points([origin], np.linalg.inv(to_3d))[0, :2]
-    best = None
-    for loop in planar.discrete:
-        if len(loop) < 4 or np.linalg.norm(loop[0] - loop[-1]) > 1e-6:
-            continue  # open: the mesh's end, not a loop around the lumen
-        area, centre = _polygon(loop[:-1])
-        if area <= 0.0:
-            continue
-        inside = PlanePath(loop).contains_point(local_origin)
-        distance = 0.0 if inside else float(np.linalg.norm(centre - local_origin))
-        if best is None or distance < best[0] or (distance == best[0] == 0.0 and area < best[2]):
-            best = (distance, centre, area, loop[:-1])
-    if best is None:
-        return None
-    centre3 = trimesh.transform_points([[best[1][0], best[1][1], 0.0]], to_3d)[0]
-    loop3 = trimesh.transform_points(np.column_stack([best[3], np.zeros(len(best[3]))]), to_3d)
-    return loop3, centre3, best[2]
+class NoTubeError(ValueError):
+    """The mesh has no tube to follow; the message is one line."""
 
 
-def _section_centre(mesh: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray):
-    """(centre, area) of `section_loop`, or None: the centre of the circle fitted to the
-    loop's outer envelope (`envelope_centre`), or its area centroid if the fit fails."""
-    cut = section_loop(mesh, origin, normal)
-    if cut is None:
-        return None
-    loop, centroid, area = cut
-    centre = envelope_centre(loop, centroid, normal)
-    return (centroid if centre is None else centre), area
+# --- The centreline -----------------------------------------------------------------------
+
+INTERIOR_TOLERANCE = 2e-5
+"""The interior's sections are repeated until no point moves more than this [m]."""
+MARCH_BASELINE = 0.03
+"""The march's direction is the tangent of a quadratic fitted to this much centreline [m]."""
+CAP_AHEAD = 0.35
+"""A cap: the wall straight ahead within this share of the tube's radius."""
 
 
-MARCH_BASELINE = 0.01
-"""The march's direction is that of the chord over this much centreline [m]."""
-
-
-def envelope_centre(loop: np.ndarray, start: np.ndarray, normal: np.ndarray,
-                    inside: float = 0.0005, iterations: int = 12):
-    """Centre of the circle fitted to a section loop's outer envelope, or None.
-
-    Haustral folds, valves and taeniae stand inward from the colon's wall: a one-sided
-    perturbation that pulls the area centroid away from them by millimetres where they sit
-    on one side only. Points more than `inside` (m) within the fitted circle count 2 % as
-    much as those on or outside it (iteratively reweighted algebraic circle fit, each point
-    weighted by the length of loop it stands for), so the circle settles on the wall between
-    the folds."""
-    n = normal / np.linalg.norm(normal)
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
-    d = loop - start
-    xy = np.column_stack([d @ a, d @ b])
-    seg = np.linalg.norm(np.roll(xy, -1, axis=0) - xy, axis=1)
-    length = 0.5 * (seg + np.roll(seg, 1))
-    weights = length.copy()
-    centre = np.zeros(2)
-    for _ in range(iterations):
-        design = np.column_stack([xy, np.ones(len(xy))])
-        target = -np.sum(xy ** 2, axis=1)
-        w = np.sqrt(weights)
-        try:
-            sol = np.linalg.lstsq(design * w[:, None], target * w, rcond=None)[0]
-        except np.linalg.LinAlgError:
-            return None
-        centre = -0.5 * sol[:2]
-        radius_sq = centre @ centre - sol[2]
-        if not np.isfinite(radius_sq) or radius_sq <= 0.0:
-            return None
-        radius = np.sqrt(radius_sq)
-        r = np.linalg.norm(xy - centre, axis=1)
-        weights = length * np.where(r < radius - inside, 0.02, 1.0)
-    if np.linalg.norm(centre) > 0.5 * radius:
-        return None  # not a round lumen around the start: keep the centroid
-    return start + centre[0] * a + centre[1] * b
-
-
-def _end_loop_centres(mesh: trimesh.Trimesh) -> list[np.ndarray]:
-    return [np.asarray(mesh.vertices)[loop].mean(axis=0) for loop in _boundary_loops(mesh)
-            if len(loop) >= 3]
-
-
-def _march(mesh: trimesh.Trimesh, points: list, step: float, fine: float):
-    """Extends `points` (the last ones inside the tube) past their end, a section every
-    `step` and then every `fine` (m), each centred on its loop, until the plane leaves the
-    tube (an open end) or the tube closes (a cap).
-
-    A cap shows as the section's area falling: below a third of the last section's, or,
-    in the fine steps, below 90 % of the lumen's area before the end (the median of the
-    coarse sections'), where a plane not quite parallel to a flat cap starts cutting it and
-    the loop's centroid slides sideways; and in the coarse steps below 80 % of the last
-    four's median. There the march stops, and the end is where a ray along the march from
-    the last centre meets the cap."""
-    points = list(points)
-    area = None
-    areas = []
-    t = None
-    for size in (step, fine):
-        reference = float(np.median(areas)) if areas else None
-        for _ in range(2000):
-            back = next((q for q in reversed(points[:-1])
-                         if np.linalg.norm(points[-1] - q) >= MARCH_BASELINE), points[0])
-            t = points[-1] - back
-            t = t / np.linalg.norm(t)
-            guess = points[-1] + size * t
-            cut = _section_centre(mesh, guess, t)
-            if cut is None:
-                break
-            centre, new_area = cut
-            # A loop far off the march (another part of the tube).
-            if np.linalg.norm(centre - guess) > 0.3 * np.sqrt(new_area / np.pi):
-                break
-            recent = float(np.median(areas[-4:])) if len(areas) >= 3 else None
-            if (area is not None and new_area < area / 3.0) or (
-                    size == fine and reference is not None and new_area < 0.9 * reference) or (
-                    size == step and recent is not None and new_area < 0.8 * recent):
-                break
-            points.append(centre)
-            area = new_area
-            if size == step:
-                areas.append(new_area)
-    # The end: where a ray along the march meets a cap (after an open end, or far off, it
-    # meets nothing near).
-    if t is not None and area is not None:
-        hit = _ray_hit(mesh, points[-1], t)
-        if hit is not None and hit <= 1.5 * np.sqrt(area / np.pi):
-            points.append(points[-1] + hit * t)
-    return points
-
-
-def _ray_hit(mesh: trimesh.Trimesh, origin: np.ndarray, direction: np.ndarray):
-    """Distance along the ray to the nearest face it meets (Moller-Trumbore over every
-    face), or None."""
-    triangles = np.asarray(mesh.triangles)
-    v0 = triangles[:, 0]
-    e1, e2 = triangles[:, 1] - v0, triangles[:, 2] - v0
-    p = np.cross(direction, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    ok = np.abs(det) > 1e-15
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    tvec = origin - v0
-    u = np.einsum("ij,ij->i", tvec, p) * inv
-    q = np.cross(tvec, e1)
-    v = (q @ direction) * inv
-    dist = np.einsum("ij,ij->i", e2, q) * inv
-    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (dist > 1e-9)
-    return float(dist[hit].min()) if hit.any() else None
-
-
-def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: int = 3,
-                       progress=None):
+def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: int = 8,
+                       progress=None, details: dict | None = None):
     """(s, points, radius): the centreline of a tubular mesh every `step` (m), from the end
     found first (geodesically farthest), with the local radius sqrt(section area / pi).
 
-    Near the ends the rings are unreliable (a closed tube's cap, the geodesic source), so
-    1.5 radii of centreline are cut from each end and grown back by marching: a section
-    every `step`, then every millimetre, each centred on its loop, to where the tube ends
-    (an open end's loop centroid is added) or closes (a cap: the loop collapses).
-    `progress`, if given, is called with (iteration, iterations)."""
+    Raises NoTubeError (one line) if no tube can be followed: the plane sections are not
+    closed loops around a line (an open sheet). `progress`, if given, is called with
+    (iteration, iterations). `details`, if given, is filled with what the checks of
+    anatomy/tube_check.py read: "closed_share" (of the first line's stations, the share
+    whose section is a closed loop around it) and "ends" (per end, "open", "cap" or
+    "none")."""
     mesh = geometry_of(mesh)
-    points = _resample(ring_centreline(mesh, step), step)
+    sections = MeshSections(mesh)
+    rings = ring_centreline(mesh, step)
+    if len(rings) < 5:
+        raise NoTubeError("no tube to follow: geodesic rings from one end give fewer than "
+                          "5 centreline points")
+    points = _resample(rings, step)
+    first = len(points)
+    radius = None
+    closed_share = None
     for iteration in range(iterations):
         if progress is not None:
-            progress(iteration, iterations)
-        points = _refine(mesh, points, step)[0]
-        if len(points) > 10:
-            points = _resample(points, step)
-    # Cut the ends back to where the tube is whole: at least 1.5 radii, and past where the
-    # sections still grow inward (a cap cut obliquely), then grow them back. (The radii of
-    # the evenly resampled points: the cut counts points.)
-    radii = _refine(mesh, points, step, keep_ends=True)[1]
-    base = int(np.ceil(1.5 * float(np.median(radii)) / step))
-
-    def cut_from(r):
-        window = r[:min(len(r), 4 * base)]
-        grown = np.flatnonzero(window >= 0.9 * window.max())
-        return max(base, int(grown[0]) + 1 if len(grown) else base)
-
-    head, tail = cut_from(radii), cut_from(radii[::-1])
-    if len(points) > head + tail + 6:
-        points = points[head:len(points) - tail]
-    points = _march(mesh, points, step, 0.001)
-    points = _march(mesh, list(points[::-1]), step, 0.001)[::-1]
-    points = np.array(points)
-    ends = _end_loop_centres(mesh)
-    if len(ends) >= 2:
-        ends = np.array(ends)
-        head = ends[np.argmin(np.linalg.norm(ends - points[0], axis=1))]
-        tail = ends[np.argmin(np.linalg.norm(ends - points[-1], axis=1))]
-        points = np.vstack([head, points, tail])
+            progress(min(iteration, iterations - 1), iterations)
+        new, radius, found = _refine(sections, points, step)
+        if closed_share is None:
+            closed_share = found / max(first, 1)
+        if len(new) < 5:
+            raise NoTubeError(
+                f"no tube to follow: only {len(new)} of {len(points)} plane sections normal "
+                "to the first centreline are closed loops around it (an open sheet?)")
+        moved = _distance_between(points, new)
+        points = _resample(new, step)
+        if moved < INTERIOR_TOLERANCE:
+            break
+    # Cut each end back by a radius (the sections there may still lean on the end) and
+    # grow it again.
+    radius_now = np.asarray(radius)
+    cut = int(np.ceil(1.0 * float(np.median(radius_now)) / step))
+    if len(points) > 2 * cut + 6:
+        points = points[cut:len(points) - cut]
+    reference = float(np.median(radius_now))
+    tail, tail_end = _march(sections, mesh, list(points), step, 0.001, reference)
+    head, head_end = _march(sections, mesh, list(points[::-1]), step, 0.001, reference)
+    points = np.array(head[::-1][:-len(points)] + tail)
     points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
+    hold = (CAP_AHEAD * reference if head_end == "cap" else 0.0,
+            CAP_AHEAD * reference if tail_end == "cap" else 0.0)
     for _ in range(FINAL_PASSES):
-        points, radius = _refine(mesh, points, step, keep_ends=True, max_move=0.5 * step)
+        points, radius, _ = _refine(sections, points, step, keep_ends=True,
+                                    max_move=0.5 * step, hold=hold)
         points = _smooth_inside(points)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return s, points, radius
+    if details is not None:
+        details.update(closed_share=closed_share, ends=(head_end, tail_end))
+    return _arc(points), points, radius
+
+
+def _distance_between(a, b):
+    """Largest distance from a point of `b` to the polyline `a` (approximately: to its
+    nearest vertex, the polylines being ~`step` apart at most)."""
+    from scipy.spatial import cKDTree
+
+    return float(cKDTree(a).query(b)[0].max()) if len(a) and len(b) else np.inf
 
 
 FINAL_PASSES = 2
@@ -312,6 +418,106 @@ SMOOTHING_LAMBDA = 1e-7
 cut the corners of the rectum's bends by up to 2.4 mm on the round trip.)"""
 
 
+def _end_tangent(points):
+    """The unit tangent at the last point: a quadratic in arc length fitted to the last
+    `MARCH_BASELINE` of centreline (at least 4 points), each point weighted by the length of
+    line it stands for (the march's 1 mm steps would otherwise outweigh the 5 mm ones, and
+    their scatter tilt the tangent)."""
+    pts = np.asarray(points[-80:])[::-1]  # from the end backwards
+    s = _arc(pts)
+    use = min(len(pts), max(4, int(np.searchsorted(s, MARCH_BASELINE)) + 1))
+    s, q = s[:use], pts[:use]
+    if use >= 5:
+        gaps = np.diff(s)
+        w = np.sqrt(0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]])))
+        design = np.column_stack([np.ones(use), s, s ** 2])
+        coef = np.linalg.lstsq(design * w[:, None], q * w[:, None], rcond=None)[0]
+        t = -coef[1]
+    else:
+        t = q[0] - q[-1]
+    return t / np.linalg.norm(t)
+
+
+def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
+           reference: float):
+    """Extends `points` past their last one until the tube ends or closes: returns (points,
+    "cap" | "open" | "none").
+
+    Each step: a ray along the end's tangent looks for the wall ahead; within `CAP_AHEAD`
+    of the tube's radius it is a cap, and the line ends where the ray meets it. Otherwise a
+    section `step` ahead (1 mm once the wall ahead is within two steps, or after a failed
+    step), and its centre is the next point; a section that is no loop around the point, or
+    whose centre is off by a quarter of the radius, or that is far wider than the last, ends
+    the march: past an open end. The end is then the end loop's centre if a boundary loop
+    lies just ahead, else the last point."""
+    points = list(points)
+    last_radius = reference
+    size = step
+    t = _end_tangent(points)
+    for _ in range(5000):
+        t = _end_tangent(points)
+        p = points[-1]
+        ahead = sections.ray(p, t, reach=3.0 * reference)
+        # The wall straight ahead: near, a flat cap; as near as the tube is wide and
+        # curving back toward the rays beside this one, a round cap whose base this is.
+        if ahead <= CAP_AHEAD * max(reference, last_radius) or (
+                ahead <= 1.1 * last_radius and _round_ahead(sections, p, t, last_radius, ahead)):
+            points.append(p + ahead * t)
+            return points, "cap"
+        size = min(size, max(fine, 0.5 * ahead))
+        guess = p + size * t
+        section = sections.around(guess, t)
+        good = section is not None
+        if good:
+            centre = _centre(section, guess, t)
+            good = (np.linalg.norm(centre - guess) <= 0.25 * section.radius
+                    and section.radius <= 1.5 * last_radius)
+        if not good:
+            if size > fine:
+                size = fine
+                continue
+            break
+        points.append(centre)
+        last_radius = section.radius
+    # An open end: its loop's centre, if one lies just ahead.
+    p = points[-1]
+    best = None
+    for loop in _boundary_loops(mesh):
+        if len(loop) < 3:
+            continue
+        ring = np.asarray(mesh.vertices)[loop]
+        seg = np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1)
+        centre = np.sum(0.5 * (ring + np.roll(ring, 1, axis=0)) * seg[:, None], axis=0) / seg.sum()
+        along = float((centre - p) @ t)
+        side = float(np.linalg.norm(centre - p - along * t))
+        if -size <= along <= 1.5 * last_radius and side <= 0.5 * last_radius and (
+                best is None or along < best[0]):
+            best = (along, centre)
+    if best is not None:
+        if best[0] > 1e-4:
+            points.append(best[1])
+        else:
+            points[-1] = best[1]
+        return points, "open"
+    return points, "none"
+
+
+def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
+    """Whether the wall ahead curves back toward the march: rays parallel to `t` from six
+    points half a radius around `p` all meet it 5 % nearer than the ray from `p` or more (a
+    hemisphere's base: 13 % nearer); not a flat cap (as far), nor a bend's outer wall (the
+    rays on its inner side go farther)."""
+    _, u, v = _plane_basis(t)
+    hits = []
+    for phi in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
+        start = p + 0.5 * radius * (np.cos(phi) * u + np.sin(phi) * v)
+        hits.append(sections.ray(start, t, reach=2.0 * ahead))
+    import os
+    if os.environ.get("CL_DEBUG"):
+        print("round?", ahead, radius, np.round(np.array(hits) / ahead, 3))
+    return bool(np.max(hits) < 0.95 * ahead)
+
+
 def _smooth_inside(points):
     """The section centres smoothed (see below), their ends kept."""
     # The section centres scatter by a fraction of a millimetre; the lumen's centre line
@@ -319,7 +525,7 @@ def _smooth_inside(points):
     # where the centres are right to within ~0.4 mm (the round trip): they are blended
     # back in over the last 2 cm.
     if len(points) > 10:
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        s = _arc(points)
         smooth = np.column_stack([make_smoothing_spline(s, points[:, k], lam=SMOOTHING_LAMBDA)(s)
                                   for k in range(3)])
         to_end = np.minimum(s, s[-1] - s)
@@ -334,32 +540,38 @@ def _smooth_inside(points):
     return points
 
 
-def _refine(mesh, points, step, keep_ends=False, max_move=None):
-    """Each point moved to the centre of its section normal to the centreline
-    (`_section_centre`); returns
-    (points, radii). With keep_ends, the end points stay (their sections are the tube's
-    ends) and take their neighbours' radii."""
-    tangents = np.gradient(points, axis=0)
-    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None,
+            hold=(0.0, 0.0)):
+    """Each point moved to the centre of its section normal to the centreline (`_centre`);
+    returns (points, radii, sections found). Points without a closed loop around them are
+    dropped (kept, with keep_ends). With keep_ends, the end points stay (their sections are
+    the tube's ends) and take their neighbours' radii, and so do the points within
+    hold[0] of the first end and hold[1] of the last (in a cap)."""
+    points = np.asarray(points)
+    tangents = _tangents(points)
+    s = _arc(points)
     new, radius = [], []
+    found = 0
     for k, (p, t) in enumerate(zip(points, tangents)):
-        if keep_ends and k in (0, len(points) - 1):
-            new.append(p)
-            radius.append(np.nan)
-            continue
-        cut = _section_centre(mesh, p, t)
-        if cut is None:
+        held = keep_ends and (k in (0, len(points) - 1) or s[k] < hold[0]
+                              or s[-1] - s[k] < hold[1])
+        section = None if held else sections.around(p, t)
+        if section is None:
             if keep_ends:
                 new.append(p)
                 radius.append(np.nan)
             continue
-        centre, area = cut
-        if np.linalg.norm(centre - p) > (4.0 * step if max_move is None else max_move):
-            centre = p  # a stray loop: keep the point
+        found += 1
+        centre = _centre(section, p, t)
+        limit = 4.0 * step if max_move is None else max_move
+        if np.linalg.norm(centre - p) > min(limit, 0.5 * section.radius):
+            if not keep_ends:
+                continue  # a stray loop
+            centre = p
         new.append(centre)
-        radius.append(np.sqrt(area / np.pi))
+        radius.append(section.radius)
     radius = np.array(radius)
     if np.isnan(radius).any() and not np.isnan(radius).all():
         good = np.flatnonzero(~np.isnan(radius))
         radius = np.interp(np.arange(len(radius)), good, radius[good])
-    return np.array(new), radius
+    return np.array(new).reshape(-1, 3), radius, found

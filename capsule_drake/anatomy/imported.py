@@ -33,7 +33,7 @@ from pydrake.common.yaml import yaml_dump_typed
 from scipy.interpolate import RegularGridInterpolator
 
 from .centerline import Centerline, rotation_minimising_frame
-from .centerline_extraction import extract_centerline, section_loop
+from .centerline_extraction import MeshSections, extract_centerline, section_loop
 from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
@@ -140,8 +140,9 @@ def wall_radius_table(mesh: trimesh.Trimesh, centerline: Centerline, step: float
     table = np.full((len(s), around), np.nan)
     t, n, b = centerline.frame_at(s)
     origins = centerline.point_at(s)
+    sections = MeshSections(mesh)
     for k in range(len(s)):
-        cut = section_loop(mesh, origins[k], t[k])
+        cut = section_loop(mesh, origins[k], t[k], sections)
         if cut is None:
             continue
         d = cut[0] - origins[k]
