@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import signal
 import sys
+import tempfile
 import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -205,8 +209,24 @@ def _output_folder(args, parent: str, name: str, outputs=RUN_OUTPUTS) -> Path:
     """The folder a command writes into: --out (refused if it holds files, unless --force),
     or a new folder parent/name-<date-time> that no other run uses."""
     if args.out is not None:
-        return claim_folder(args.out, getattr(args, "force", None), outputs=outputs)
-    return new_run_folder(parent, name)
+        existed = args.out.exists()
+        folder = claim_folder(args.out, getattr(args, "force", None), outputs=outputs)
+    else:
+        existed, folder = False, new_run_folder(parent, name)
+    if not existed:
+        _created_folders.append(folder)
+    return folder
+
+
+# Output folders this command created: removed again if it fails before writing into them.
+_created_folders: list[Path] = []
+
+
+def _remove_unused_folders():
+    for folder in _created_folders:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only if empty
+    _created_folders.clear()
 
 
 def _meshcat(host: str, port: int, announce: bool) -> Meshcat:
@@ -484,6 +504,7 @@ def _raise_interrupted(signal_number, frame):
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    _created_folders.clear()
     # A termination signal (kill, timeout, a closed terminal) ends a run as Ctrl-C does:
     # what was logged is written, then the exit status says which signal it was.
     if threading.current_thread() is threading.main_thread():
@@ -503,6 +524,7 @@ def main(argv=None) -> int:
         if args.verb == "import-colon":
             return _import_colon(args)
     except (ScenarioError, WriteError) as e:  # WriteError: after the run, outputs on disk
+        _remove_unused_folders()
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 1 if isinstance(e, WriteError) else 2
     except OutputError as e:
@@ -515,7 +537,25 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # the output piped into a command that stopped reading
         sys.stderr.close()
         return 1
+    except Exception as e:  # a defect, not the user's mistake: one line, the details on disk
+        return _internal_error(e)
     return 0
+
+
+def _internal_error(e: Exception) -> int:
+    """An unexpected error: one line, and the traceback in a file for a bug report."""
+    details = "".join(traceback.format_exception(e))
+    try:
+        handle, path = tempfile.mkstemp(prefix="capsule-sim-error-", suffix=".txt")
+        with os.fdopen(handle, "w") as f:
+            f.write(details)
+        where = f"the traceback is in {path}"
+    except OSError:
+        where = "no file could be written for the traceback"
+    text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    print(f"capsule-sim: internal error: {type(e).__name__}: {text} ({where}; please report "
+          "it with the command that caused it)", file=sys.stderr)
+    return 70
 
 
 if __name__ == "__main__":

@@ -1,14 +1,8 @@
 """A run's outputs (io/outputs.py, io/run.py): never overwritten silently, checked before the
-run, spooled as it goes, whole on every way a run ends (signals, errors, a full disk)."""
+run, spooled as it goes, whole on every way a run ends. Signals, disks and bad inputs
+through the command line: tests/test_bad_inputs.py."""
 
-import collections
-import contextlib
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -16,15 +10,10 @@ import pytest
 from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.cli import main as cli_main
-from capsule_drake.io import outputs
 from capsule_drake.io.outputs import (LogSpool, OutputError, check_room, claim_folder,
                                       load_logs, new_run_folder, write_atomic)
 from capsule_drake.io.run import simulate
 from capsule_drake.scenario import load_scenario
-
-REPO = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "capsule_drake.cli"]
-
 
 def _one_line(err: str) -> str:
     lines = [line for line in err.splitlines() if line.strip()]
@@ -140,100 +129,3 @@ def test_an_error_inside_the_simulation_keeps_what_was_logged(tmp_path, error):
     assert "Traceback" in (tmp_path / "error.txt").read_text()
     assert load_logs(tmp_path)["times"][-1] == pytest.approx(0.3)
     assert json.loads((tmp_path / "metrics.json").read_text())["status"] == "error"
-
-
-@contextlib.contextmanager
-def _tmpfs(path: Path, size: str, read_only: bool = False):
-    """A small tmpfs at `path` (a real full or read-only disk), or None where this process
-    may not mount one."""
-    path.mkdir()
-    options = f"size={size}" + (",ro" if read_only else "")
-    mounted = os.geteuid() == 0 and subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)],
-        capture_output=True).returncode == 0
-    try:
-        yield path if mounted else None
-    finally:
-        if mounted:
-            subprocess.run(["umount", str(path)], check=False)
-
-
-def test_a_read_only_folder_is_found_before_the_run(tmp_path, capsys):
-    with _tmpfs(tmp_path / "ro", "1m", read_only=True) as ro:
-        if ro is None:  # not root: a folder without write permission instead
-            ro = tmp_path / "ro"
-            ro.chmod(0o555)
-        start = time.perf_counter()
-        code = cli_main(["run", "--duration", "30", "--no-recording", "--quiet",
-                         "--out", str(ro / "run")])
-        line = _one_line(capsys.readouterr().err)
-        assert code == 2 and "cannot create the output folder" in line and str(ro) in line
-        assert time.perf_counter() - start < 20  # refused before 30 s of simulation
-
-
-def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkeypatch):
-    # 4 MB: room for the logs, not for the 16 MB recording. The room check is told there
-    # is plenty, as if another program filled the disk during the run.
-    Usage = collections.namedtuple("Usage", "total used free")
-    monkeypatch.setattr(outputs.shutil, "disk_usage", lambda path: Usage(1e12, 0, 1e12))
-    with _tmpfs(tmp_path / "small", "4m") as small:
-        if small is None:
-            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
-        code = cli_main(["run", "--duration", "0.5", "--quiet", "--out", str(small / "run")])
-        line = _one_line(capsys.readouterr().err)
-        assert code == 1
-        assert "could not write recording.html (No space left on device)" in line
-        names = sorted(p.name for p in (small / "run").iterdir())
-        # Everything before the recording is whole; no partial file is left.
-        assert names == ["logs.npz", "metrics.json", "scenario.yaml"], names
-        assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
-
-
-def _start(tmp_path, duration="60"):
-    out = tmp_path / "run"
-    process = subprocess.Popen(CLI + ["run", "--duration", duration, "--no-recording",
-                                      "--out", str(out)],
-                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True)
-    return process, out
-
-
-def _wait_for_simulation(out: Path, process, timeout=120):
-    """Until the run has spooled its first logs (it is simulating)."""
-    start = time.monotonic()
-    while not (out / "logs.parts").is_dir():
-        assert process.poll() is None, process.communicate()
-        assert time.monotonic() - start < timeout
-        time.sleep(0.2)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130),
-                                      (signal.SIGHUP, 129)])
-def test_a_signal_ends_the_run_with_its_outputs_written(tmp_path, sig, code):
-    process, out = _start(tmp_path)
-    _wait_for_simulation(out, process)
-    time.sleep(8.0 if sig == signal.SIGTERM else 1.0)
-    process.send_signal(sig)
-    _, err = process.communicate(timeout=120)
-    assert process.returncode == code, err
-    assert "Traceback" not in err
-    assert f"interrupted ({sig.name})" in err
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["status"] == "interrupted" and metrics["signal"] == sig.name
-    assert 0 < metrics["sim_time_s"] < 60
-    logs = load_logs(out)
-    assert logs["times"][-1] == pytest.approx(metrics["sim_time_s"], abs=0.011)
-    assert (out / "scenario.yaml").is_file() and not (out / "logs.parts").exists()
-
-
-@pytest.mark.slow
-def test_a_killed_run_leaves_its_spooled_logs(tmp_path):
-    process, out = _start(tmp_path)
-    _wait_for_simulation(out, process)
-    time.sleep(12.0)
-    process.kill()
-    process.communicate()
-    logs = load_logs(out)  # from logs.parts/
-    assert logs["times"][0] == 0.0 and logs["times"][-1] >= 5.0
-    assert (out / "scenario.yaml").is_file()

@@ -25,7 +25,7 @@ from capsule_drake.io.metrics import run_metrics
 from capsule_drake.io.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, write_atomic)
 from capsule_drake.physics.contact_monitor import ContactMonitor
-from capsule_drake.scenario import Scenario, dump_scenario
+from capsule_drake.scenario import Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
 
 
@@ -154,11 +154,16 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             the run went stays on disk).
     """
     out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
+    if out is not None:  # before the build, which can take a while
         prepare_folder(out, scenario, meshcat is not None)
     builder = DiagramBuilder()
     # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
-    station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    try:
+        station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    except ScenarioError:  # nothing was run: leave no outputs of it
+        if out is not None:
+            (out / "scenario.yaml").unlink(missing_ok=True)
+        raise
     colon, _ = load_colon(scenario.colon)   # cached: the station's own
     model = capsule_model()
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
@@ -289,7 +294,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
 
 
 def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
-    """Creates `out` if need be, checks it can take the run's outputs, writes scenario.yaml."""
+    """Creates `out` if need be, checks it can take the run's outputs, writes scenario.yaml
+    (removed again if the station cannot be built: see `simulate`)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -15,6 +15,7 @@ frame; needs the camera). A user's lumen detector plugs into the tracker instead
 import dataclasses
 
 import numpy as np
+from pydrake.systems.framework import System
 
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.plugins import load_function
@@ -80,7 +81,16 @@ def add_plugin(builder, parts, config: Plugin):
                                camera.lens if camera is not None else None,
                                parts.capsule.X_BC, parts.epm.guard.lowest_centre_height,
                                np.array(parts.epm.start_command))
-    system = builder.AddNamedSystem("navigator", load_navigator(name)(context))
+    try:
+        system = load_navigator(name)(context)
+    except Exception as e:  # the user's code: one line, naming it
+        text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r} failed to build its "
+                            f"system ({type(e).__name__}: {text})") from None
+    if not isinstance(system, System):
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r} returned a "
+                            f"{type(system).__name__}, not a Drake LeafSystem")
+    system = builder.AddNamedSystem("navigator", system)
     truth = None
     for i in range(system.num_input_ports()):
         port = system.get_input_port(i)

@@ -31,3 +31,24 @@ def bad_port(context):
     system = Creep(context)
     system.DeclareVectorInputPort("colon_centerline", 3)
     return system
+
+
+class _FailsLater(Creep):
+    """Creeps, then raises inside the simulation at t = 0.5 s (a user's bug)."""
+
+    def _calc(self, context, output):
+        if context.get_time() >= 0.5:
+            raise ZeroDivisionError("the navigator divided by zero")
+        super()._calc(context, output)
+
+
+def fails_later(context):
+    return _FailsLater(context)
+
+
+def not_a_system(context):
+    return 42
+
+
+def fails_to_build(context):
+    raise KeyError("no such parameter")

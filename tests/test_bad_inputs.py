@@ -1,0 +1,434 @@
+"""Bad inputs and faults, as a careless user or a hostile environment produces them.
+
+Every case asserts what the README promises ("Bad input, faults and exit codes"): a non-zero
+exit, one line on stderr naming the culprit, no Python traceback, no hang, and whatever had
+been logged on disk. The categories: scenario values, scenario files, command-line flags,
+plug-ins, output folders and disks, signals, the run guard and errors inside a simulation,
+and mesh import.
+"""
+
+import collections
+import contextlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from capsule_drake.cli import main as cli_main
+from capsule_drake.io import outputs
+from capsule_drake.io.outputs import load_logs
+
+REPO = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "capsule_drake.cli"]
+RUN = ["run", "--no-recording", "--quiet", "--duration", "0.2"]
+
+
+def _text(yaml_text):
+    """A short run with `yaml_text` laid over the Default scenario (--duration would
+    override a duration in the text, so it is left out then)."""
+    return (RUN[:-2] if "duration" in yaml_text else RUN) + ["--scenario-text", yaml_text]
+
+
+# (id, arguments, the culprit the one line must name). {tmp} is a folder of bad files.
+SCENARIO_VALUES = [
+    ("time step 0.1 s", _text("{plant: {time_step: 0.1}}"), r"plant\.time_step"),
+    ("time step 1 s", _text("{plant: {time_step: 1.0}}"), r"plant\.time_step"),
+    ("time step 0", _text("{plant: {time_step: 0}}"), r"time_step"),
+    ("NaN magnet dimension", _text("{epm: {magnet: {dimensions: [.nan, 0.1]}}}"),
+     r"epm\.magnet\.dimensions"),
+    ("negative remanence", _text("{capsule: {ipm: {remanence: -1.48}}}"),
+     r"capsule\.ipm.*remanence"),
+    ("zero EPM moment", _text("{epm: {magnet: {remanence: 0.0}}}"), r"epm\.magnet"),
+    ("infinite colon diameter", _text("{colon: {sigmoid: {diameter: .inf}}}"),
+     r"colon\.sigmoid\.diameter"),
+    ("10 m colon diameter", _text("{colon: {sigmoid: {diameter: 10.0}}}"),
+     r"colon\.sigmoid\.diameter"),
+    ("clearance 1e6", _text("{epm: {clearance: 1.0e+6}}"), r"epm\.clearance"),
+    ("random_seed -1", _text("{random_seed: -1}"), r"random_seed"),
+    ("colon seed -5", _text("{colon: {seed: -5}}"), r"colon\.seed"),
+    ("visual_period 0", _text("{outputs: {visual_period: 0}}"), r"outputs\.visual_period"),
+    ("log_period 1e-7", _text("{outputs: {log_period: 1.0e-7}}"), r"outputs\.log_period"),
+    ("duration NaN", _text("{duration: .nan}"), r"duration"),
+    ("duration inf", _text("{duration: .inf}"), r"duration"),
+    ("duration negative", _text("{duration: -1}"), r"duration"),
+    ("friction inf", _text("{contact: {friction: .inf}}"), r"contact\.friction"),
+    ("friction negative", _text("{contact: {friction: -0.1}}"), r"contact\.friction"),
+    ("100000 px camera", _text("{capsule: {camera: {lens: {width: 100000}}}}"),
+     r"width"),
+    ("start before the colon", _text("{capsule: {start_s: -1}}"), r"capsule\.start_s"),
+    ("start beyond the colon", _text("{capsule: {start_s: 100}}"), r"start_s"),
+    ("unknown key", _text("{colon: {sead: 1}}"), r"colon\.sead: unknown key"),
+    ("wrong type", _text("{duration: long}"), r"duration: expected a number"),
+    ("moved key", _text("{time_step: 0.001}"), r"time_step: moved to plant\.time_step"),
+    ("unknown tag", _text("{epm: {driver: !Fly {}}}"), r"unknown tag !Fly"),
+    ("YAML syntax", _text("{duration: [1"), r"YAML syntax error"),
+    ("nesting 20000 deep", _text("{colon: {rectal_valve_positions: "
+                                 + "[" * 20000 + "]" * 20000 + "}}"), r"nest"),
+    ("alias bomb", _text("{a: &a [x, x, x, x, x, x, x, x, x], "
+                         + ", ".join(f"{k}: &{k} [" + ", ".join([f"*{p}"] * 9) + "]"
+                                     for p, k in zip("abcdefgh", "bcdefghi"))
+                         + "}"), r"alias"),
+    ("guard off", _text("{guard: {max_speed: 0}}"), r"guard\.max_speed"),
+    ("field model", _text("{magnet_force: {field_model: nonsense}}"),
+     r"magnet_force\.field_model"),
+    ("contact approximation", _text("{plant: {discrete_contact_approximation: tamsi}}"),
+     r"plant"),
+    ("IMU rate 0", _text("{capsule: {imu: {sample_rate: 0}}}"), r"capsule\.imu\.sample_rate"),
+    ("tracker without camera", _text("{capsule: {lumen_tracker: {}}}"),
+     r"needs capsule\.camera"),
+    ("colon source missing", _text("{colon: {source: /no/such/colon}}"), r"/no/such/colon"),
+    ("unresolvable UDP host", _text("{epm: {driver: !Teleop {operator: udp, udp: "
+                                    "{host: no.such.host.invalid}}}}"),
+     r"no\.such\.host\.invalid"),
+    ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),
+     r"target_realtime_rate"),
+]
+
+SCENARIO_FILES = [
+    ("missing file", ["run", "{tmp}/none.yaml"], r"none\.yaml: scenario file not found"),
+    ("device /dev/zero", ["run", "/dev/zero"], r"/dev/zero: not a regular file"),
+    ("a folder", ["run", "{tmp}"], r"not a regular file"),
+    ("binary file", ["run", "{tmp}/binary.yaml"], r"binary\.yaml: not text"),
+    ("2 MB file", ["run", "{tmp}/huge.yaml"], r"huge\.yaml: .*MB"),
+    ("named pipe", ["run", "{tmp}/fifo.yaml"], r"fifo\.yaml: not a regular file"),
+    ("empty file", ["run", "{tmp}/empty.yaml"], r"empty\.yaml"),
+    ("a list, not scenarios", ["run", "{tmp}/list.yaml"], r"list\.yaml: expected a mapping"),
+    ("no such scenario", ["run", "--scenario", "NoSuch"], r"no scenario named 'NoSuch'"),
+    ("alias bomb file", ["run", "{tmp}/bomb.yaml"], r"bomb\.yaml.*alias"),
+    ("latin-1 text", ["run", "{tmp}/latin1.yaml"], r"latin1\.yaml: not text"),
+]
+
+FLAGS = [
+    ("--duration nan", ["run", "--duration", "nan"], r"duration"),
+    ("--duration inf", ["run", "--duration", "inf"], r"duration"),
+    ("--duration -5", ["run", "--duration=-5"], r"duration"),
+    ("--duration text", ["run", "--duration", "abc"], r"argument --duration"),
+    ("--port 99999", ["run", "--port", "99999"], r"argument --port: 99999 is not a port"),
+    ("--port -1", ["run", "--port=-1"], r"argument --port"),
+    ("teleop --delay 1e9", ["teleop", "--delay", "1e9", "--duration", "0.1"], r"delay"),
+    ("teleop --delay nan", ["teleop", "--delay", "nan", "--duration", "0.1"], r"delay"),
+    ("teleop --delay -1", ["teleop", "--delay=-1", "--duration", "0.1"], r"delay"),
+    ("--out empty", RUN + ["--out", ""], r"argument --out: empty path"),
+    ("--out a run", RUN + ["--out", "{tmp}/previous_run"], r"folder exists and holds"),
+    ("--out a file", RUN + ["--out", "{tmp}/binary.yaml"], r"exists and is not a folder"),
+    ("--host unresolvable", RUN + ["--meshcat", "--port", "0",
+                                        "--host", "no.such.host.invalid"],
+     r"no\.such\.host\.invalid"),
+    ("unknown flag", ["run", "--durationx", "3"], r"unrecognized arguments: --durationx"),
+    ("unknown verb", ["fly"], r"invalid choice: 'fly'"),
+    ("benchmark --seeds a-b", ["benchmark", "--seeds", "a-b"], r"--seeds 'a-b'"),
+    ("benchmark --seeds negative", ["benchmark", "--seeds=-3"], r"--seeds"),
+    ("benchmark --workers 0", ["benchmark", "--workers", "0"], r"--workers"),
+    ("benchmark --workers 10000", ["benchmark", "--workers", "10000"], r"--workers"),
+    ("benchmark --duration nan", ["benchmark", "--duration", "nan"], r"--duration"),
+    ("benchmark navigator", ["benchmark", "--navigators", "nonsense"], r"nonsense"),
+    ("benchmark scenario", ["benchmark", "--scenario", "NoSuch"], r"--scenario 'NoSuch'"),
+    ("eval-lumen --frames 0", ["eval-lumen", "--frames", "0"], r"--frames"),
+    ("eval-lumen --wall-fraction 2", ["eval-lumen", "--wall-fraction", "2"],
+     r"--wall-fraction"),
+    ("eval-lumen detector", ["eval-lumen", "--detector", "nosuch"], r"--detector"),
+    ("import --scale 0", ["import-colon", "{tmp}/tube.obj", "--out", "{tmp}/i1",
+                          "--scale", "0"], r"--scale"),
+    ("import --scale nan", ["import-colon", "{tmp}/tube.obj", "--out", "{tmp}/i2",
+                            "--scale", "nan"], r"--scale"),
+    ("import --max-faces 10", ["import-colon", "{tmp}/tube.obj", "--out", "{tmp}/i3",
+                               "--max-faces", "10"], r"--max-faces"),
+    ("record into a used folder", ["record", "--duration", "0.1", "--quiet", "--out",
+                                   "{tmp}/previous_run"], r"folder exists and holds"),
+]
+
+PLUGINS = [
+    ("navigator module missing", _text("{epm: {driver: !Plugin {factory: 'nosuch_mod:f'}}}"),
+     r"no module 'nosuch_mod'"),
+    ("navigator function missing", _text("{epm: {driver: !Plugin {factory: "
+                                         "'plugins.navigators:nothing'}}}"),
+     r"has no function 'nothing'"),
+    ("navigator not a system", _text("{epm: {driver: !Plugin {factory: "
+                                     "'plugins.navigators:not_a_system'}}}"),
+     r"returned a int, not a Drake LeafSystem"),
+    ("navigator fails to build", _text("{epm: {driver: !Plugin {factory: "
+                                       "'plugins.navigators:fails_to_build'}}}"),
+     r"failed to build its system \(KeyError"),
+    ("navigator malformed name", _text("{epm: {driver: !Plugin {factory: 'justaname'}}}"),
+     r"'justaname' is not"),
+    ("detector missing", _text("{capsule: {camera: {}, lumen_tracker: "
+                               "{detector: 'nosuch_mod:f'}}}"), r"no module 'nosuch_mod'"),
+]
+
+IMPORT = [
+    ("mesh missing", ["import-colon", "{tmp}/none.obj", "--out", "{tmp}/m1"],
+     r"none\.obj: no such file"),
+    ("mesh format", ["import-colon", "{tmp}/list.yaml", "--out", "{tmp}/m2"],
+     r"unsupported format"),
+    ("mesh garbage", ["import-colon", "{tmp}/garbage.obj", "--out", "{tmp}/m3"],
+     r"garbage\.obj"),
+    ("closed sphere", ["import-colon", "{tmp}/sphere.obj", "--out", "{tmp}/m4"],
+     r"sphere\.obj.*(closed|not a tube|blob)"),
+    ("wavy sheet", ["import-colon", "{tmp}/sheet.obj", "--out", "{tmp}/m5"],
+     r"sheet\.obj.*(sheet|not a tube)"),
+    ("branching", ["import-colon", "{tmp}/branch.obj", "--out", "{tmp}/m6"],
+     r"branch\.obj.*(branch|ends)"),
+    ("point cloud", ["import-colon", "{tmp}/cloud.ply", "--out", "{tmp}/m7"],
+     r"point cloud"),
+    ("mesh in millimetres", ["import-colon", "{tmp}/tube_mm.obj", "--out", "{tmp}/m8"],
+     r"tube_mm\.obj: 300 units across.*scale it by 0\.001"),
+    ("empty mesh", ["import-colon", "{tmp}/empty.obj", "--out", "{tmp}/m9"], r"empty\.obj"),
+    ("import into a used folder", ["import-colon", "{tmp}/tube.obj", "--out",
+                                   "{tmp}/previous_run"], r"folder exists and holds"),
+]
+
+CASES = SCENARIO_VALUES + SCENARIO_FILES + FLAGS + PLUGINS + IMPORT
+
+
+def _tube(length=0.3, radius=0.02, rings=60, around=32):
+    """An open straight tube (the valid mesh the flag cases import)."""
+    z = np.linspace(0.0, length, rings)
+    a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    vertices = np.array([[radius * np.cos(t), radius * np.sin(t), zz] for zz in z for t in a])
+    faces = []
+    for i in range(rings - 1):
+        for j in range(around):
+            k, n = i * around + j, i * around + (j + 1) % around
+            faces += [[k, n, k + around], [n, n + around, k + around]]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def _branch():
+    """Three open tubes meeting at the origin: a Y."""
+    parts = []
+    for angle in (0.0, 2.1, 4.2):
+        tube = _tube(length=0.15)
+        direction = np.array([np.cos(angle), np.sin(angle), 0.0])
+        rotation = trimesh.geometry.align_vectors([0, 0, 1], direction)
+        tube.apply_transform(rotation)
+        parts.append(tube)
+    return trimesh.util.concatenate(parts)
+
+
+@pytest.fixture(scope="module")
+def bad_files(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("bad_inputs")
+    rng = np.random.default_rng(0)
+    (tmp / "binary.yaml").write_bytes(bytes(rng.integers(0, 256, 4096, dtype=np.uint8)))
+    (tmp / "huge.yaml").write_text("Default: {}\n" + "# padding\n" * 220_000)
+    os.mkfifo(tmp / "fifo.yaml")
+    (tmp / "empty.yaml").write_text("")
+    (tmp / "list.yaml").write_text("- a\n- b\n")
+    lines = ["a: &a [x, x, x, x, x, x, x, x, x]"] + [
+        f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]" for p, k in zip("abcdefgh", "bcdefghi")]
+    (tmp / "bomb.yaml").write_text("\n".join(lines) + "\nDefault: {duration: 1}\n")
+    (tmp / "latin1.yaml").write_bytes("Default: {}  # caf\xe9\n".encode("latin-1"))
+    previous = tmp / "previous_run"
+    previous.mkdir()
+    (previous / "metrics.json").write_text("{}")
+    _tube().export(tmp / "tube.obj")
+    (tmp / "garbage.obj").write_text("v 1 2\nf 1 2 x\nthis is not a mesh\n")
+    trimesh.creation.icosphere(subdivisions=3, radius=0.05).export(tmp / "sphere.obj")
+    x, y = np.meshgrid(np.linspace(0, 0.3, 40), np.linspace(0, 0.2, 30))
+    z = 0.01 * np.sin(20 * x) * np.cos(15 * y)
+    vertices = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    faces = []
+    for i in range(29):
+        for j in range(39):
+            k = i * 40 + j
+            faces += [[k, k + 1, k + 40], [k + 1, k + 41, k + 40]]
+    sheet = trimesh.Trimesh(vertices, faces, process=False)
+    sheet.export(tmp / "sheet.obj")
+    _branch().export(tmp / "branch.obj")
+    trimesh.PointCloud(rng.normal(size=(100, 3))).export(tmp / "cloud.ply")
+    _tube().apply_scale(1000.0).export(tmp / "tube_mm.obj")
+    (tmp / "empty.obj").write_text("")
+    return tmp
+
+
+def _argv(args, tmp):
+    return [a.replace("{tmp}", str(tmp)) for a in args]
+
+
+def _error_lines(err: str) -> list[str]:
+    """stderr's lines, without the announcement of a plug-in being loaded (not an error)."""
+    return [line for line in err.splitlines() if line.strip() and not line.startswith("plug-in ")]
+
+
+def _assert_one_line(code, err, culprit):
+    assert code != 0, err
+    assert "Traceback" not in err, err
+    lines = _error_lines(err)
+    assert len(lines) == 1, err
+    assert re.search(culprit, lines[0]), lines[0]
+    assert "internal error" not in lines[0], lines[0]
+    return lines[0]
+
+
+# Cases that could hang if their check regressed run in a subprocess with a time limit.
+HANG_PRONE = {"device /dev/zero", "named pipe", "nesting 20000 deep", "alias bomb",
+              "alias bomb file", "100000 px camera", "teleop --delay 1e9", "log_period 1e-7",
+              "duration inf", "--duration inf"}
+
+
+@pytest.mark.parametrize("name,args,culprit", CASES, ids=[c[0] for c in CASES])
+def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, capsys):
+    argv = _argv(args, bad_files)
+    if argv[0] in ("run", "teleop", "record") and "--out" not in argv:
+        argv += ["--out", str(tmp_path / "out")]
+    if name in HANG_PRONE:
+        done = subprocess.run(CLI + argv, cwd=REPO, capture_output=True, text=True, timeout=120)
+        code, err = done.returncode, done.stderr
+    else:
+        try:
+            code = cli_main(argv)
+        except SystemExit as e:  # argparse
+            code = e.code
+        err = capsys.readouterr().err
+    _assert_one_line(code, err, culprit)
+    # Nothing was simulated: no output folder left behind, or (if the run had started) one
+    # holding what it logged.
+    out = tmp_path / "out"
+    if out.exists() and any(out.iterdir()):
+        assert (out / "metrics.json").is_file() and (out / "logs.npz").is_file()
+
+
+def test_there_are_at_least_60_cases():
+    assert len(CASES) >= 60
+    assert len({name for name, *_ in CASES}) == len(CASES)
+
+
+# --- Faults during a run: what was logged is on disk ---------------------------------------
+
+def test_a_diverging_run_stops_in_one_line_with_its_logs(tmp_path, capsys):
+    # A guard that the capsule's starting drop trips: the run guard's stop, end to end.
+    out = tmp_path / "run"
+    code = cli_main(RUN[:-1] + ["2", "--scenario-text", "{guard: {max_speed: 0.05}}",
+                                "--out", str(out)])
+    line = _assert_one_line(code, capsys.readouterr().err, r"run guard at t = ")
+    assert "no distance" in line
+    assert load_logs(out)["times"].size >= 2
+    assert json.loads((out / "metrics.json").read_text())["advance_m"] is None
+
+
+def test_an_error_inside_the_simulation_is_one_line_with_its_logs(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = cli_main(RUN[:-1] + ["2", "--scenario-text",
+                                "{epm: {driver: !Plugin {factory: 'plugins.navigators:fails_later'}}}",
+                                "--out", str(out)])
+    line = _assert_one_line(code, capsys.readouterr().err,
+                            r"simulation error at t = 0\.\d+ s: .*ZeroDivisionError")
+    assert code == 1, line
+    assert load_logs(out)["times"][-1] >= 0.4
+    assert "ZeroDivisionError" in (out / "error.txt").read_text()
+
+
+@contextlib.contextmanager
+def _tmpfs(path: Path, size: str, read_only: bool = False):
+    """A small tmpfs at `path` (a real full or read-only disk), or None where this process
+    may not mount one."""
+    path.mkdir()
+    options = f"size={size}" + (",ro" if read_only else "")
+    mounted = os.geteuid() == 0 and subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)],
+        capture_output=True).returncode == 0
+    try:
+        yield path if mounted else None
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(path)], check=False)
+
+
+def test_a_read_only_disk_is_found_before_the_run(tmp_path, capsys):
+    with _tmpfs(tmp_path / "ro", "1m", read_only=True) as ro:
+        if ro is None:  # not root: a folder without write permission instead
+            ro = tmp_path / "ro"
+            ro.chmod(0o555)
+        start = time.perf_counter()
+        code = cli_main(["run", "--duration", "30", "--no-recording", "--quiet",
+                         "--out", str(ro / "run")])
+        _assert_one_line(code, capsys.readouterr().err,
+                         re.escape(str(ro)) + r".*cannot create the output folder")
+        assert time.perf_counter() - start < 20  # refused before 30 s of simulation
+
+
+def test_a_full_disk_is_found_before_the_run(tmp_path, capsys):
+    with _tmpfs(tmp_path / "full", "2m") as full:
+        if full is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        code = cli_main(["run", "--duration", "30", "--quiet", "--out", str(full / "run")])
+        _assert_one_line(code, capsys.readouterr().err, r"MB free, but the run will write")
+
+
+def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkeypatch):
+    # 4 MB: room for the logs, not for the 16 MB recording. The room check is told there
+    # is plenty, as if another program filled the disk during the run.
+    Usage = collections.namedtuple("Usage", "total used free")
+    monkeypatch.setattr(outputs.shutil, "disk_usage", lambda path: Usage(1e12, 0, 1e12))
+    with _tmpfs(tmp_path / "small", "4m") as small:
+        if small is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        code = cli_main(["run", "--duration", "0.5", "--quiet", "--out", str(small / "run")])
+        _assert_one_line(code, capsys.readouterr().err,
+                         r"could not write recording\.html \(No space left on device\)")
+        assert code == 1
+        names = sorted(p.name for p in (small / "run").iterdir())
+        # Everything before the recording is whole; no partial file is left.
+        assert names == ["logs.npz", "metrics.json", "scenario.yaml"], names
+        assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
+
+
+def _start(tmp_path, duration="60"):
+    out = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["run", "--duration", duration, "--no-recording",
+                                      "--quiet", "--out", str(out)],
+                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    return process, out
+
+
+def _wait_for_simulation(out: Path, process, timeout=120):
+    """Until the run has spooled its first logs (it is simulating)."""
+    start = time.monotonic()
+    while not (out / "logs.parts").is_dir():
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() - start < timeout
+        time.sleep(0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signal_name,code,after", [("SIGTERM", 143, 8.0),
+                                                    ("SIGINT", 130, 1.0),
+                                                    ("SIGHUP", 129, 1.0)])
+def test_a_signal_ends_the_run_with_its_outputs_written(tmp_path, signal_name, code, after):
+    # The acceptance line: SIGTERM 8 s into a 60 s run writes metrics, logs and scenario
+    # and exits non-zero.
+    process, out = _start(tmp_path)
+    started = time.monotonic()
+    _wait_for_simulation(out, process)
+    time.sleep(max(0.0, after - (time.monotonic() - started)))
+    process.send_signal(getattr(signal, signal_name))
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == code, err
+    _assert_one_line(process.returncode, err, rf"interrupted \({signal_name}\) at t = ")
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "interrupted" and metrics["signal"] == signal_name
+    assert 0 < metrics["sim_time_s"] < 60
+    logs = load_logs(out)
+    assert logs["times"][-1] == pytest.approx(metrics["sim_time_s"], abs=0.011)
+    assert (out / "scenario.yaml").is_file() and not (out / "logs.parts").exists()
+
+
+@pytest.mark.slow
+def test_a_killed_run_leaves_its_spooled_logs(tmp_path):
+    process, out = _start(tmp_path)
+    _wait_for_simulation(out, process)
+    time.sleep(12.0)
+    process.kill()
+    process.communicate()
+    logs = load_logs(out)  # from logs.parts/: at most ~5 simulated seconds are lost
+    assert logs["times"][0] == 0.0 and logs["times"][-1] >= 5.0
+    assert (out / "scenario.yaml").is_file()
