@@ -20,23 +20,29 @@ Units are SI throughout (metres, seconds, newtons, tesla, A m^2).
 """
 
 import dataclasses
+import math
+import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-from pydrake.systems.analysis import SimulatorConfig
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
 
 from capsule_drake.anatomy import ColonParams, check_colon_params
-from capsule_drake.capsule.ahrs import AhrsConfig
+from capsule_drake.anatomy.params import SEED_RANGE, SEGMENT_NAMES, check_colon_course
+from capsule_drake.capsule.ahrs import AhrsConfig, check_ahrs_config
 from capsule_drake.capsule.camera import CameraConfig, check_camera_config
 from capsule_drake.capsule.contact_sensor import ContactSensorConfig, check_contact_sensor_config
-from capsule_drake.capsule.imu import ImuConfig
-from capsule_drake.capsule.magnetometer import MagnetometerConfig
+from capsule_drake.capsule.imu import ImuConfig, check_imu_config
+from capsule_drake.capsule.magnetometer import MagnetometerConfig, check_magnetometer_config
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.epm.arm import Arm, check_arm_config
 from capsule_drake.epm.paths import AlongColon, External, HoldAbove, check_path
-from capsule_drake.epm.stage import Stage
+from capsule_drake.epm.stage import Stage, check_stage
 from capsule_drake.guidance.pseudo_force import PseudoForceConfig, check_pseudo_force_config
 from capsule_drake.io.guard import GuardConfig, check_guard_config
 from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
@@ -45,8 +51,9 @@ from capsule_drake.perception.lumen import check_lumen_params, load_detector
 from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
 from capsule_drake.physics.contact import ContactConfig, check_contact_config
 from capsule_drake.physics.magnet_force import MagnetForceConfig, check_magnet_force_config
-from capsule_drake.physics.magnetics import MagnetGeometry
-from capsule_drake.schema import ScenarioError, SchemaError, check, parse_yaml
+from capsule_drake.physics.magnetics import MagnetGeometry, check_magnet_geometry
+from capsule_drake.schema import (MAX_TEXT_BYTES, MIN_PERIOD, ScenarioError, SchemaError, check,
+                                  need_range, parse_yaml)
 from capsule_drake.teleop.driver import Teleop, check_teleop
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -177,28 +184,78 @@ class Scenario:
 
 
 def _read(path: Path) -> str:
+    """The text of a scenario file: a regular file (not a directory, device or pipe, which
+    could be endless or block), at most MAX_TEXT_BYTES, and text (UTF-8 without control
+    characters other than tab and line ends)."""
+    path = Path(path)
     try:
-        return Path(path).read_text()
+        info = path.stat()
     except FileNotFoundError:
         raise ScenarioError(f"{path}: scenario file not found") from None
     except OSError as e:
         raise ScenarioError(f"{path}: cannot read scenario file ({e.strerror})") from None
+    if not stat.S_ISREG(info.st_mode):
+        kind = ("a directory" if stat.S_ISDIR(info.st_mode) else
+                "a device" if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode) else
+                "a pipe" if stat.S_ISFIFO(info.st_mode) else
+                "a socket" if stat.S_ISSOCK(info.st_mode) else "not a file")
+        raise ScenarioError(f"{path}: not a regular file ({kind})")
 
+    def too_large(size: int) -> ScenarioError:
+        return ScenarioError(f"{path}: {size / 1e6:.1f} MB, larger than the "
+                             f"{MAX_TEXT_BYTES / 1e6:g} MB a scenario file may be")
 
-def scenario_names(path: Path) -> list[str]:
-    """The named scenarios in a scenario file."""
+    if info.st_size > MAX_TEXT_BYTES:
+        raise too_large(info.st_size)
     try:
-        doc = parse_yaml(_read(path), str(path))
+        with open(path, "rb") as f:
+            data = f.read(MAX_TEXT_BYTES + 1)  # the file may have grown since stat()
+    except OSError as e:
+        raise ScenarioError(f"{path}: cannot read scenario file ({e.strerror})") from None
+    if len(data) > MAX_TEXT_BYTES:
+        raise too_large(len(data))
+    control = _CONTROL.search(data)
+    at = control.start() if control is not None else len(data)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        at = min(at, e.start)
+    if at < len(data):
+        raise ScenarioError(f"{path}: not text (binary data at byte {at})")
+    return text
+
+
+# Bytes no text file holds: the C0 controls but tab, line feed and carriage return, and DEL.
+_CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
+def _document(path: Path) -> tuple[str, dict]:
+    """(text, parsed document) of a scenario file: a mapping of names to scenarios."""
+    text = _read(path)
+    try:
+        doc = parse_yaml(text, str(path))
     except SchemaError as e:
         raise ScenarioError(str(e)) from None
     if not isinstance(doc, dict):
         raise ScenarioError(f"{path}: expected a mapping of scenario names to scenarios")
-    return list(doc)
+    for name in doc:
+        if not isinstance(name, str):
+            raise ScenarioError(f"{path}: scenario names must be text, got {name!r}")
+    return text, doc
 
 
-def _load_one(text: str, source: str, child_name: str | None, base: Scenario | None) -> Scenario:
+def scenario_names(path: Path) -> list[str]:
+    """The named scenarios in a scenario file."""
+    return list(_document(path)[1])
+
+
+def _load_one(text: str, source: str, child_name: str | None, base: Scenario | None,
+              doc=None) -> Scenario:
+    """The scenario of YAML `text` (its child `child_name`, if given) laid over `base`;
+    `doc`: the text already parsed."""
     try:
-        doc = parse_yaml(text, source)
+        if doc is None:
+            doc = parse_yaml(text, source)
         node = doc if child_name is None else doc[child_name]
         if node is None:
             node = {}
@@ -209,8 +266,9 @@ def _load_one(text: str, source: str, child_name: str | None, base: Scenario | N
     try:
         return yaml_load_typed(schema=Scenario, data=text, child_name=child_name,
                                defaults=base if base is not None else Scenario())
-    except (RuntimeError, ValueError) as e:
-        raise ScenarioError(f"{source}: {str(e).splitlines()[0]}") from None
+    except (RuntimeError, ValueError, TypeError, KeyError, ArithmeticError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ScenarioError(f"{source}: {first}") from None
 
 
 def layered(base: dict, extra: dict) -> dict:
@@ -240,7 +298,8 @@ def load_scenario(path: Path | str | None = None, name: str | None = None,
     `Default`.
     """
     path = Path(path) if path is not None else DEFAULT_SCENARIO_FILE
-    names = scenario_names(path)
+    text, doc = _document(path)
+    names = list(doc)
     if name is None:
         if len(names) == 1:
             name = names[0]
@@ -252,13 +311,61 @@ def load_scenario(path: Path | str | None = None, name: str | None = None,
     if name not in names:
         raise ScenarioError(f"{path}: no scenario named {name!r} "
                             f"(the file has: {', '.join(names)})")
-    scenario = _load_one(_read(path), f"{path} [{name}]", name, None)
+    scenario = _load_one(text, f"{path} [{name}]", name, None, doc)
     overrides = [override] if isinstance(override, str) else list(override or [])
     for text in overrides:
         if text:
             scenario = _load_one(text, "override", None, scenario)
     validate(scenario)
     return scenario
+
+
+# Bounds of the scenario's own settings (validate), each with its reason.
+MAX_DURATION = 1e6
+"""Longest run (s of simulated time): 11.6 days; the longest shipped scenario is 600 s, and
+a run goes at most ~10x real time."""
+MAX_LOG_SAMPLES = 2_000_000
+"""Most samples a run logs (duration / outputs.log_period): each is ~180 bytes (the
+capsule's state, the contact load, the EPM's pose) held in memory at the end of the run, so
+2 million are ~360 MB (the default run logs 6,000)."""
+MIN_VISUAL_PERIOD = 1e-3
+"""Shortest period (s) of the Meshcat drawing: a screen shows 60 frames per second."""
+MAX_CLEARANCE = 0.5
+"""Farthest the EPM may be kept from the skin (m): at 0.5 m its pull on the capsule is
+~1e-4 of what it is at the working 10-15 cm, and the arm reaches 0.9 m."""
+
+
+def _numbers(obj, key: str = ""):
+    """(dotted key, value) of every number, and list of numbers, of a scenario, through its
+    blocks and Drake's configs (plant, simulator); absent (null) blocks have none."""
+    fields = getattr(type(obj), "__fields__", None)
+    if dataclasses.is_dataclass(obj):
+        names = [f.name for f in dataclasses.fields(obj)]
+    elif fields is not None:
+        names = [f.name for f in fields]
+    else:
+        return
+    for name in names:
+        value = getattr(obj, name)
+        where = f"{key}.{name}" if key else name
+        if isinstance(value, bool) or value is None or isinstance(value, str):
+            continue
+        if isinstance(value, (int, float)):
+            yield where, value
+        elif isinstance(value, list):
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+                yield where, value
+        else:
+            yield from _numbers(value, where)
+
+
+def _check_finite(scenario: Scenario) -> None:
+    """Every number of the scenario is finite: no field means anything at NaN or infinity
+    (a NaN magnet size or an infinite friction reaches Drake, which asserts and exits)."""
+    for key, value in _numbers(scenario):
+        values = value if isinstance(value, list) else [value]
+        if not all(isinstance(v, int) or math.isfinite(v) for v in values):
+            raise ScenarioError(f"scenario: {key} must be finite, got {value!r}")
 
 
 def validate(scenario: Scenario) -> None:
@@ -274,52 +381,93 @@ def validate(scenario: Scenario) -> None:
         except ValueError as e:
             raise ScenarioError(f"scenario: {where}{str(e).splitlines()[0]}") from None
 
-    capsule, epm = scenario.capsule, scenario.epm
-    need(scenario.duration >= 0, f"duration must be >= 0, got {scenario.duration}")
-    need(scenario.outputs.log_period > 0,
-         f"outputs.log_period must be positive, got {scenario.outputs.log_period}")
-    need(scenario.outputs.visual_period > 0,
-         f"outputs.visual_period must be positive, got {scenario.outputs.visual_period}")
-    need(scenario.plant.time_step > 0,
-         f"plant.time_step must be positive, got {scenario.plant.time_step}")
-    try:  # Drake checks its own settings when it applies them
-        AddMultibodyPlant(scenario.plant, DiagramBuilder())
-    except (RuntimeError, ValueError) as e:
-        raise ScenarioError(f"scenario: plant: {str(e).splitlines()[0]}") from None
+    def bound(value, key: str, interval: str, unit: str = "", why: str = ""):
+        checked("", need_range, value, key, interval, unit, why)
+
+    _check_finite(scenario)
+    capsule, epm, outputs = scenario.capsule, scenario.epm, scenario.outputs
+    bound(scenario.duration, "duration", f"[0, {MAX_DURATION:.0f}]", "s",
+          "a million simulated seconds is 11.6 days")
+    bound(scenario.random_seed, "random_seed", SEED_RANGE, "",
+          "Drake's RandomGenerator keeps 32 bits: 2^32 would repeat seed 0's noise")
+    plant = scenario.plant
+    bound(plant.time_step, "plant.time_step", "> 0", "s", "a discrete plant")
+    bound(plant.penetration_allowance, "plant.penetration_allowance", "> 0", "m")
+    bound(plant.stiction_tolerance, "plant.stiction_tolerance", "> 0", "m/s")
+    bound(plant.sap_near_rigid_threshold, "plant.sap_near_rigid_threshold", ">= 0")
+    try:  # Drake checks its own settings when it applies them (and asserts on some)
+        AddMultibodyPlant(plant, DiagramBuilder())
+    except (RuntimeError, ValueError, SystemExit) as e:
+        raise ScenarioError(f"scenario: plant: {str(e).strip().splitlines()[0]}") from None
+    bound(outputs.log_period, "outputs.log_period", f">= {max(plant.time_step, MIN_PERIOD):g}",
+          "s", "the plant's time step, or 0.1 ms: the state changes once a step")
+    samples = scenario.duration / outputs.log_period
+    need(samples <= MAX_LOG_SAMPLES,
+         f"duration / outputs.log_period must be at most {MAX_LOG_SAMPLES:,} samples "
+         f"(~180 bytes each, held in memory), got {scenario.duration:g} s / "
+         f"{outputs.log_period:g} s = {samples:,.0f}")
+    bound(outputs.visual_period, "outputs.visual_period", f">= {MIN_VISUAL_PERIOD:g}", "s",
+          "a screen shows 60 frames per second")
+    simulator = scenario.simulator
+    bound(simulator.max_step_size, "simulator.max_step_size", "> 0", "s")
+    bound(simulator.accuracy, "simulator.accuracy", "(0, 1]")
+    need(simulator.start_time == 0,
+         f"simulator.start_time must be 0 (a run's duration counts from 0), got "
+         f"{simulator.start_time!r}")
+    if simulator.target_realtime_rate != 0:
+        bound(simulator.target_realtime_rate, "simulator.target_realtime_rate", ">= 0.01", "",
+              "or 0: as fast as it goes; slower pacing turns a minute into hours")
+    try:
+        ApplySimulatorConfig(simulator, Simulator(ConstantVectorSource([0.0])))
+    except (RuntimeError, ValueError, SystemExit) as e:
+        raise ScenarioError(f"scenario: simulator: {str(e).strip().splitlines()[0]}") from None
     for where, magnet in (("capsule.ipm", capsule.ipm), ("epm.magnet", epm.magnet)):
-        checked(f"{where}: ", magnet.moment)
+        checked(f"{where}.", check_magnet_geometry, magnet)
+    model = capsule_model()
+    diameter, length = 2.0 * model.radius, model.length + 2.0 * model.radius
+    ipm = capsule.ipm
+    across = {"cylinder": ipm.dimensions[:1], "sphere": ipm.dimensions,
+              "cuboid": [math.hypot(*ipm.dimensions[:2])]}[ipm.shape]
+    need(max(across) <= diameter and max(ipm.dimensions) <= length,
+         f"capsule.ipm must fit in the capsule ({1000 * diameter:.1f} mm wide, "
+         f"{1000 * length:.1f} mm long), got a {ipm.shape} of {ipm.dimensions} m")
     checked("", check_magnet_force_config, scenario.magnet_force,
             {"epm.magnet": epm.magnet, "capsule.ipm": capsule.ipm})
     checked("", check_contact_config, scenario.contact)
     checked("", check_guard_config, scenario.guard)
     checked("", check_colon_params, scenario.colon)
+    if scenario.colon.source == "procedural":
+        checked("", check_colon_course, scenario.colon)
     need(scenario.contact.model != "convex_pieces" or scenario.colon.source == "procedural",
          "contact.model convex_pieces needs the procedural colon (its pieces are cut from "
          f"the analytic wall), not colon.source {scenario.colon.source!r}")
-    need(epm.clearance >= 0, "epm.clearance must be >= 0")
+    bound(epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
+          "farther, the EPM barely pulls the capsule")
     if isinstance(epm.mount, Arm):
         checked("", check_arm_config, epm.mount)
-    need(capsule.start_s >= 0, "capsule.start_s must be >= 0")
-    need(capsule.lumen_lookahead > 0, "capsule.lumen_lookahead must be > 0")
-    for name in ("imu", "magnetometer"):
+    else:
+        checked("epm.mount.", check_stage, epm.mount)
+    bound(capsule.start_s, "capsule.start_s", ">= 0", "m")
+    if scenario.colon.source == "procedural":
+        shortest = sum(scenario.colon.segment(name).length_min for name in SEGMENT_NAMES)
+        bound(capsule.start_s, "capsule.start_s", f"[0, {shortest:.3f}]", "m",
+              "within the shortest colon the segments' length_min allow")
+    bound(capsule.lumen_lookahead, "capsule.lumen_lookahead", "(0, 0.5]", "m")
+    sensors = (("imu", check_imu_config), ("ahrs", check_ahrs_config),
+               ("magnetometer", check_magnetometer_config),
+               ("contact_sensor", check_contact_sensor_config))
+    for name, check_sensor in sensors:
         sensor = getattr(capsule, name)
-        need(sensor is None or sensor.sample_rate > 0,
-             f"capsule.{name}.sample_rate must be > 0, got "
-             f"{getattr(sensor, 'sample_rate', None)}")
-    for name, fields in (("imu", ("p_BS", "rpy_BS_deg", "accel_initial_bias",
-                                  "gyro_initial_bias")),
-                         ("magnetometer", ("p_BS", "rpy_BS_deg", "initial_bias"))):
-        sensor = getattr(capsule, name)
-        for item in fields if sensor is not None else ():
-            value = getattr(sensor, item)
-            need(len(value) == 3, f"capsule.{name}.{item} must have 3 entries, got {value}")
-    need(capsule.ahrs is None or len(capsule.ahrs.initial_q_WB) in (0, 4),
-         "capsule.ahrs.initial_q_WB must be empty (the true start) or a quaternion "
-         f"[w, x, y, z], got {getattr(capsule.ahrs, 'initial_q_WB', None)}")
+        if sensor is not None:
+            checked(f"capsule.{name}.", check_sensor, sensor)
+        p_BS = getattr(sensor, "p_BS", None)
+        if p_BS is not None:
+            half = 0.5 * model.length + model.radius
+            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half,
+                 f"capsule.{name}.p_BS must lie inside the capsule (radius "
+                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half:.2f} mm), got {p_BS}")
     need(capsule.ahrs is None or capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
-    if capsule.contact_sensor is not None:
-        checked("capsule.contact_sensor: ", check_contact_sensor_config, capsule.contact_sensor)
     if capsule.camera is not None:
         checked("capsule.camera: ", check_camera_config, capsule.camera)
     tracker = capsule.lumen_tracker
@@ -327,6 +475,7 @@ def validate(scenario: Scenario) -> None:
         need(capsule.camera is not None,
              "capsule.lumen_tracker needs capsule.camera (give a camera, e.g. camera: {})")
         checked("capsule.lumen_tracker: ", check_lumen_params, tracker.params)
+        checked("", _check_tracker_resources, tracker.params)
         checked("capsule.lumen_tracker: ", load_detector, tracker.detector, tracker.params)
     if scenario.pseudo_force is not None:
         checked("", check_pseudo_force_config, scenario.pseudo_force)
@@ -356,6 +505,20 @@ def validate(scenario: Scenario) -> None:
              "capsule.magnetometer")
     elif isinstance(driver, Plugin):
         checked("epm.driver (Plugin): factory: ", check_plugin, driver)
+
+
+def _check_tracker_resources(params) -> None:
+    """What the lumen detector's own check (perception/lumen.py) leaves unbounded and
+    costs memory or time per frame: its working image, filters and opening."""
+    key = "capsule.lumen_tracker.params"
+    need_range(params.work_size, f"{key}.work_size", "[16, 4096]", "px",
+               "the working image's longest side; frames are at most 4096 px")
+    need_range(params.median_size, f"{key}.median_size", "[1, 255]", "px")
+    need_range(params.blur_sigma, f"{key}.blur_sigma", "[0, 100]", "px")
+    need_range(params.opening, f"{key}.opening", "[0, 64]", "px")
+    need_range(params.dark_bias, f"{key}.dark_bias", "[0, 10]", "", "an exponent")
+    need_range(params.max_radius, f"{key}.max_radius", "(0, 2]", "",
+               "relative to the field's radius")
 
 
 def dump_scenario(scenario: Scenario) -> str:

@@ -9,10 +9,15 @@ mistake costs one line of output, not a traceback.
 from __future__ import annotations
 
 import dataclasses
+import math
+import sys
 import types
 import typing
 
 import yaml
+
+
+_LARGEST_FLOAT = sys.float_info.max
 
 
 class ScenarioError(ValueError):
@@ -31,7 +36,29 @@ class _Tagged(dict):
         self.tag = tag
 
 
-class _Loader(yaml.SafeLoader):
+# What a scenario document may cost to read. A scenario has ~300 fields, at most ~6 levels
+# deep, and no field takes a list longer than a handful of numbers; these bounds are far
+# above any real scenario file (diagrams/default.yaml: 9.5 kB, 1,700 nodes, 5 levels) and far
+# below what would exhaust the parser (Python's recursion, or memory).
+MAX_TEXT_BYTES = 1_000_000
+"""Largest scenario text (a file, or an override), in bytes."""
+MAX_DEPTH = 50
+"""Deepest nesting of lists and mappings."""
+MAX_NODES = 100_000
+"""Most nodes (scalars, lists, mappings) a document may hold once every alias is expanded:
+a document of a few hundred bytes whose anchors refer to each other can otherwise expand
+to billions (the "billion laughs")."""
+
+
+MIN_PERIOD = 1e-4
+"""Shortest period (s) of any periodic block (sensors, controllers, channels, logs): the
+fastest loop of the system is the haptic device's 1 kHz servo; every period is an event
+of the simulator, so a period far below that does nothing but make a run crawl (1 ns would
+be 60 billion events in a one-minute run). Sample rates are bounded by its inverse."""
+MAX_RATE = 1.0 / MIN_PERIOD
+
+
+class _Loader(yaml.CSafeLoader if yaml.__with_libyaml__ else yaml.SafeLoader):
     pass
 
 
@@ -45,8 +72,61 @@ def _construct_tagged(loader, tag_suffix, node):
 _Loader.add_multi_constructor("!", _construct_tagged)
 
 
+def _check_size(text: str, source: str) -> None:
+    """Raises SchemaError when `text` is too large, too deep, or expands (through its
+    aliases) to too many nodes. Reads the YAML's events, which takes no recursion and no
+    memory beyond the open collections, before anything builds the document."""
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > MAX_TEXT_BYTES:
+        raise SchemaError(f"{source}: {size / 1e6:.1f} MB, larger than the "
+                          f"{MAX_TEXT_BYTES / 1e6:g} MB a scenario may be")
+    # Per open collection: [expanded node count, its anchor]; anchors of closed nodes ->
+    # their expanded node counts.
+    stack, anchors, total = [], {}, 0
+
+    def add(count: int, line: int):
+        nonlocal total
+        if stack:
+            stack[-1][0] += count
+        else:
+            total += count
+        if total + sum(item[0] for item in stack) > MAX_NODES:
+            raise SchemaError(f"{source}:{line}: the document expands (through its aliases) "
+                              f"to more than {MAX_NODES:,} nodes")
+
+    try:
+        for event in yaml.parse(text, Loader=_Loader):
+            line = event.start_mark.line + 1 if event.start_mark else 0
+            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+                if len(stack) >= MAX_DEPTH:
+                    raise SchemaError(f"{source}:{line}: nested deeper than {MAX_DEPTH} levels")
+                stack.append([1, event.anchor])
+            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+                count, anchor = stack.pop()
+                if anchor is not None:
+                    anchors[anchor] = count
+                add(count, line)
+            elif isinstance(event, yaml.ScalarEvent):
+                if event.anchor is not None:
+                    anchors[event.anchor] = 1
+                add(1, line)
+            elif isinstance(event, yaml.AliasEvent):
+                if event.anchor not in anchors and any(a == event.anchor for _, a in stack):
+                    raise SchemaError(f"{source}:{line}: alias *{event.anchor} refers to a "
+                                      "node that contains it")
+                add(anchors.get(event.anchor, 1), line)
+    except yaml.YAMLError as e:
+        if "nesting depth" in str(e):  # libyaml's own limit, met while it reads ahead
+            mark = getattr(e, "problem_mark", None)
+            where = f"{source}:{mark.line + 1}" if mark else source
+            raise SchemaError(f"{where}: nested deeper than {MAX_DEPTH} levels") from None
+        # any other syntax error: parse_yaml reports it, with its line
+
+
 def parse_yaml(text: str, source: str) -> typing.Any:
-    """Parses YAML text; syntax errors become a `SchemaError` naming `source` and the line."""
+    """Parses YAML text; syntax errors become a `SchemaError` naming `source` and the line,
+    and so does a document too large, too deep or expanding to too many nodes (MAX_*)."""
+    _check_size(text, source)
     try:
         return yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as e:
@@ -86,14 +166,19 @@ def check(schema, node, path: str) -> None:
         # An untagged mapping means the first alternative (as yaml_load_typed reads it).
         check(options[0], node, path)
         return
-    if dataclasses.is_dataclass(schema):
+    drake_fields = getattr(schema, "__fields__", None)  # Drake's configs (plant, simulator)
+    if dataclasses.is_dataclass(schema) or isinstance(drake_fields, tuple):
         if not isinstance(node, dict):
             raise SchemaError(f"{path}: expected a mapping for {_type_name(schema)}, "
                               f"got {type(node).__name__}")
         if isinstance(node, _Tagged) and node.tag != _type_name(schema):
             raise SchemaError(f"{path}: tag !{node.tag} does not fit {_type_name(schema)}")
-        hints = typing.get_type_hints(schema)
-        known = {f.name for f in dataclasses.fields(schema)}
+        if dataclasses.is_dataclass(schema):
+            hints = typing.get_type_hints(schema)
+            known = {f.name for f in dataclasses.fields(schema)}
+        else:
+            hints = {f.name: f.type for f in drake_fields}
+            known = set(hints)
         for key, value in node.items():
             where = f"{path}.{key}" if path else str(key)
             if key not in known:
@@ -117,10 +202,16 @@ def check(schema, node, path: str) -> None:
             return  # YAML 1.1 reads 1.0e4 (no exponent sign) as text; Drake converts it.
         if isinstance(node, bool) or not isinstance(node, (int, float)):
             raise SchemaError(f"{path}: expected a number, got {node!r}")
+        if isinstance(node, int) and abs(node) > _LARGEST_FLOAT:
+            raise SchemaError(f"{path}: expected a number, got an integer of {len(str(node))} "
+                              "digits, beyond a float's range")
         return
     if schema is int:
         if isinstance(node, bool) or not isinstance(node, int):
             raise SchemaError(f"{path}: expected an integer, got {node!r}")
+        if not -2 ** 63 <= node < 2 ** 64:
+            raise SchemaError(f"{path}: expected an integer of at most 64 bits, got one of "
+                              f"{len(str(abs(node)))} digits")
         return
     if schema is bool:
         if not isinstance(node, bool):
@@ -131,3 +222,38 @@ def check(schema, node, path: str) -> None:
             raise SchemaError(f"{path}: expected a string, got {node!r}")
         return
     # Any other annotation is left to yaml_load_typed.
+
+
+def _bounds(interval: str):
+    """(low, high, low_open, high_open) of "[a, b]", "(a, b]", "> a", ">= a", "<= b"."""
+    text = interval.strip()
+    if text[0] in "[(":
+        low, high = (float(part) for part in text[1:-1].split(","))
+        return low, high, text[0] == "(", text[-1] == ")"
+    op, number = text.split()
+    return {">": (float(number), math.inf, True, True),
+            ">=": (float(number), math.inf, False, True),
+            "<": (-math.inf, float(number), True, True),
+            "<=": (-math.inf, float(number), True, False)}[op]
+
+
+def need_range(value, key: str, interval: str, unit: str = "", why: str = "") -> None:
+    """Raises ValueError "<key> must be finite and <interval> [unit] [(why)], got <value>"
+    unless `value` (a number, or each number of a list) is finite and inside `interval`
+    ("[a, b]", "(a, b]", "> a", ">= a", "<= b"; see `_bounds`)."""
+    low, high, low_open, high_open = _bounds(interval)
+    values = value if isinstance(value, (list, tuple)) else [value]
+
+    def inside(v) -> bool:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            return False
+        if isinstance(v, float) and not math.isfinite(v):
+            return False
+        return ((v > low if low_open else v >= low) and (v < high if high_open else v <= high))
+
+    if not all(inside(v) for v in values):
+        bounded = interval.strip()[0] in "[("
+        constraint = f"in {interval}" if bounded else f"finite and {interval}"
+        unit = f" {unit}" if unit else ""
+        why = f" ({why})" if why else ""
+        raise ValueError(f"{key} must be {constraint}{unit}{why}, got {value!r}")

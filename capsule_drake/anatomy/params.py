@@ -18,6 +18,8 @@ Sources (numbers quoted in the project reference, section "Colon anatomy"):
 
 from dataclasses import dataclass, field
 
+from capsule_drake.schema import need_range
+
 SEGMENT_NAMES = ("rectum", "sigmoid", "descending", "transverse", "ascending", "cecum")
 """Segments in the order met from the anus (s = 0) to the cecal pole."""
 
@@ -264,66 +266,144 @@ class ColonParams:
         return getattr(self, name)
 
 
-def check_colon_params(params: ColonParams) -> None:
-    """Raises ValueError naming the first field (as `colon.<path>`) with an impossible value.
+# Bounds of the colon's parameters (check_colon_params), each with its reason.
+DIAMETER_RANGE = {
+    # Human colon diameters, distended: ~2.5-9 cm (cecum < 9 cm, transverse < 6 cm,
+    # ascending ~46 mm, descending ~29 mm, sigmoid 25-40 mm; S/U, module docstring). The
+    # lower bound, 2 cm for every segment, leaves the 11.6 mm capsule room between its
+    # folds. The upper bounds are the anatomy's, capped where the procedural course (fixed
+    # landmarks, 40 jittered attempts) still finds room for its loops: wider, the build
+    # spends ~10 s failing (measured for seeds 0-3 with each bound alone and all together).
+    "rectum": (0.02, 0.06),
+    "sigmoid": (0.02, 0.045),
+    "descending": (0.02, 0.045),
+    "transverse": (0.02, 0.06),
+    "ascending": (0.02, 0.06),
+    "cecum": (0.02, 0.09),
+}
+MAX_SEGMENT_LENGTH = 1.0
+"""Longest segment (m): the whole colon is 1.1-2 m (REFERENCE), its longest segment (the
+transverse) 45-50 cm."""
+MIN_SEGMENT_LENGTH = 0.02
+"""Shortest segment (m): the cecum, the shortest, is 6-8 cm."""
+MIN_FOLD_SPACING = 0.005
+"""Closest haustral folds (m): folds are ~1 cm wide at the base, so 5 mm apart they overlap;
+the fold count (colon length / spacing) stays in the hundreds."""
+MIN_CENTERLINE_STEP = 2.5e-4
+"""Finest centreline sampling (m): the course check compares every pair of samples within
+~10 cm, whose number grows as 1 / step^2 (300,000 pairs at the default 1 mm, 5 million at
+0.25 mm)."""
+MAX_MESH_VERTICES = 2_000_000
+"""Most vertices of each wall mesh (collision, visual, camera), estimated as the longest
+colon the segments allow over the ring spacing (the smallest step where a tolerance lets
+rings crowd) times the points around: the defaults are 50,000-100,000."""
+SEED_RANGE = "[0, 4294967295]"
+"""Seeds are 32-bit, as the sensors' (Drake's RandomGenerator keeps 32 bits of its seed)."""
 
-    Only what would make the geometry meaningless or crash its generation; plausibility
-    (a 9 cm sigmoid, say) is the user's business.
-    """
+
+def check_colon_params(params: ColonParams) -> None:
+    """Raises ValueError naming the first field (as `colon.<path>`) with an impossible value,
+    or one outside the wide anatomical and resource bounds above (every number is finite:
+    the scenario checks that first)."""
     def need(ok: bool, path: str, what: str, value):
         if not ok:
             raise ValueError(f"colon.{path} {what}, got {value!r}")
 
+    def bound(path: str, interval: str, unit: str = "", why: str = ""):
+        value = params
+        for part in path.split("."):
+            value = getattr(value, part)
+        need_range(value, f"colon.{path}", interval, unit, why)
+
+    bound("seed", SEED_RANGE, "", "a 32-bit seed")
+    bound("fold_height_scale", "[0, 2]", "", "insufflation lowers the measured folds")
+    need(0 <= params.fold_height_jitter < 1, "fold_height_jitter", "must be in [0, 1)",
+         params.fold_height_jitter)
     for name in SEGMENT_NAMES:
         seg = params.segment(name)
-        need(seg.length_min > 0, f"{name}.length_min", "must be > 0", seg.length_min)
+        bound(f"{name}.length_min", f"[{MIN_SEGMENT_LENGTH:g}, {MAX_SEGMENT_LENGTH:g}]", "m")
         need(seg.length_max >= seg.length_min, f"{name}.length_max",
              f"must be >= length_min ({seg.length_min})", seg.length_max)
-        need(seg.diameter > 0, f"{name}.diameter", "must be > 0", seg.diameter)
-        need(seg.fold_height >= 0, f"{name}.fold_height", "must be >= 0", seg.fold_height)
+        bound(f"{name}.length_max", f"[{MIN_SEGMENT_LENGTH:g}, {MAX_SEGMENT_LENGTH:g}]", "m")
+        low, high = DIAMETER_RANGE[name]
+        bound(f"{name}.diameter", f"[{low:g}, {high:g}]", "m",
+              f"{_ANATOMY[name]}; the procedural course has room up to {high * 100:g} cm")
+        bound(f"{name}.fold_height", ">= 0", "m")
         need(seg.fold_height * params.fold_height_scale * (1 + params.fold_height_jitter)
              < 0.5 * seg.diameter, f"{name}.fold_height",
              "(after fold_height_scale and jitter) must stay below the lumen radius",
              seg.fold_height)
-        need(seg.fold_spacing_min > 0, f"{name}.fold_spacing_min", "must be > 0",
-             seg.fold_spacing_min)
+        bound(f"{name}.fold_spacing_min", f">= {MIN_FOLD_SPACING:g}", "m",
+              "folds are ~1 cm wide at the base")
         need(seg.fold_spacing_max >= seg.fold_spacing_min, f"{name}.fold_spacing_max",
              f"must be >= fold_spacing_min ({seg.fold_spacing_min})", seg.fold_spacing_max)
-    need(params.fold_height_scale >= 0, "fold_height_scale", "must be >= 0",
-         params.fold_height_scale)
-    need(0 <= params.fold_height_jitter < 1, "fold_height_jitter", "must be in [0, 1)",
-         params.fold_height_jitter)
-    need(params.fold_half_width > 0, "fold_half_width", "must be > 0", params.fold_half_width)
+    bound("fold_half_width", "[0.001, 0.05]", "m", "folds are ~1 cm wide at the base")
+    bound("fold_stagger", "[0, 0.05]", "m")
+    bound("taenia_height", "[0, 0.005]", "m")
+    bound("taenia_width", "(0, 0.05]", "m", "the bands are ~8 mm wide")
+    need(len(params.rectal_valve_positions) <= 10, "rectal_valve_positions",
+         "must hold at most 10 valves (there are three)", params.rectal_valve_positions)
+    bound("rectal_valve_positions", "[0, 0.3]", "m", "the valves sit 5-11 cm from the anus")
+    bound("rectal_valve_height", ">= 0", "m")
+    need(params.rectal_valve_height * params.fold_height_scale * (1 + params.fold_height_jitter)
+         < 0.5 * params.rectum.diameter, "rectal_valve_height",
+         "(after fold_height_scale and jitter) must stay below the rectum's radius",
+         params.rectal_valve_height)
+    bound("radius_blend_length", "[0.001, 0.2]", "m")
+    bound("landmark_jitter", "[0, 0.015]", "m",
+          "larger, the course's 40 attempts fail to find a course without kinks or overlaps")
+    bound("course_smoothing", "[0.005, 0.1]", "m")
+    bound("centerline_step", f"[{MIN_CENTERLINE_STEP:g}, 0.005]", "m")
+    longest = sum(params.segment(name).length_max for name in SEGMENT_NAMES)
+    for mesh in ("collision", "visual", "camera"):
+        axial, low = (getattr(params, f"{mesh}_{item}") for item in ("axial_step", "min_step"))
+        tolerance = getattr(params, f"{mesh}_tolerance")
+        around = getattr(params, f"{mesh}_points_around")
+        bound(f"{mesh}_axial_step", "(0, 0.02]", "m")
+        bound(f"{mesh}_min_step", "(0, 0.02]", "m")
+        need(low <= axial, f"{mesh}_min_step", f"must be <= {mesh}_axial_step ({axial})", low)
+        bound(f"{mesh}_tolerance", "[0, 0.005]", "m")
+        need(8 <= around <= 1024, f"{mesh}_points_around", "must be in [8, 1024]", around)
+        vertices = longest / (low if tolerance > 0 else axial) * around
+        need(vertices <= MAX_MESH_VERTICES, f"{mesh}_points_around",
+             f"x rings (up to {longest:.2f} m / {low if tolerance > 0 else axial:g} m) must "
+             f"stay below {MAX_MESH_VERTICES:,} vertices, not {vertices:,.0f}", around)
+    need(1 <= params.collision_chunks <= 100, "collision_chunks",
+         "must be in [1, 100] (each is a mesh file and a geometry)", params.collision_chunks)
+    a = params.abdomen
+    bound("abdomen.depth_at_umbilicus", "[0.12, 0.5]", "m",
+          "a supine abdomen is 20-25 cm front to back")
+    bound("abdomen.depth_at_pubis", "[0.08, 0.5]", "m")
+    bound("abdomen.depth_at_xiphoid", "[0.08, 0.5]", "m")
+    bound("abdomen.flank_height", "[0.02, 0.4]", "m")
+    need(a.flank_height + 0.01 < min(a.depth_at_umbilicus, a.depth_at_pubis,
+                                     a.depth_at_xiphoid),
+         "abdomen.flank_height", "must be at least 1 cm below every skin depth", a.flank_height)
+    bound("abdomen.half_width", "[0.08, 0.4]", "m")
+    for field_name in ("umbilicus_y", "pubis_y", "xiphoid_y", "torso_y_min", "torso_y_max"):
+        bound(f"abdomen.{field_name}", "[-1, 1]", "m")
+    need(a.pubis_y < a.umbilicus_y < a.xiphoid_y, "abdomen.umbilicus_y",
+         f"must lie between pubis_y ({a.pubis_y}) and xiphoid_y ({a.xiphoid_y})",
+         a.umbilicus_y)
+    need(a.torso_y_min < a.torso_y_max, "abdomen.torso_y_max",
+         f"must be > torso_y_min ({a.torso_y_min})", a.torso_y_max)
     for field_name in ("centerline_step", "collision_axial_step", "collision_min_step",
                        "visual_axial_step", "visual_min_step", "camera_axial_step",
                        "camera_min_step", "course_smoothing"):
         value = getattr(params, field_name)
         need(value > 0, field_name, "must be > 0", value)
-    need(params.collision_min_step <= params.collision_axial_step, "collision_min_step",
-         "must be <= collision_axial_step", params.collision_min_step)
-    need(params.collision_tolerance >= 0, "collision_tolerance", "must be >= 0",
-         params.collision_tolerance)
-    need(params.visual_tolerance >= 0, "visual_tolerance", "must be >= 0",
-         params.visual_tolerance)
-    need(params.camera_tolerance >= 0, "camera_tolerance", "must be >= 0",
-         params.camera_tolerance)
-    for field_name in ("collision_points_around", "visual_points_around",
-                       "camera_points_around"):
-        value = getattr(params, field_name)
-        need(value >= 8, field_name, "must be >= 8", value)
-    need(params.collision_chunks >= 1, "collision_chunks", "must be >= 1",
-         params.collision_chunks)
     if params.source not in ("procedural", "ex_vivo"):
         from pathlib import Path
 
-        need(Path(params.source).exists(), "source",
+        source = Path(params.source)
+        need(source.is_file() or source.is_dir(), "source",
              "must be procedural, ex_vivo, or an existing mesh file or import folder",
              params.source)
-    need(params.mesh_scale > 0, "mesh_scale", "must be > 0", params.mesh_scale)
-    need(params.mesh_max_faces >= 1000, "mesh_max_faces", "must be >= 1000",
+    bound("mesh_scale", "[1e-6, 1e3]", "", "0.001 for a mesh in millimetres")
+    need(1000 <= params.mesh_max_faces <= 2_000_000, "mesh_max_faces",
+         "must be in [1000, 2000000] (a software camera render costs per triangle)",
          params.mesh_max_faces)
-    need(params.mesh_skin_above >= 0, "mesh_skin_above", "must be >= 0",
-         params.mesh_skin_above)
+    bound("mesh_skin_above", "[0, 0.5]", "m")
     m = params.mucosa
     for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
         value = getattr(m, field_name)
@@ -332,10 +412,62 @@ def check_colon_params(params: ColonParams) -> None:
     for field_name in ("texels_around", "texels_along"):
         value = getattr(m, field_name)
         need(16 <= value <= 8192, f"mucosa.{field_name}", "must be in [16, 8192]", value)
-    for field_name in ("texels_per_metre", "variation_scale", "vessel_width"):
-        value = getattr(m, field_name)
-        need(value > 0, f"mucosa.{field_name}", "must be > 0", value)
+    bound("mucosa.texels_per_metre", "[1000, 20000]", "1/m",
+          "texels of 0.05-1 mm; coarser, the vessels are thinner than a texel")
+    bound("mucosa.variation_scale", "[0.001, 0.05]", "m")
+    bound("mucosa.variation_amplitude", "[0, 1]")
+    bound("mucosa.grain_amplitude", "[0, 1]")
+    bound("mucosa.vessel_width", "[0.0002, 0.005]", "m",
+          "submucosal vessels are tenths of a millimetre; a trunk must be wider than the "
+          "0.1 mm at which a branch ends")
     need(0 <= m.vessel_density <= 0.5, "mucosa.vessel_density", "must be in [0, 0.5]",
          m.vessel_density)
     need(0 <= m.deep_fraction <= 1, "mucosa.deep_fraction", "must be in [0, 1]",
          m.deep_fraction)
+    bound("mucosa.specular", "[0, 1]")
+    bound("mucosa.shininess", "[0, 1000]", "", "a Phong exponent")
+
+
+# How wide each segment is, as quoted above (for the diameter bound's message).
+_ANATOMY = {"rectum": "a distended rectum is taken as ~4 cm across",
+            "sigmoid": "a sigmoid colon is 25-40 mm across",
+            "descending": "a descending colon is ~29 mm across",
+            "transverse": "a transverse colon is under 6 cm across",
+            "ascending": "an ascending colon is ~46 mm across",
+            "cecum": "a cecum is under 9 cm across"}
+
+
+# The fields the colon's course depends on (anatomy/course.py: `solve_course`).
+_COURSE_FIELDS = ("radius_blend_length", "landmark_jitter", "course_smoothing",
+                  "centerline_step")
+_COURSES_FOUND: dict = {}
+
+
+def check_colon_course(params: ColonParams) -> None:
+    """Raises ValueError (one line) when the procedural course has no room for the given
+    anatomy: solves the course (anatomy/course.py) once when any of the fields it depends on
+    (the segments' lengths and diameters, the landmark jitter and smoothing, the blend and
+    the step) is away from its default (the defaults found a course for each seed 0-59). About
+    0.2 s when the course is found, ~10 s for the 40 attempts that fail."""
+    default = ColonParams()
+    key = (repr([params.segment(name) for name in SEGMENT_NAMES]),
+           tuple(getattr(params, name) for name in _COURSE_FIELDS), params.seed)
+    if (key[:2] == (repr([default.segment(name) for name in SEGMENT_NAMES]),
+                    tuple(getattr(default, name) for name in _COURSE_FIELDS))
+            or key in _COURSES_FOUND):
+        return
+    import numpy as np
+
+    from capsule_drake.anatomy.course import solve_course
+
+    try:
+        solve_course(params, np.random.default_rng(params.seed))
+    except RuntimeError:
+        raise ValueError(
+            f"colon: the procedural course (fixed landmarks) has no room for these segments "
+            f"with colon.seed {params.seed}: no course without kinks or overlaps in 40 "
+            "attempts (narrower or shorter segments, or a smaller landmark_jitter, fit; "
+            "another seed may)") from None
+    if len(_COURSES_FOUND) > 100:
+        _COURSES_FOUND.clear()
+    _COURSES_FOUND[key] = True

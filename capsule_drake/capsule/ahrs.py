@@ -38,6 +38,7 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.scene import block
 from capsule_drake.capsule.imu import STANDARD_GRAVITY
+from capsule_drake.schema import need_range
 
 
 @dataclasses.dataclass
@@ -60,6 +61,20 @@ class AhrsConfig:
     # the first accelerometer sample, tilt only, with the heading of the smallest rotation
     # that takes the measured up direction to world +z.
     initial_q_WB: list[float] = dataclasses.field(default_factory=list)
+
+
+def check_ahrs_config(config: AhrsConfig) -> None:
+    """Raises ValueError naming the first impossible field (relative to the AHRS)."""
+    need_range(config.kp, "kp", ">= 0", "rad/s", "a negative gain drives the estimate away")
+    need_range(config.ki, "ki", ">= 0", "rad/s^2", "a negative gain drives the estimate away")
+    q = config.initial_q_WB
+    if len(q) not in (0, 4):
+        raise ValueError("initial_q_WB must be empty (the true start) or a quaternion "
+                         f"[w, x, y, z], got {q}")
+    need_range(q, "initial_q_WB", "[-1.1, 1.1]")
+    if q and not 0.9 <= math.sqrt(sum(c * c for c in q)) <= 1.1:
+        raise ValueError(f"initial_q_WB must be a unit quaternion [w, x, y, z] (norm within "
+                         f"10 % of 1; it is normalised), got {q}")
 
 
 def _quat_multiply(p, q):

@@ -45,6 +45,7 @@ from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.perception import Lens, LensConfig
 from capsule_drake.perception.lumen_truth import add_lumen_truth
 from capsule_drake.scene import block
+from capsule_drake.schema import need_range
 
 FPS_MODES = ("fixed", "adaptive")
 DEFAULT_RENDERER = "capsule_camera"
@@ -128,33 +129,120 @@ def camera_tick(config: CameraConfig) -> float:
     return 1.0 / (config.fps_max if config.fps_mode == "adaptive" else config.fps)
 
 
+# Bounds of the camera (check_camera_config).
+MAX_IMAGE_SIDE = 4096
+"""Largest image side (px): capsule cameras have 256-512 px (PillCam COLON 2: 256 x 256)."""
+MAX_IMAGE_PIXELS = 2048 * 2048
+"""Most image pixels: each frame is resampled from the render faces pixel by pixel."""
+MAX_FACE_PIXELS = 5 * 2048 * 2048
+"""Most pixels of the render faces a frame is drawn from (their atlas): each holds colour,
+depth and ray scales (~30 bytes), so 20 M pixels are ~600 MB; the default lens needs 0.16 M."""
+MAX_FPS = 120.0
+"""Fastest frame rate (1/s): capsule cameras take 2-35 frames/s (PillCam COLON 2 4-35);
+every frame is a software render of several views."""
+
+
 def check_camera_config(config: CameraConfig) -> None:
-    """Raises ValueError naming the first impossible field."""
+    """Raises ValueError naming the first impossible field, or a lens whose render faces
+    would exceed MAX_FACE_PIXELS (estimated on a coarse grid of the image, as LensRenderer
+    sizes them, before anything is allocated)."""
     if config.fps_mode not in FPS_MODES:
         raise ValueError(f"camera fps_mode {config.fps_mode!r} is not one of {FPS_MODES}")
-    if not config.fps > 0.0:
-        raise ValueError(f"camera fps {config.fps} must be positive")
+    why = "capsule cameras take 2-35 frames/s"
+    need_range(config.fps, "fps", f"(0, {MAX_FPS:g}]", "1/s", why)
+    need_range(config.fps_max, "fps_max", f"(0, {MAX_FPS:g}]", "1/s", why)
     if not 0.0 < config.fps_min <= config.fps_max:
         raise ValueError(f"camera fps_min {config.fps_min} and fps_max {config.fps_max} "
                          "must satisfy 0 < fps_min <= fps_max")
-    if not 0.0 < config.near < config.far:
+    need_range(config.near, "near", "[1e-4, 1]", "m")
+    need_range(config.far, "far", "(0, 10]", "m")
+    if not config.near < config.far:
         raise ValueError(f"camera near {config.near} and far {config.far} must satisfy "
                          "0 < near < far")
-    if config.motion_for_fps_max <= 0.0 or config.viewing_distance <= 0.0:
-        raise ValueError("camera motion_for_fps_max and viewing_distance must be positive")
-    if config.light_attenuation < 0.0 or config.light_intensity < 0.0:
-        raise ValueError("camera light_intensity and light_attenuation must be >= 0")
-    if not config.window_spacing >= 0.0:
-        raise ValueError("camera window_spacing must be >= 0 (0: no windows)")
-    if config.face_resolution_scale <= 0.0:
-        raise ValueError("camera face_resolution_scale must be positive")
-    if not config.latency >= 0.0:
-        raise ValueError(f"camera latency {config.latency} must be >= 0")
-    Lens(config.lens)  # raises ValueError naming a bad lens field
+    need_range(config.motion_for_fps_max, "motion_for_fps_max", "> 0", "rad/s")
+    need_range(config.viewing_distance, "viewing_distance", "(0, 1]", "m")
+    need_range(config.light_intensity, "light_intensity", "[0, 100]", "",
+               "1 = full white on a white surface at the lens")
+    need_range(config.light_attenuation, "light_attenuation", ">= 0", "1/m^2")
+    if config.window_spacing != 0:
+        need_range(config.window_spacing, "window_spacing", ">= 0.02", "m",
+                   "or 0: no windows; each window is a renderer of its own, ~75 of them "
+                   "at 2 cm along a 1.5 m colon")
+    need_range(config.face_resolution_scale, "face_resolution_scale", "[0.05, 4]", "",
+               "1 = the lens's sharpest sampling")
+    need_range(config.latency, "latency", ">= 0", "s")
+    lens_config = config.lens
+    for name in ("width", "height"):
+        need_range(getattr(lens_config, name), f"lens.{name}", f"[16, {MAX_IMAGE_SIDE}]", "px",
+                   "capsule cameras have 256-512 px")
+    pixels = lens_config.width * lens_config.height
+    if pixels > MAX_IMAGE_PIXELS:
+        raise ValueError(f"lens.width x lens.height must be at most {MAX_IMAGE_PIXELS:,} px "
+                         f"(2048 x 2048), got {lens_config.width} x {lens_config.height}")
+    if lens_config.fov_deg is not None:
+        need_range(lens_config.fov_deg, "lens.fov_deg", ">= 10", "deg",
+                   "capsule cameras see 140-172 deg")
+    for name in ("fx", "fy"):
+        value = getattr(lens_config, name)
+        if value is not None:
+            need_range(value, f"lens.{name}", f"(0, {10 * MAX_IMAGE_SIDE}]", "px")
+    for name, size in (("cx", lens_config.width), ("cy", lens_config.height)):
+        value = getattr(lens_config, name)
+        if value is not None:
+            need_range(value, f"lens.{name}", f"[0, {size}]", "px", "inside the image")
+    for name in ("kb_coefficients", "radtan_coefficients"):
+        need_range(getattr(lens_config, name), f"lens.{name}", "[-10, 10]", "",
+                   "calibrated lenses have |k| < 1")
+    lens = Lens(lens_config)  # raises ValueError naming a bad lens field
     tick = camera_tick(config)
     if config.latency >= tick:
         raise ValueError(f"camera latency {config.latency} s must be below the camera's "
                          f"tick ({tick:.4g} s: one frame in flight at a time)")
+    faces = _face_pixels(lens, config)
+    if faces > MAX_FACE_PIXELS:
+        raise ValueError(f"lens and face_resolution_scale need render faces of ~{faces:,.0f} "
+                         f"px, more than {MAX_FACE_PIXELS:,} (a smaller image, a wider "
+                         "field of view or focal length, or a lower face_resolution_scale)")
+
+
+def _face_pixels(lens: Lens, config: CameraConfig, samples: int = 65) -> float:
+    """About how many pixels LensRenderer's faces will have for `lens` (its
+    _build_views_and_maps on a `samples` x `samples` grid of the image: each face's pixel
+    density from the Jacobian of its coordinates, times the extent it covers)."""
+    if not lens.is_fisheye and not np.any(config.lens.radtan_coefficients):
+        return float(lens.width * lens.height)  # one view, the image itself
+    u = np.linspace(0.0, lens.width - 1.0, samples)
+    v = np.linspace(0.0, lens.height - 1.0, samples)
+    du, dv = u[1] - u[0], v[1] - v[0]
+    uu, vv = np.meshgrid(u, v)
+    rays = lens.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
+    in_field = lens.in_field(rays).reshape(samples, samples)
+    rays = rays.reshape(samples, samples, 3)
+    axes = np.array([axis for axis, _ in _FACES.values()])
+    face_of = (np.argmax(rays.reshape(-1, 3) @ axes.T, axis=1).reshape(samples, samples)
+               if lens.is_fisheye else np.zeros((samples, samples), dtype=int))
+    face_of[~in_field] = -1
+    total = 0.0
+    for index, (axis, down) in enumerate(_FACES.values()):
+        mine = face_of == index
+        if not mine.any():
+            continue
+        z_F, y_F = np.array(axis), np.array(down)
+        r_F = rays @ np.column_stack([np.cross(y_F, z_F), y_F, z_F])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = r_F[..., 0] / r_F[..., 2], r_F[..., 1] / r_F[..., 2]
+            det = np.abs(np.gradient(a, axis=1) * np.gradient(b, axis=0)
+                         - np.gradient(a, axis=0) * np.gradient(b, axis=1)) / (du * dv)
+        inner = mine & np.isfinite(det) & (det > 0.0)
+        if not inner.any():
+            continue
+        density = np.percentile(1.0 / np.sqrt(det[inner]), 95.0)
+        density *= config.face_resolution_scale
+        margin = _FACE_MARGIN_PX / density
+        width = (max(a[mine].max() + margin, margin) - min(a[mine].min() - margin, -margin))
+        height = (max(b[mine].max() + margin, margin) - min(b[mine].min() - margin, -margin))
+        total += (width * density + 1.0) * (height * density + 1.0)
+    return total
 
 
 def make_render_engine_params(light_intensity: float = 1.6,

@@ -24,6 +24,7 @@ from capsule_drake.capsule.imu import add_random_sources
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.physics.contact_monitor import capsule_contact_force_W
 from capsule_drake.scene import block
+from capsule_drake.schema import MAX_RATE, need_range
 
 
 @dataclasses.dataclass
@@ -40,12 +41,9 @@ class ContactSensorConfig:
 
 def check_contact_sensor_config(config: ContactSensorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    if not config.sample_rate > 0:
-        raise ValueError(f"sample_rate must be > 0, got {config.sample_rate}")
-    if not config.noise_std >= 0:
-        raise ValueError(f"noise_std must be >= 0, got {config.noise_std}")
-    if not config.range > 0:
-        raise ValueError(f"range must be > 0, got {config.range}")
+    need_range(config.sample_rate, "sample_rate", f"(0, {MAX_RATE:g}]", "Hz")
+    need_range(config.noise_std, "noise_std", ">= 0", "N")
+    need_range(config.range, "range", "> 0", "N")
 
 
 class ContactForceSensor(LeafSystem):

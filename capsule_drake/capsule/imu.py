@@ -45,6 +45,7 @@ from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from capsule_drake.scene import block
+from capsule_drake.schema import MAX_RATE, need_range
 
 STANDARD_GRAVITY = 9.80665  # m/s^2 (CGPM 1901), the "g" of datasheets
 DEG = math.pi / 180.0
@@ -112,6 +113,39 @@ class ImuConfig:
     def X_BS(self) -> RigidTransform:
         """The sensor frame's pose in the body frame."""
         return RigidTransform(RollPitchYaw(np.deg2rad(self.rpy_BS_deg)), np.array(self.p_BS))
+
+
+def check_sensor_frame(config) -> None:
+    """Raises ValueError unless the sensor frame (p_BS, rpy_BS_deg) is 3 numbers each
+    (where in the capsule the sensor sits is the scenario's check: it knows the capsule)."""
+    for name in ("p_BS", "rpy_BS_deg"):
+        value = getattr(config, name)
+        if len(value) != 3:
+            raise ValueError(f"{name} must have 3 entries, got {value}")
+    need_range(config.rpy_BS_deg, "rpy_BS_deg", "[-360, 360]", "deg")
+
+
+def check_imu_config(config: ImuConfig) -> None:
+    """Raises ValueError naming the first impossible field (relative to the IMU)."""
+    need_range(config.sample_rate, "sample_rate", f"(0, {MAX_RATE:g}]", "Hz",
+               "the MPU-6050 samples at up to 8 kHz")
+    check_sensor_frame(config)
+    for name in ("accel_initial_bias", "gyro_initial_bias"):
+        value = getattr(config, name)
+        if len(value) != 3:
+            raise ValueError(f"{name} must have 3 entries, got {value}")
+    for name in ("accel_noise_density", "accel_bias_random_walk", "accel_initial_bias_sigma",
+                 "gyro_noise_density", "gyro_bias_random_walk", "gyro_initial_bias_sigma"):
+        need_range(getattr(config, name), name, ">= 0", "", "a standard deviation")
+    need_range(config.accel_range, "accel_range", "> 0", "m/s^2")
+    need_range(config.gyro_range, "gyro_range", "> 0", "rad/s")
+    check_resolution_bits(config.resolution_bits)
+
+
+def check_resolution_bits(bits: int) -> None:
+    """An ADC's bits: 0 (no quantisation) to 32 (ADCs have 8-24; the step is then far below
+    any noise, and 2^bits stays a modest float)."""
+    need_range(bits, "resolution_bits", "[0, 32]", "", "0: no quantisation")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -27,8 +27,10 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.scene import block
 from capsule_drake.physics.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
-from capsule_drake.capsule.imu import ChannelNoise, add_random_sources
+from capsule_drake.capsule.imu import (ChannelNoise, add_random_sources, check_resolution_bits,
+                                       check_sensor_frame)
 from capsule_drake.physics.magnet_force import FIELD_MODELS
+from capsule_drake.schema import MAX_RATE, need_range
 
 
 @dataclasses.dataclass
@@ -69,6 +71,19 @@ class MagnetometerConfig:
         return ChannelNoise.from_datasheet(
             self.noise_density, self.bias_random_walk, self.sample_rate, self.initial_bias,
             self.initial_bias_sigma, self.range, self.resolution_bits)
+
+
+def check_magnetometer_config(config: MagnetometerConfig) -> None:
+    """Raises ValueError naming the first impossible field (relative to the magnetometer)."""
+    need_range(config.sample_rate, "sample_rate", f"(0, {MAX_RATE:g}]", "Hz",
+               "the MLX90393 samples at up to ~700 Hz")
+    check_sensor_frame(config)
+    if len(config.initial_bias) != 3:
+        raise ValueError(f"initial_bias must have 3 entries, got {config.initial_bias}")
+    for name in ("noise_density", "bias_random_walk", "initial_bias_sigma"):
+        need_range(getattr(config, name), name, ">= 0", "", "a standard deviation")
+    need_range(config.range, "range", "> 0", "T")
+    check_resolution_bits(config.resolution_bits)
 
 
 def field_in_sensor_frame(X_WS: RigidTransform, sources, min_distance=DEFAULT_MIN_DISTANCE):

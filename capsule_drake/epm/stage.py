@@ -13,6 +13,7 @@ from pydrake.systems.primitives import TrajectorySource
 
 from capsule_drake.epm.poses import stage_joint_positions
 from capsule_drake.models import model_url
+from capsule_drake.schema import need_range
 
 STAGE_JOINTS = ("x", "y", "z", "yaw", "pitch")
 
@@ -36,6 +37,16 @@ class Stage:
     translation_gains: Gains = dataclasses.field(default_factory=Gains)
     # Servo gains of the yaw and pitch axes.
     rotation_gains: Gains = dataclasses.field(default_factory=lambda: Gains(p=400.0, d=4.0))
+
+
+def check_stage(config: Stage) -> None:
+    """Raises ValueError naming the first impossible gain: a servo needs p > 0 (it holds the
+    EPM) and d >= 0 (a negative damping pumps energy in)."""
+    for name in ("translation_gains", "rotation_gains"):
+        gains = getattr(config, name)
+        unit = ("N/m", "N s/m") if name == "translation_gains" else ("N m/rad", "N m s/rad")
+        need_range(gains.p, f"{name}.p", "> 0", unit[0])
+        need_range(gains.d, f"{name}.d", ">= 0", unit[1])
 
 
 class PoseToStage(LeafSystem):

@@ -112,10 +112,16 @@ def check_pseudo_force_config(config: PseudoForceConfig) -> None:
         value = getattr(config, name)
         if not (np.isfinite(value) and value > 0.0):
             raise ValueError(f"pseudo_force {name} {value} must be finite and positive")
+    if config.update_period < 1e-4:
+        raise ValueError(f"pseudo_force update_period {config.update_period} must be >= "
+                         "0.0001 s (a sample costs ~1.5 ms of computation)")
+    if config.wall_distance > 0.05:
+        raise ValueError(f"pseudo_force wall_distance {config.wall_distance} must be at most "
+                         "0.05 m (the widest lumen's radius)")
     rpy = config.device_from_camera_rpy_deg
-    if len(rpy) != 3 or not np.all(np.isfinite(rpy)):
+    if len(rpy) != 3 or not np.all(np.isfinite(rpy)) or not np.all(np.abs(rpy) <= 360.0):
         raise ValueError(f"pseudo_force device_from_camera_rpy_deg {rpy} must be three "
-                         "finite angles (deg)")
+                         "finite angles in [-360, 360] deg")
 
 
 def rotation_from_rpy_deg(rpy_deg) -> np.ndarray:

@@ -159,13 +159,17 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
         raise ValueError("lumen follower needs push_force >= push_force_low >= 0")
     if not config.push_sweep_period > 0.0:
         raise ValueError("lumen follower push_sweep_period must be > 0")
-    if not config.max_crumbs >= 3:
-        raise ValueError("lumen follower max_crumbs must be >= 3")
+    if not 3 <= config.max_crumbs <= 10_000:
+        raise ValueError(f"lumen follower max_crumbs must be in [3, 10000] (3 numbers of "
+                         f"state each), got {config.max_crumbs}")
     if not config.overspeed > 1.0:
         raise ValueError("lumen follower overspeed must be > 1")
     for name in ("max_lead_deg", "max_pitch_deg", "search_cone_deg"):
-        if not getattr(config, name) <= 90.0:
-            raise ValueError(f"lumen follower {name} must be <= 90 deg")
+        if not 0.0 <= getattr(config, name) <= 90.0:
+            raise ValueError(f"lumen follower {name} must be in [0, 90] deg, got "
+                             f"{getattr(config, name)}")
+    if not config.period >= 1e-4:
+        raise ValueError(f"lumen follower period must be >= 0.0001 s, got {config.period}")
 
 
 # Layout of the discrete state.

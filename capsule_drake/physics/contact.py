@@ -20,6 +20,7 @@ from pydrake.multibody.tree import QuaternionFloatingJoint
 
 from capsule_drake.anatomy import colon_assets, colon_wall_pieces
 from capsule_drake.capsule.model import CAPSULE_BODY
+from capsule_drake.schema import need_range
 
 CONTACT_MODELS = ("hydroelastic", "convex_pieces")
 TORSO_RGBA = np.array([0.93, 0.78, 0.68, 0.18])
@@ -64,17 +65,38 @@ class ContactConfig:
     drag_rotational: float = 0.0
 
 
+# Bounds of the contact settings (check_contact_config).
+MAX_FRICTION = 2.0
+"""Largest Coulomb coefficient: 0.0004-0.054 is measured on mucosa (REFERENCE section 3),
+rubber on dry steel is ~1; beyond 2 is no surface pair."""
+MIN_RESOLUTION_HINT = 5e-4
+"""Finest capsule pressure mesh (m): its tetrahedra number ~ (capsule size / hint)^3, so
+0.5 mm (22 across the 11.6 mm capsule) already costs ~100x the default's query time."""
+MIN_PIECE_LENGTH, MIN_CHORD_DEPTH = 5e-3, 1e-4
+"""Smallest convex wall pieces (m): the defaults (10 mm, 0.5 mm) cut ~2,700 pieces in a ~15 s
+build; the count grows as 1 / length and 1 / sqrt(chord depth), so these give ~12,000."""
+
+
 def check_contact_config(config: ContactConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     if config.model not in CONTACT_MODELS:
         raise ValueError(f"contact.model must be one of {', '.join(CONTACT_MODELS)}, "
                          f"got {config.model!r}")
-    if not config.friction >= 0:
-        raise ValueError("contact.friction must be >= 0")
-    if not config.drag_translational >= 0:
-        raise ValueError("contact.drag_translational must be >= 0")
-    if not config.drag_rotational >= 0:
-        raise ValueError("contact.drag_rotational must be >= 0")
+    need_range(config.capsule_hydroelastic_modulus, "contact.capsule_hydroelastic_modulus",
+               "[1e3, 1e11]", "Pa", "from soft gel to steel")
+    need_range(config.capsule_resolution_hint, "contact.capsule_resolution_hint",
+               f"[{MIN_RESOLUTION_HINT:g}, 0.02]", "m", "the capsule is 11.6 mm wide")
+    need_range(config.hunt_crossley_dissipation, "contact.hunt_crossley_dissipation", ">= 0",
+               "s/m")
+    need_range(config.point_stiffness, "contact.point_stiffness", "> 0", "N/m")
+    need_range(config.piece_axial_length, "contact.piece_axial_length",
+               f"[{MIN_PIECE_LENGTH:g}, 0.1]", "m")
+    need_range(config.piece_max_chord_depth, "contact.piece_max_chord_depth",
+               f"[{MIN_CHORD_DEPTH:g}, 0.005]", "m")
+    need_range(config.friction, "contact.friction", f"[0, {MAX_FRICTION:g}]", "",
+               "measured on mucosa: 0.0004-0.054")
+    need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
+    need_range(config.drag_rotational, "contact.drag_rotational", ">= 0", "N m s/rad")
 
 
 def contact_properties(config: ContactConfig) -> ProximityProperties:

@@ -22,6 +22,7 @@ from capsule_drake.physics.magnetics import (
     dipole_pair_interaction,
     dipole_pair_interaction_float,
 )
+from capsule_drake.schema import MIN_PERIOD, need_range
 
 FIELD_MODELS = ("dipole", "finite")
 
@@ -477,8 +478,10 @@ def check_magnet_force_config(config: MagnetForceConfig, magnets: dict) -> None:
     if config.field_model not in FIELD_MODELS:
         raise ValueError(f"magnet_force.field_model must be one of {', '.join(FIELD_MODELS)}, "
                          f"got {config.field_model!r}")
-    if not config.update_period >= 0:
-        raise ValueError(f"magnet_force.update_period must be >= 0, got {config.update_period}")
+    if config.update_period != 0:
+        need_range(config.update_period, "magnet_force.update_period", f">= {MIN_PERIOD:g}",
+                   "s", "or 0: every step; a shorter period is an event that recomputes the "
+                   "force more often than any plant step can use")
     if config.field_model == "finite":
         for where, geometry in magnets.items():
             if geometry.shape not in ("cylinder", "sphere") or geometry.legacy:

@@ -37,6 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from capsule_drake.schema import need_range
+
 # Vacuum permeability. The exact pre-2019 value; the SI 2019 CODATA value
 # (1.25663706212e-6 N/A^2) differs from it by ~5e-10 relative, far below anything
 # the point-dipole model can resolve.
@@ -326,6 +328,38 @@ class MagnetGeometry:
         if self.shape == "sphere":
             return sphere_moment(dims[0], self.remanence)
         return cuboid_moment(dims[0], dims[1], dims[2], self.remanence)
+
+
+# Bounds of a magnet's geometry (check_magnet_geometry).
+MAX_REMANENCE = 1.6
+"""Largest remanence (T): the saturation polarisation of Nd2Fe14B, the strongest permanent
+magnet material, is 1.61 T (N52 grades reach 1.43-1.48 T)."""
+MIN_MAGNET_SIZE = 1e-4
+"""Smallest dimension (m) of a magnet: 0.1 mm, well below any capsule's magnet."""
+MAX_MAGNET_SIZE = 0.5
+"""Largest dimension (m): EPMs for capsule endoscopy are 5-15 cm; a 50 cm block of NdFeB
+would weigh 0.7-1 t."""
+
+
+def check_magnet_geometry(geometry: "MagnetGeometry") -> None:
+    """Raises ValueError naming the first impossible field (relative to the magnet: the
+    caller says which one): a known shape, its number of dimensions, each in
+    [MIN_MAGNET_SIZE, MAX_MAGNET_SIZE], and a remanence in (0, MAX_REMANENCE]. With those,
+    the moment is positive and finite: a magnet of remanence 0 has none, and a negative
+    one would only be the same magnet turned round (its pose says which way it points)."""
+    expected = _SHAPE_DIMENSION_COUNT.get(geometry.shape)
+    if expected is None:
+        raise ValueError(f"shape must be one of {', '.join(sorted(_SHAPE_DIMENSION_COUNT))}, "
+                         f"got {geometry.shape!r}")
+    if len(geometry.dimensions) != expected:
+        raise ValueError(f"dimensions must be {expected} number(s) for a {geometry.shape} "
+                         f"(cylinder: [diameter, length], sphere: [diameter], cuboid: "
+                         f"[a, b, c]), got {geometry.dimensions!r}")
+    need_range(geometry.dimensions, "dimensions", f"[{MIN_MAGNET_SIZE:g}, {MAX_MAGNET_SIZE:g}]",
+               "m")
+    need_range(geometry.remanence, "remanence", f"(0, {MAX_REMANENCE:g}]", "T",
+               "the strongest magnet material, Nd2Fe14B, saturates at 1.61 T; the direction "
+               "is the pose's")
 
 
 # --- Finite-size source: the exact field of a uniformly magnetised cylinder -------------

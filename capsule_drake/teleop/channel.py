@@ -109,6 +109,14 @@ class ChannelConfig:
     seed: int = 0
 
 
+MAX_LATENCY = 2.0
+"""Longest a packet may take (s): delay + JITTER_TRUNCATION x jitter. Haptic teleoperation
+works up to a few hundred milliseconds one way (transatlantic telesurgery: ~0.1-0.2 s;
+operators cannot close the loop beyond ~1 s), and the ring buffer holds, and every tick
+scans, one slot per period of it: 2 s at 1 kHz is 2,000 slots, and with the shortest period
+(0.1 ms) 20,000 (a delay of 1e9 s would have asked for 80 TiB)."""
+
+
 def check_channel_config(config: ChannelConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     if not (math.isfinite(config.period) and config.period > 0.0):
@@ -117,6 +125,14 @@ def check_channel_config(config: ChannelConfig) -> None:
         raise ValueError(f"channel delay {config.delay} must be >= 0 and finite")
     if not (math.isfinite(config.jitter) and config.jitter >= 0.0):
         raise ValueError(f"channel jitter {config.jitter} must be >= 0 and finite")
+    if not config.period >= 1e-4:
+        raise ValueError(f"channel period {config.period} must be >= 0.0001 s (a packet "
+                         "every 0.1 ms; the haptic loop runs at 1 kHz)")
+    latency = config.delay + JITTER_TRUNCATION * config.jitter
+    if latency > MAX_LATENCY:
+        raise ValueError(f"channel delay {config.delay} + {JITTER_TRUNCATION:g} x jitter "
+                         f"{config.jitter} must be at most {MAX_LATENCY:g} s (teleoperation "
+                         "fails beyond ~1 s; the delay buffer holds one slot per period of it)")
     if not (0.0 <= config.loss < 1.0):
         raise ValueError(f"channel loss {config.loss} must be in [0, 1)")
     seed = config.seed
@@ -299,8 +315,9 @@ class PassivityConfig:
 
 def check_passivity_config(config: PassivityConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    if not (math.isfinite(config.period) and config.period > 0.0):
-        raise ValueError(f"passivity period {config.period} must be > 0 and finite")
+    if not (math.isfinite(config.period) and config.period >= 1e-4):
+        raise ValueError(f"passivity period {config.period} must be >= 0.0001 s and finite "
+                         "(the device's servo runs at 1 kHz)")
     if not (math.isfinite(config.max_damping) and config.max_damping >= 0.0):
         raise ValueError(f"passivity max_damping {config.max_damping} must be >= 0 and finite")
     if not (math.isfinite(config.moving_mass) and config.moving_mass > 0.0):

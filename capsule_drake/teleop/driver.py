@@ -16,6 +16,7 @@ from capsule_drake.perception.lumen_range import LumenRange
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.scene import block
+from capsule_drake.schema import MAX_RATE, MIN_PERIOD, need_range
 from capsule_drake.teleop.browser import BrowserOperator
 from capsule_drake.teleop.channel import (TeleopChannel, TeleopChannelConfig,
                                           check_channel_config, check_passivity_config)
@@ -25,7 +26,8 @@ from capsule_drake.teleop.haptic_master import (STYLUS_SIZE, HapticDeviceConfig,
 from capsule_drake.teleop.mapping import MappingConfig, TeleopMapping, check_mapping_config
 from capsule_drake.teleop.operator import (ForwardSpeed, OperatorConfig,
                                            SimulatedOperator, WayForward, check_operator_config)
-from capsule_drake.teleop.udp import UdpBridgeConfig, UdpHapticDevice, check_udp_bridge_config
+from capsule_drake.teleop.udp import (UdpBridgeConfig, UdpHapticDevice, check_udp_address,
+                                      check_udp_bridge_config)
 
 OPERATORS = ("simulated", "browser", "udp")
 LUMEN_SOURCES = ("tracker", "truth")
@@ -63,22 +65,39 @@ class Teleop:
 
 def check_teleop(teleop: Teleop) -> None:
     """Raises ValueError naming the first impossible field (on its own; what it needs of
-    the rest of the scenario is checked with the scenario)."""
+    the rest of the scenario is checked with the scenario). With the udp operator, the
+    bridge's host must resolve and its address bind (`check_udp_address`)."""
     if teleop.operator not in OPERATORS:
         raise ValueError(f"operator must be one of {', '.join(OPERATORS)}, "
                          f"got {teleop.operator!r}")
     if teleop.lumen_source not in LUMEN_SOURCES:
         raise ValueError(f"lumen_source must be one of {', '.join(LUMEN_SOURCES)}, got "
                          f"{teleop.lumen_source!r}")
-    if not teleop.contact_gain >= 0:
-        raise ValueError("contact_gain must be >= 0")
+    need_range(teleop.contact_gain, "contact_gain", "[0, 100]", "",
+               "device newtons per newton of contact")
     check_haptic_device_config(teleop.device)
+    device = teleop.device
+    need_range(device.workspace_half_extents, "device.workspace_half_extents", "(0, 0.5]", "m",
+               "a desktop haptic device reaches ~16 x 12 x 7 cm")
+    need_range(device.servo_rate, "device.servo_rate", f"[1, {MAX_RATE:g}]", "Hz",
+               "haptic servos run at ~1 kHz")
+    need_range(device.stylus_mass, "device.stylus_mass", "[0.001, 10]", "kg")
     check_mapping_config(teleop.mapping)
+    mapping = teleop.mapping
+    need_range(mapping.period, "mapping.period", f">= {MIN_PERIOD:g}", "s")
+    need_range(mapping.max_pitch_deg, "mapping.max_pitch_deg", "[0, 90]", "deg")
+    need_range(mapping.max_lead_deg, "mapping.max_lead_deg", "[0, 180]", "deg")
     check_operator_config(teleop.simulated)
-    check_channel_config(teleop.channel.forward)
-    check_channel_config(teleop.channel.backward)
+    need_range(teleop.simulated.period, "simulated.period", f">= {MIN_PERIOD:g}", "s")
+    for name in ("forward", "backward"):
+        try:
+            check_channel_config(getattr(teleop.channel, name))
+        except ValueError as e:
+            raise ValueError(f"channel.{name}: {e}") from None
     check_passivity_config(teleop.channel.passivity)
     check_udp_bridge_config(teleop.udp)
+    if teleop.operator == "udp":
+        check_udp_address(teleop.udp)
 
 
 @block(Teleop)

@@ -9,6 +9,7 @@ server socket.
 """
 
 import array
+import concurrent.futures
 import copy
 import dataclasses
 import logging
@@ -192,21 +193,59 @@ class UdpBridgeConfig:
 
 
 def check_udp_bridge_config(config: UdpBridgeConfig) -> None:
-    """Raises ValueError naming the first impossible field."""
+    """Raises ValueError naming the first impossible field. (Whether the host resolves and
+    the port can be bound is `check_udp_address`'s: it asks the network.)"""
     if not isinstance(config.host, str) or not config.host:
         raise ValueError(f"udp bridge host {config.host!r} must be a non-empty string")
+    if len(config.host) > 253 or any(c.isspace() or not c.isprintable() for c in config.host):
+        raise ValueError(f"udp bridge host {config.host[:60]!r} must be a host name or address "
+                         "(at most 253 characters, no spaces)")
     if not 0 <= config.port <= 65535:
         raise ValueError(f"udp bridge port {config.port} must be in [0, 65535]")
     for name in ("timeout", "period", "force_limit"):
         value = getattr(config, name)
         if not (math.isfinite(value) and value > 0.0):
             raise ValueError(f"udp bridge {name} {value} must be finite and positive")
-    if config.max_packets_per_tick < 1:
+    if config.period < 1e-4:
+        raise ValueError(f"udp bridge period {config.period} must be >= 0.0001 s (the device "
+                         "sends at 1 kHz)")
+    if not 1 <= config.max_packets_per_tick <= 65536:
         raise ValueError(f"udp bridge max_packets_per_tick {config.max_packets_per_tick} "
-                         "must be >= 1")
-    if config.received_log_limit < 0:
+                         "must be in [1, 65536]")
+    if not 0 <= config.received_log_limit <= MAX_RECEIVED_LOG:
         raise ValueError(f"udp bridge received_log_limit {config.received_log_limit} "
-                         "must be >= 0")
+                         f"must be in [0, {MAX_RECEIVED_LOG}] (24 bytes each: "
+                         f"{MAX_RECEIVED_LOG * 24 / 1e9:.2g} GB, 10 hours at 1 kHz)")
+
+
+MAX_RECEIVED_LOG = 36_000_000
+"""Most entries of `received_log()` (24 bytes each): 10 hours of packets at 1 kHz."""
+RESOLVE_TIMEOUT = 5.0
+"""How long (s) `check_udp_address` waits for the host's name to resolve."""
+
+
+def check_udp_address(config: UdpBridgeConfig) -> None:
+    """Raises ValueError (one line) unless the bridge's host resolves, within
+    RESOLVE_TIMEOUT, and a socket can be bound to (host, port) as the bridge will bind it
+    (the socket is closed at once)."""
+    family = socket.AF_INET6 if ":" in config.host else socket.AF_INET
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+    try:
+        pool.submit(socket.getaddrinfo, config.host, config.port, family,
+                    socket.SOCK_DGRAM).result(timeout=RESOLVE_TIMEOUT)
+    except concurrent.futures.TimeoutError:
+        raise ValueError(f"udp bridge host {config.host!r} did not resolve within "
+                         f"{RESOLVE_TIMEOUT:g} s") from None
+    except (OSError, UnicodeError) as e:
+        reason = getattr(e, "strerror", None) or str(e) or type(e).__name__
+        raise ValueError(f"udp bridge host {config.host!r} does not resolve ({reason})") from None
+    finally:
+        pool.shutdown(wait=False)
+    try:
+        _open_socket(config.host, config.port).close()
+    except OSError as e:
+        raise ValueError(f"udp bridge cannot bind {config.host}:{config.port} "
+                         f"({e.strerror or e})") from None
 
 
 # The stylus output before the first packet: at the workspace centre, identity, no button.
