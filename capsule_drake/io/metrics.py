@@ -71,11 +71,14 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
             (OUTCOMES: how far the capsule got, its contact, its excursion) are null, since
             numbers from such a run mean nothing.
 
-    Samples whose capsule state is not finite are left out.
+    Samples whose capsule state is not finite (or whose quaternion is far from unit length,
+    as in a diverging run) are left out.
     """
     times, capsule_state = np.asarray(times), np.asarray(capsule_state)
-    finite = np.all(np.isfinite(capsule_state), axis=0) if capsule_state.size else \
-        np.zeros(len(times), dtype=bool)
+    with np.errstate(all="ignore"):
+        finite = (np.all(np.isfinite(capsule_state), axis=0)
+                  & (np.abs(np.linalg.norm(capsule_state[:4], axis=0) - 1.0) < 0.5)
+                  if capsule_state.size else np.zeros(len(times), dtype=bool))
     times, capsule_state = times[finite], capsule_state[:, finite]
     contact_load, epm_pose = np.asarray(contact_load)[finite], np.asarray(epm_pose)[:, finite]
     timing = {"sim_time_s": float(sim_time), "wall_time_s": float(wall_time),
