@@ -354,8 +354,8 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     closed loops around a line (an open sheet). `progress`, if given, is called with
     (iteration, iterations). `details`, if given, is filled with what the checks of
     anatomy/tube_check.py read: "closed_share" (of the first line's stations, the share
-    whose section is a closed loop around it) and "ends" (per end, "open", "cap" or
-    "none")."""
+    whose section is a closed loop around it) and "ends" (per end, "open", "flat cap",
+    "round cap" or "none")."""
     mesh = geometry_of(mesh)
     sections = MeshSections(mesh)
     rings = ring_centreline(mesh, step)
@@ -387,16 +387,23 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     if len(points) > 2 * cut + 6:
         points = points[cut:len(points) - cut]
     reference = float(np.median(radius_now))
-    tail, tail_end = _march(sections, mesh, list(points), step, 0.001, reference)
-    head, head_end = _march(sections, mesh, list(points[::-1]), step, 0.001, reference)
+    tail, tail_end, tail_jump = _march(sections, mesh, list(points), step, 0.001, reference)
+    head, head_end, head_jump = _march(sections, mesh, list(points[::-1]), step, 0.001,
+                                       reference)
     points = np.array(head[::-1][:-len(points)] + tail)
     points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
-    hold = (CAP_AHEAD * reference if head_end == "cap" else 0.0,
-            CAP_AHEAD * reference if tail_end == "cap" else 0.0)
-    for _ in range(FINAL_PASSES):
+    # A cap's last stretch is the ray's: its sections (across a round cap, any line through
+    # its centre is a line of section centres) are not refined; once the line behind it is,
+    # its tangent there is more accurate than the march's, and the ray is cast again.
+    jumps = [head_jump, tail_jump]
+    for final in range(FINAL_PASSES):
+        hold = tuple(j + 0.5 * step if j > 0 else 0.0 for j in jumps)
         points, radius, _ = _refine(sections, points, step, keep_ends=True,
                                     max_move=0.5 * step, hold=hold)
         points = _smooth_inside(points)
+        if final < FINAL_PASSES - 1:
+            points, jumps = _recast_caps(sections, points, step, (head_end, tail_end), jumps,
+                                         reference)
     if details is not None:
         details.update(closed_share=closed_share, ends=(head_end, tail_end))
     return _arc(points), points, radius
@@ -410,7 +417,7 @@ def _distance_between(a, b):
     return float(cKDTree(a).query(b)[0].max()) if len(a) and len(b) else np.inf
 
 
-FINAL_PASSES = 2
+FINAL_PASSES = 3
 """Section-and-smooth passes after the ends are grown back."""
 SMOOTHING_LAMBDA = 1e-7
 """Weight [m^3] of the curvature penalty in the final smoothing spline: it smooths over
@@ -418,30 +425,37 @@ SMOOTHING_LAMBDA = 1e-7
 cut the corners of the rectum's bends by up to 2.4 mm on the round trip.)"""
 
 
-def _end_tangent(points):
+def _end_tangent(points, skip: float = 0.0, position: bool = False):
     """The unit tangent at the last point: a quadratic in arc length fitted to the last
     `MARCH_BASELINE` of centreline (at least 4 points), each point weighted by the length of
     line it stands for (the march's 1 mm steps would otherwise outweigh the 5 mm ones, and
-    their scatter tilt the tangent)."""
-    pts = np.asarray(points[-80:])[::-1]  # from the end backwards
+    their scatter tilt the tangent). With `skip` [m], the last `skip` of line is left out of
+    the fit (the quadratic is extrapolated over it); with `position`, returns (the fitted
+    end point, tangent)."""
+    pts = np.asarray(points[-200:])[::-1]  # from the end backwards
     s = _arc(pts)
-    use = min(len(pts), max(4, int(np.searchsorted(s, MARCH_BASELINE)) + 1))
-    s, q = s[:use], pts[:use]
-    if use >= 5:
-        gaps = np.diff(s)
+    first = int(np.searchsorted(s, skip)) if skip > 0 else 0
+    if len(pts) - first < 5:
+        first = max(0, len(pts) - 5)
+    last = min(len(pts), max(first + 4, int(np.searchsorted(s, skip + MARCH_BASELINE)) + 1))
+    s_fit, q = s[first:last], pts[first:last]
+    if len(q) >= 5:
+        gaps = np.diff(s_fit)
         w = np.sqrt(0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]])))
-        design = np.column_stack([np.ones(use), s, s ** 2])
+        design = np.column_stack([np.ones(len(q)), s_fit, s_fit ** 2])
         coef = np.linalg.lstsq(design * w[:, None], q * w[:, None], rcond=None)[0]
-        t = -coef[1]
+        t, end = -coef[1], coef[0]
     else:
-        t = q[0] - q[-1]
-    return t / np.linalg.norm(t)
+        t, end = q[0] - q[-1], pts[0]
+    t = t / np.linalg.norm(t)
+    return (end, t) if position else t
 
 
 def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
            reference: float):
     """Extends `points` past their last one until the tube ends or closes: returns (points,
-    "cap" | "open" | "none").
+    "flat cap" | "round cap" | "open" | "none", the length of the last stretch, the ray's, at
+    a cap [m]).
 
     Each step: a ray along the end's tangent looks for the wall ahead; within `CAP_AHEAD`
     of the tube's radius it is a cap, and the line ends where the ray meets it. Otherwise a
@@ -460,10 +474,12 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
         ahead = sections.ray(p, t, reach=3.0 * reference)
         # The wall straight ahead: near, a flat cap; as near as the tube is wide and
         # curving back toward the rays beside this one, a round cap whose base this is.
-        if ahead <= CAP_AHEAD * max(reference, last_radius) or (
-                ahead <= 1.1 * last_radius and _round_ahead(sections, p, t, last_radius, ahead)):
+        if ahead <= CAP_AHEAD * max(reference, last_radius):
             points.append(p + ahead * t)
-            return points, "cap"
+            return points, "flat cap", ahead
+        if ahead <= 1.1 * last_radius and _round_ahead(sections, p, t, last_radius, ahead):
+            points.append(p + ahead * t)
+            return points, "round cap", ahead
         size = min(size, max(fine, 0.5 * ahead))
         guess = p + size * t
         section = sections.around(guess, t)
@@ -472,6 +488,14 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
             centre = _centre(section, guess, t)
             good = (np.linalg.norm(centre - guess) <= 0.25 * section.radius
                     and section.radius <= 1.5 * last_radius)
+        if good:
+            # Corrector: the section again, normal to the tangent through the new centre.
+            t2 = _end_tangent(points + [centre])
+            again = sections.around(centre, t2)
+            if again is not None:
+                centre2 = _centre(again, centre, t2)
+                if np.linalg.norm(centre2 - centre) <= 0.25 * again.radius:
+                    centre, section = centre2, again
         if not good:
             if size > fine:
                 size = fine
@@ -498,8 +522,160 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
             points.append(best[1])
         else:
             points[-1] = best[1]
-        return points, "open"
-    return points, "none"
+        return points, "open", 0.0
+    return points, "none", 0.0
+
+
+def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference):
+    """The capped ends' last stretches (`jumps`, [m]: 0 for an end that is not a cap) made
+    again from the line behind them, now that it is refined: a cubic fitted to dense
+    section centres over its last `RECAST_BASELINE` (`_end_fit`) is followed on to a flat
+    cap (it meets the cap where the ray along its tangent does, within a millimetre); at a
+    round cap it is followed to the cap's base, the centre of the sphere fitted to the cap's
+    far part (`_cap_sphere`), and the line goes on straight along its tangent there to the
+    wall (a round cap's sections are centred on any line through its centre: the tube's
+    direction where it closes is all there is to follow). Returns (points, jumps)."""
+    jumps = list(jumps)
+    for side in (0, 1):
+        if jumps[side] <= 0.0:
+            continue
+        line = points[::-1] if side == 0 else points
+        s = _arc(line)
+        body = line[s <= s[-1] - jumps[side] + 1e-9]
+        if len(body) < 5:
+            continue
+        # A round cap: the sections within a quarter radius of its base reach into it (a
+        # plane tilted by 0.02 rad does, 0.5 mm off the base) and are left out.
+        near = -ROUND_CAP_CLEAR * reference if ends[side] == "round cap" else 0.0
+        curve = _end_fit(sections, body, stop=near)
+        if curve is None:
+            continue
+        reach = 2.0 * jumps[side] + reference
+        extension = []
+        if ends[side] == "round cap":
+            p0, t0 = curve(0.0)
+            ahead = sections.ray(p0, t0, reach=reach)
+            sphere = _cap_sphere(sections, p0, t0, ahead) if np.isfinite(ahead) else None
+            if sphere is not None:
+                u_base = float(np.clip((sphere[0] - p0) @ t0, 0.0, 0.5 * sphere[1]))
+                curve = _end_fit(sections, body, stop=u_base - ROUND_CAP_CLEAR * sphere[1],
+                                 through=(u_base, sphere[0])) or curve
+                count = int(np.ceil(u_base / step))
+                extension = [curve(u)[0] for u in np.linspace(0.0, u_base, count + 1)[1:]]
+                p0, t0 = curve(u_base)
+                ahead = sections.ray(p0, t0, reach=reach)
+            if not np.isfinite(ahead):
+                continue
+            count = max(1, int(np.ceil(ahead / step)))
+            extension += list(p0 + np.outer(np.arange(1, count + 1) / count * ahead, t0))
+            total = u_base + ahead if sphere is not None else ahead
+        else:  # a flat cap
+            u, total = 0.0, None
+            while u <= reach:
+                p0, t0 = curve(u)
+                ahead = sections.ray(p0, t0, reach=reach)
+                if ahead <= RECAST_SPACING:
+                    extension.append(p0 + ahead * t0)
+                    total = u + ahead
+                    break
+                u += min(step, max(RECAST_SPACING, ahead - 0.5 * RECAST_SPACING))
+                extension.append(curve(u)[0])
+            if total is None:
+                continue
+        line = np.vstack([body, np.asarray(extension)])
+        jumps[side] = total
+        points = line[::-1] if side == 0 else line
+    return points, jumps
+
+
+ROUND_CAP_CLEAR = 0.25
+"""Section centres are fitted up to this share of the radius before a round cap's base."""
+RECAST_BASELINE = 0.04
+"""A cap's last stretch follows a cubic fitted to this much line before it [m], ..."""
+RECAST_SPACING = 0.001
+"""... of section centres this far apart [m] (the line's own points, 5 mm apart, left the
+tangent ~0.015 rad astray: 0.5 mm at a round cap's apex)."""
+
+
+def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None,
+             iterations: int = 3):
+    """The cubic in arc length fitted to section centres every `RECAST_SPACING` over
+    `RECAST_BASELINE` of line up to `stop` [m] past the end of `body` (< 0: before it; > 0:
+    on along the body's end tangent, then along the cubic): a function u -> (point, unit
+    tangent), u [m] past the body's end. The sections are cut normal to the cubic itself,
+    fitted again `iterations` times (the line's own tangents near a cap lean on the cap's
+    last stretch). `through`: (u, point) the cubic is to pass through (a round cap's
+    centre). None if fewer than 10 sections are found."""
+    s = _arc(body)
+    u = np.arange(max(-s[-1], stop - RECAST_BASELINE), stop + 1e-9, RECAST_SPACING)
+    on_body = u <= 0.0
+    points = np.column_stack([np.interp(s[-1] + u[on_body], s, body[:, k]) for k in range(3)])
+    tangents = _tangents(points)
+    if not on_body.all():  # on along the body's end tangent, to begin with
+        past = u[~on_body]
+        points = np.vstack([points, points[-1] + np.outer(past, tangents[-1])])
+        tangents = np.vstack([tangents, np.repeat(tangents[-1:], len(past), axis=0)])
+    if len(u) < 10:
+        return None
+    curve = None
+    for _ in range(iterations):
+        centres, at = [], []
+        for q, tq, uq in zip(points, tangents, u):
+            section = sections.around(q, tq)
+            if section is None:
+                continue
+            c = _centre(section, q, tq)
+            if np.linalg.norm(c - q) <= 0.1 * section.radius:
+                centres.append(c)
+                at.append(uq)
+        if len(centres) < 10:
+            return curve
+        at, centres = np.asarray(at), np.asarray(centres)
+        weights = np.ones(len(at))
+        if through is not None:
+            at = np.append(at, through[0])
+            centres = np.vstack([centres, through[1]])
+            weights = np.append(weights, np.sqrt(len(weights)))
+        design = np.column_stack([np.ones(len(at)), at, at ** 2, at ** 3])
+        coef = np.linalg.lstsq(design * weights[:, None], centres * weights[:, None],
+                               rcond=None)[0]
+
+        def curve(x, coef=coef):
+            point = coef[0] + x * coef[1] + x ** 2 * coef[2] + x ** 3 * coef[3]
+            tangent = coef[1] + 2 * x * coef[2] + 3 * x ** 2 * coef[3]
+            return point, tangent / np.linalg.norm(tangent)
+
+        fitted = [curve(x) for x in u]
+        points = np.array([f[0] for f in fitted])
+        tangents = np.array([f[1] for f in fitted])
+    return curve
+
+
+def _cap_sphere(sections: MeshSections, p, t, ahead):
+    """(centre, radius) of the sphere fitted (algebraically) to the mesh's vertices in a
+    round cap's far part, those beyond 60 % of the way from `p` to where the ray along `t`
+    meets the cap (`ahead` [m]) and within `ahead` of that line; None if fewer than 20, or
+    if they are not near a sphere (rms misfit over 5 % of its radius), or the sphere is not
+    about as wide as the cap is deep from `p` (0.6-1.5 times)."""
+    vertices = sections.vertices
+    d = vertices - p
+    along = d @ t
+    side = np.linalg.norm(d - np.outer(along, t), axis=1)
+    pick = (along > 0.6 * ahead) & (along < 1.2 * ahead) & (side < ahead)
+    if pick.sum() < 20:
+        return None
+    x = vertices[pick] - p
+    design = np.column_stack([2 * x, np.ones(len(x))])
+    sol = np.linalg.lstsq(design, np.sum(x ** 2, axis=1), rcond=None)[0]
+    centre = sol[:3]
+    radius_sq = sol[3] + centre @ centre
+    if radius_sq <= 0.0:
+        return None
+    radius = float(np.sqrt(radius_sq))
+    misfit = np.sqrt(np.mean((np.linalg.norm(x - centre, axis=1) - radius) ** 2))
+    if misfit > 0.05 * radius or not 0.6 * ahead <= radius <= 1.5 * ahead:
+        return None
+    return p + centre, radius
 
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
@@ -553,13 +729,13 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
     new, radius = [], []
     found = 0
     for k, (p, t) in enumerate(zip(points, tangents)):
-        held = keep_ends and (k in (0, len(points) - 1) or s[k] < hold[0]
-                              or s[-1] - s[k] < hold[1])
-        section = None if held else sections.around(p, t)
-        if section is None:
-            if keep_ends:
+        end = keep_ends and k in (0, len(points) - 1)
+        held = keep_ends and (s[k] < hold[0] or s[-1] - s[k] < hold[1])
+        section = None if end else sections.around(p, t)
+        if section is None or held:
+            if keep_ends:  # held: it stays, its section gives its radius
                 new.append(p)
-                radius.append(np.nan)
+                radius.append(np.nan if section is None else section.radius)
             continue
         found += 1
         centre = _centre(section, p, t)
