@@ -266,17 +266,23 @@ def _report_stop(result) -> None:
                  if result.status == "diverged" else ""), file=sys.stderr)
 
 
+MAX_SEEDS = 10_000  # a benchmark of more runs than this is a typing mistake
+
+
 def _seeds(text: str) -> list[int]:
+    ranges = []
     try:
-        seeds = []
         for part in text.split(","):
             first, _, last = part.strip().partition("-")
-            seeds += list(range(int(first), int(last) + 1)) if last else [int(first)]
+            ranges.append((int(first), int(last) if last else int(first)))
     except ValueError:
         raise ScenarioError(f"--seeds {text!r}: expected e.g. '0-9', '0,3,7' or '5'") from None
-    if not seeds or min(seeds) < 0:
-        raise ScenarioError(f"--seeds {text!r}: expected non-negative seeds")
-    return seeds
+    if not all(0 <= first <= last < 2**32 for first, last in ranges):
+        raise ScenarioError(f"--seeds {text!r}: expected seeds in [0, 2^32), each range from "
+                            "low to high")
+    if sum(last - first + 1 for first, last in ranges) > MAX_SEEDS:
+        raise ScenarioError(f"--seeds {text!r}: at most {MAX_SEEDS:,} seeds")
+    return [seed for first, last in ranges for seed in range(first, last + 1)]
 
 
 def _benchmark(args) -> int:
@@ -401,8 +407,12 @@ def _teleop(args) -> int:
 
 
 def _eval_lumen(args) -> int:
-    if args.frames < 1 or args.colons < 1:
-        raise ScenarioError("--frames and --colons must be >= 1")
+    # Bounds: a frame takes ~0.1 s to render and each colon ~5 s to build.
+    if not (1 <= args.frames <= 100_000 and 1 <= args.colons <= 1000):
+        raise ScenarioError(f"--frames must be 1-100000 and --colons 1-1000, got "
+                            f"{args.frames} and {args.colons}")
+    if not 0 <= args.seed < 2**32:
+        raise ScenarioError(f"--seed must be in [0, 2^32), got {args.seed}")
     if not 0.0 <= args.wall_fraction <= 1.0:
         raise ScenarioError(f"--wall-fraction must be in [0, 1], got {args.wall_fraction}")
 
@@ -474,8 +484,8 @@ def _import_colon(args) -> int:
 
     if not (args.scale > 0.0 and np.isfinite(args.scale)):
         raise ScenarioError(f"--scale must be > 0, got {args.scale}")
-    if args.max_faces < 1000:
-        raise ScenarioError(f"--max-faces must be >= 1000, got {args.max_faces}")
+    if not 1000 <= args.max_faces <= 10_000_000:
+        raise ScenarioError(f"--max-faces must be 1000-10000000, got {args.max_faces}")
     claim_folder(args.out, args.force, outputs=IMPORT_OUTPUTS)
     try:
         wall = import_colon_mesh(args.mesh, args.scale, args.max_faces, args.reverse,
