@@ -493,3 +493,71 @@ TUBES = (
     TubeSpec("mid_jitter_flat", 13, 0.8, (0.014, 0.03), ends=("flat", "open"),
              mesh="jittered", faces=35000, ellipticity=0.05),
 )
+
+
+# --- Shapes that are not tubes --------------------------------------------------------------
+
+def marching_tetrahedra(values, origin, spacing):
+    """The surface values = 0 of a sampled field (nx, ny, nz) as a triangle mesh: each grid
+    cube split into six tetrahedra around its diagonal, each cut by a triangle or a quad;
+    vertices shared through the grid edges they lie on (winding left to the import's
+    repair)."""
+    nx, ny, nz = values.shape
+    index = np.arange(nx * ny * nz).reshape(nx, ny, nz)
+    corner = [index[i:nx - 1 + i, j:ny - 1 + j, k:nz - 1 + k].ravel()
+              for k in (0, 1) for j in (0, 1) for i in (0, 1)]  # bit 1 x, 2 y, 4 z
+    flat = values.ravel()
+    grid = np.stack(np.meshgrid(*(np.arange(n) for n in values.shape), indexing="ij"),
+                    axis=-1).reshape(-1, 3) * spacing + origin
+    triangles = []
+    for tet in ((0, 1, 3, 7), (0, 1, 5, 7), (0, 2, 3, 7), (0, 2, 6, 7), (0, 4, 5, 7), (0, 4, 6, 7)):
+        g = np.column_stack([corner[c] for c in tet])
+        inside = flat[g] < 0.0
+        count = inside.sum(axis=1)
+        order = np.argsort(~inside, axis=1, kind="stable")  # inside corners first
+        g = np.take_along_axis(g, order, axis=1)
+        one = count == 1  # the lone inside corner against the other three
+        three = count == 3  # the lone outside corner (last) against the other three
+        for mask, lone, rest in ((one, 0, (1, 2, 3)), (three, 3, (0, 1, 2))):
+            h = g[mask]
+            triangles.append(np.stack([np.stack([h[:, lone], h[:, r]], axis=1) for r in rest],
+                                      axis=1))
+        h = g[count == 2]  # inside a, b; outside c, d: a quad
+        a, b, c, d = h.T
+        quad = [np.stack([a, c], 1), np.stack([a, d], 1), np.stack([b, d], 1), np.stack([b, c], 1)]
+        triangles.append(np.stack([quad[0], quad[1], quad[2]], axis=1))
+        triangles.append(np.stack([quad[0], quad[2], quad[3]], axis=1))
+    edges = np.concatenate(triangles)  # (T, 3, 2) grid-vertex pairs
+    keys, inverse = np.unique(np.sort(edges.reshape(-1, 2), axis=1), axis=0, return_inverse=True)
+    fa, fb = flat[keys[:, 0]], flat[keys[:, 1]]
+    w = fa / (fa - fb)
+    vertices = grid[keys[:, 0]] + w[:, None] * (grid[keys[:, 1]] - grid[keys[:, 0]])
+    faces = inverse.reshape(-1, 3)
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+                  & (faces[:, 0] != faces[:, 2])]
+    mesh = trimesh.Trimesh(vertices, faces, process=True)
+    # Slivers where the surface passes through a grid point collapse into stray faces:
+    # the largest piece is the surface.
+    return max(mesh.split(only_watertight=False), key=lambda piece: len(piece.faces))
+
+
+def y_branch(radius=0.018, arms=(0.16, 0.16, 0.16), spacing=0.003, open_ends=False):
+    """A Y: three arms of a tube (`arms` long) from one junction, 120 degrees apart in a
+    plane, closed at their ends (round), or cut open there (`open_ends`)."""
+    directions = [np.array([np.cos(a), np.sin(a), 0.0]) for a in (0.0, 2.1, 4.2)]
+    reach = max(arms) + radius + 2 * spacing
+    axes = [np.arange(-reach, reach + spacing, spacing)] * 2 + \
+        [np.arange(-radius - 3 * spacing, radius + 3 * spacing + 1e-9, spacing)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    p = np.stack([X, Y, Z], axis=-1)
+    field = np.full(X.shape, np.inf)
+    for d, arm in zip(directions, arms):
+        t = np.clip(p @ d, 0.0, arm)
+        field = np.minimum(field, np.linalg.norm(p - t[..., None] * d, axis=-1) - radius)
+    mesh = marching_tetrahedra(field, np.array([a[0] for a in axes]), spacing)
+    if open_ends:  # cut each arm a radius before its round end
+        c = mesh.triangles_center
+        keep = np.all([c @ d < arm - radius for d, arm in zip(directions, arms)], axis=0)
+        mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
+        mesh.remove_unreferenced_vertices()
+    return mesh

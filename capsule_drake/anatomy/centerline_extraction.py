@@ -43,6 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .importer import _boundary_loops, geometry_of
+from .tube_check import MIN_CLOSED_SHARE, NotATubeError
 
 
 # --- Plane sections -----------------------------------------------------------------------
@@ -331,10 +332,6 @@ def _tangents(points):
     return tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
 
 
-class NoTubeError(ValueError):
-    """The mesh has no tube to follow; the message is one line."""
-
-
 # --- The centreline -----------------------------------------------------------------------
 
 INTERIOR_TOLERANCE = 2e-5
@@ -350,8 +347,8 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     """(s, points, radius): the centreline of a tubular mesh every `step` (m), from the end
     found first (geodesically farthest), with the local radius sqrt(section area / pi).
 
-    Raises NoTubeError (one line) if no tube can be followed: the plane sections are not
-    closed loops around a line (an open sheet). `progress`, if given, is called with
+    Raises NotATubeError (one line) if no tube can be followed: the plane sections are not
+    closed loops around a line (an open sheet; anatomy/tube_check.py). `progress`, if given, is called with
     (iteration, iterations). `details`, if given, is filled with what the checks of
     anatomy/tube_check.py read: "closed_share" (of the first line's stations, the share
     whose section is a closed loop around it) and "ends" (per end, "open", "flat cap",
@@ -360,22 +357,25 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     sections = MeshSections(mesh)
     rings = ring_centreline(mesh, step)
     if len(rings) < 5:
-        raise NoTubeError("no tube to follow: geodesic rings from one end give fewer than "
-                          "5 centreline points")
+        raise NotATubeError("not a tube: its vertices make fewer than 5 rings along it "
+                            "(too small, or too coarse a mesh?)")
     points = _resample(rings, step)
-    first = len(points)
     radius = None
-    closed_share = None
     for iteration in range(iterations):
         if progress is not None:
-            progress(min(iteration, iterations - 1), iterations)
+            progress(iteration, iterations)
         new, radius, found = _refine(sections, points, step)
-        if closed_share is None:
-            closed_share = found / max(first, 1)
+        if iteration == 0:
+            closed_share = found / max(len(points), 1)
+            if len(new) < 5 or closed_share < MIN_CLOSED_SHARE:
+                raise NotATubeError(
+                    f"not a tube: only {found} of the {len(points)} plane sections across "
+                    "its middle line are closed loops around it (at least "
+                    f"{MIN_CLOSED_SHARE:.0%} of a tube's are): an open sheet, or a branching "
+                    "mesh?")
         if len(new) < 5:
-            raise NoTubeError(
-                f"no tube to follow: only {len(new)} of {len(points)} plane sections normal "
-                "to the first centreline are closed loops around it (an open sheet?)")
+            raise NotATubeError("not a tube: fewer than 5 plane sections across its middle "
+                                "line are closed loops around it")
         moved = _distance_between(points, new)
         points = _resample(new, step)
         if moved < INTERIOR_TOLERANCE:
@@ -597,58 +597,54 @@ RECAST_SPACING = 0.001
 tangent ~0.015 rad astray: 0.5 mm at a round cap's apex)."""
 
 
-def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None,
-             iterations: int = 3):
+def _cubic(u, points, weights=None):
+    """The cubic in u fitted to `points` (least squares): u -> (point, unit tangent)."""
+    w = np.ones(len(u)) if weights is None else weights
+    design = np.column_stack([np.ones(len(u)), u, u ** 2, u ** 3])
+    coef = np.linalg.lstsq(design * w[:, None], points * w[:, None], rcond=None)[0]
+
+    def curve(x):
+        point = coef[0] + x * coef[1] + x ** 2 * coef[2] + x ** 3 * coef[3]
+        tangent = coef[1] + 2 * x * coef[2] + 3 * x ** 2 * coef[3]
+        return point, tangent / np.linalg.norm(tangent)
+
+    return curve
+
+
+def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None):
     """The cubic in arc length fitted to section centres every `RECAST_SPACING` over
     `RECAST_BASELINE` of line up to `stop` [m] past the end of `body` (< 0: before it; > 0:
-    on along the body's end tangent, then along the cubic): a function u -> (point, unit
-    tangent), u [m] past the body's end. The sections are cut normal to the cubic itself,
-    fitted again `iterations` times (the line's own tangents near a cap lean on the cap's
-    last stretch). `through`: (u, point) the cubic is to pass through (a round cap's
-    centre). None if fewer than 10 sections are found."""
-    s = _arc(body)
-    u = np.arange(max(-s[-1], stop - RECAST_BASELINE), stop + 1e-9, RECAST_SPACING)
-    on_body = u <= 0.0
-    points = np.column_stack([np.interp(s[-1] + u[on_body], s, body[:, k]) for k in range(3)])
-    tangents = _tangents(points)
-    if not on_body.all():  # on along the body's end tangent, to begin with
-        past = u[~on_body]
-        points = np.vstack([points, points[-1] + np.outer(past, tangents[-1])])
-        tangents = np.vstack([tangents, np.repeat(tangents[-1:], len(past), axis=0)])
-    if len(u) < 10:
+    on along the cubic through the body's points): a function u -> (point, unit tangent), u
+    [m] past the body's end. The sections are cut normal to a cubic fitted to the body's
+    own points (its polyline's tangents kink by ~0.02 rad at its points in a tight bend;
+    cutting them normal to the centres' own cubic, again and again, drifts at the end).
+    `through`: (u, point) the cubic is to pass through (a round cap's centre). None if
+    fewer than 10 sections are found."""
+    s = _arc(body) - _arc(body)[-1]  # <= 0, the body's end at 0
+    u = np.arange(max(s[0], stop - RECAST_BASELINE), stop + 1e-9, RECAST_SPACING)
+    window = s >= u[0] - 0.01
+    if len(u) < 10 or window.sum() < 5:
         return None
-    curve = None
-    for _ in range(iterations):
-        centres, at = [], []
-        for q, tq, uq in zip(points, tangents, u):
-            section = sections.around(q, tq)
-            if section is None:
-                continue
-            c = _centre(section, q, tq)
-            if np.linalg.norm(c - q) <= 0.1 * section.radius:
-                centres.append(c)
-                at.append(uq)
-        if len(centres) < 10:
-            return curve
-        at, centres = np.asarray(at), np.asarray(centres)
-        weights = np.ones(len(at))
-        if through is not None:
-            at = np.append(at, through[0])
-            centres = np.vstack([centres, through[1]])
-            weights = np.append(weights, np.sqrt(len(weights)))
-        design = np.column_stack([np.ones(len(at)), at, at ** 2, at ** 3])
-        coef = np.linalg.lstsq(design * weights[:, None], centres * weights[:, None],
-                               rcond=None)[0]
-
-        def curve(x, coef=coef):
-            point = coef[0] + x * coef[1] + x ** 2 * coef[2] + x ** 3 * coef[3]
-            tangent = coef[1] + 2 * x * coef[2] + 3 * x ** 2 * coef[3]
-            return point, tangent / np.linalg.norm(tangent)
-
-        fitted = [curve(x) for x in u]
-        points = np.array([f[0] for f in fitted])
-        tangents = np.array([f[1] for f in fitted])
-    return curve
+    guide = _cubic(s[window], body[window])
+    centres, at = [], []
+    for x in u:
+        q, tq = guide(x)
+        section = sections.around(q, tq)
+        if section is None:
+            continue
+        c = _centre(section, q, tq)
+        if np.linalg.norm(c - q) <= 0.1 * section.radius:
+            centres.append(c)
+            at.append(x)
+    if len(centres) < 10:
+        return None
+    at, centres = np.asarray(at), np.asarray(centres)
+    weights = np.ones(len(at))
+    if through is not None:
+        at = np.append(at, through[0])
+        centres = np.vstack([centres, through[1]])
+        weights = np.append(weights, np.sqrt(len(weights)))
+    return _cubic(at, centres, weights)
 
 
 def _cap_sphere(sections: MeshSections, p, t, ahead):

@@ -37,11 +37,12 @@ from .centerline_extraction import MeshSections, extract_centerline, section_loo
 from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
-from .importer import (RepairReport, _texture_of, check_colon_mesh, geometry_of,
-                       load_colon_mesh, repair_colon_mesh)
+from .importer import (RepairReport, _boundary_loops, _perimeter, _texture_of,
+                       check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
 from .params import MucosaParams
 from .texture import mucosa_texture
+from .tube_check import NotATubeError, check_open_ends, check_tube
 
 TABLE_STEP = 0.002
 """Arc-length step [m] of the wall-radius table."""
@@ -96,7 +97,9 @@ class ImportedWall:
 def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_MAX_FACES,
                       reverse: bool = False, progress=None) -> ImportedWall:
     """Load, check, repair and measure a user's colon mesh. Raises MeshImportError (one line)
-    for a file that cannot become a colon. `progress(text)`, if given, hears each stage."""
+    for a file that cannot become a colon, NotATubeError (a MeshImportError) for a mesh that
+    is not one tube (anatomy/tube_check.py: more than two open ends, an open sheet, a closed
+    blob, a branch). `progress(text)`, if given, hears each stage."""
     say = progress or (lambda text: None)
     say("reading")
     mesh = load_colon_mesh(path)
@@ -106,8 +109,14 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     say("repairing")
     mesh, report = repair_colon_mesh(mesh, max_faces=max_faces)
     geometry = geometry_of(mesh)
-    s, points, radius = extract_centerline(
-        geometry, progress=lambda k, n: say(f"centreline, pass {k + 1} of {n}"))
+    try:
+        check_open_ends([_perimeter(geometry.vertices, loop)
+                         for loop in _boundary_loops(geometry) if len(loop) >= 3])
+        s, points, radius = extract_centerline(
+            geometry, progress=lambda k, n: say(f"centreline, pass {k + 1} of {n}"))
+        check_tube(geometry, s, points, radius)
+    except NotATubeError as e:
+        raise NotATubeError(f"{path}: {e}") from None
     # s = 0 at the narrower end (the anus), unless asked otherwise.
     ends = max(2, int(np.searchsorted(s, min(0.05, 0.25 * s[-1]))))
     if (np.median(radius[:ends]) > np.median(radius[-ends:])) != reverse:
