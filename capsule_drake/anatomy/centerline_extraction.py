@@ -366,11 +366,13 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             progress(iteration, iterations)
         new, radius, found = _refine(sections, points, step)
         if iteration == 0:
-            closed_share = found / max(len(points), 1)
+            # Over the middle 80 % of the first line (its ends may be a cut's ragged edge).
+            middle = found[len(found) // 10:len(found) - len(found) // 10]
+            closed_share = float(np.mean(middle)) if len(middle) else 0.0
             if len(new) < 5 or closed_share < MIN_CLOSED_SHARE:
                 raise NotATubeError(
-                    f"not a tube: only {found} of the {len(points)} plane sections across "
-                    "its middle line are closed loops around it (at least "
+                    f"not a tube: only {int(middle.sum())} of the {len(middle)} plane sections "
+                    "across the middle of its middle line are closed loops around it (at least "
                     f"{MIN_CLOSED_SHARE:.0%} of a tube's are): an open sheet, or a branching "
                     "mesh?")
         if len(new) < 5:
@@ -715,7 +717,7 @@ def _smooth_inside(points):
 def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None,
             hold=(0.0, 0.0)):
     """Each point moved to the centre of its section normal to the centreline (`_centre`);
-    returns (points, radii, sections found). Points without a closed loop around them are
+    returns (points, radii, whether each point's section was found). Points without a closed loop around them are
     dropped (kept, with keep_ends). With keep_ends, the end points stay (their sections are
     the tube's ends) and take their neighbours' radii, and so do the points within
     hold[0] of the first end and hold[1] of the last (in a cap)."""
@@ -723,7 +725,7 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
     tangents = _tangents(points)
     s = _arc(points)
     new, radius = [], []
-    found = 0
+    found = np.zeros(len(points), bool)
     for k, (p, t) in enumerate(zip(points, tangents)):
         end = keep_ends and k in (0, len(points) - 1)
         held = keep_ends and (s[k] < hold[0] or s[-1] - s[k] < hold[1])
@@ -733,7 +735,7 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
                 new.append(p)
                 radius.append(np.nan if section is None else section.radius)
             continue
-        found += 1
+        found[k] = True
         centre = _centre(section, p, t)
         limit = 4.0 * step if max_move is None else max_move
         if np.linalg.norm(centre - p) > min(limit, 0.5 * section.radius):
