@@ -379,7 +379,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             raise NotATubeError("not a tube: fewer than 5 plane sections across its middle "
                                 "line are closed loops around it")
         moved = _distance_between(points, new)
-        points = _resample(new, step)
+        points = _resample(new, step, smoothing=SMOOTHING_LAMBDA)
         if moved < INTERIOR_TOLERANCE:
             break
     # Cut each end back by a radius (the sections there may still lean on the end) and

@@ -10,8 +10,8 @@
   (`TubeColon.excursion`: the procedural colon's analytic wall, an imported colon's
   tabulated one), e.g. in a lumen narrower than the capsule, or in a tight bend (the
   capsule is straight).
-An end is open if a ray from the centreline's end point, along the line outward, meets no
-wall within two lumen radii (the procedural colon's ends are closed caps).
+An end is open if a ray along the line outward, from a lumen radius inside its end, meets
+no wall within two lumen radii past the end (the procedural colon's ends are closed caps).
 """
 
 import numpy as np
@@ -32,8 +32,11 @@ def _open_ends(colon) -> tuple[bool, bool]:
     cl = colon.centerline
     out = []
     for s, sign in ((0.0, -1.0), (cl.length, 1.0)):
-        reach = 2.0 * float(np.max(colon.wall_radius(s, np.linspace(0, 2 * np.pi, 16))))
-        hit = sections.ray(cl.point_at(s), sign * cl.tangent_at(s), reach=reach)
+        # From a lumen radius inside (a closed end's line ends on its cap), outward.
+        radius = float(np.max(colon.wall_radius(s, np.linspace(0, 2 * np.pi, 16))))
+        inside = float(np.clip(s - sign * radius, 0.0, cl.length))
+        start = cl.point_at(inside)
+        hit = sections.ray(start, sign * cl.tangent_at(s), reach=abs(s - inside) + 2.0 * radius)
         out.append(not np.isfinite(hit))
     return out[0], out[1]
 
