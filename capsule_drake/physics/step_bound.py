@@ -158,9 +158,11 @@ import functools
 import math
 import xml.etree.ElementTree as ElementTree
 
+import numpy as np
+
 from capsule_drake.epm.poses import magnet_vertical_half_extent
 from capsule_drake.models import MODELS_DIR
-from capsule_drake.physics.magnetics import MU0
+from capsule_drake.physics.magnetics import MU0, cylinder_field
 
 SAFETY = 0.5
 """Fraction of explicit Euler's stability limit (omega dt = 2) a step may use."""
@@ -259,10 +261,6 @@ def _finite_field_ratio(diameter: float, length: float, moment: float,
                         gap: float) -> float:
     """Largest ratio of a cylinder EPM's exact field to its dipole's on-axis field, on the
     plane `gap` below its lowest point, over attitudes from upright to flat."""
-    import numpy as np
-
-    from capsule_drake.physics.magnetics import cylinder_field
-
     radius, half_length = 0.5 * diameter, 0.5 * length
     worst = 0.0
     for tilt in np.linspace(0.0, 0.5 * np.pi, 7):
