@@ -10,7 +10,11 @@ Then simulates the Default drag for `--sim` seconds on the procedural colon and 
 import, and the ExVivoSegment scenario, and prints each real-time factor (simulated over
 wall time, build excluded).
 
-Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10]
+With --tubes, instead: imports the test tubes of tests/tube_set.py (made independently of
+the package, 4k-220k faces) once each and prints each one's faces, import time, and the
+recovered centreline's largest distance from the true one (both ways) [mm].
+
+Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10] [--tubes]
 """
 
 import argparse
@@ -55,11 +59,36 @@ def real_time_factor(scenario, seconds: float) -> float:
     return seconds / (time.perf_counter() - start)
 
 
+def tube_table() -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from tube_set import TUBES, centreline_errors, make_tube
+
+    print(f"{'tube':<18}{'ends':<22}{'mesh':<10}{'faces':>8}{'import [s]':>12}"
+          f"{'error [mm]':>12}")
+    with tempfile.TemporaryDirectory() as folder:
+        for spec in sorted(TUBES, key=lambda spec: spec.faces):
+            tube = make_tube(spec)
+            path = tube.write(folder)
+            start = time.perf_counter()
+            wall = import_colon_mesh(path, tube.scale)
+            seconds = time.perf_counter() - start
+            error = max(centreline_errors(tube.truth, wall.centerline.points))
+            print(f"{spec.name:<18}{'/'.join(spec.ends):<22}{spec.mesh:<10}"
+                  f"{len(tube.mesh.faces):>8}{seconds:>12.1f}{1000 * error:>12.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sim", type=float, default=10.0, help="simulated seconds per run")
+    parser.add_argument("--tubes", action="store_true",
+                        help="time and check the import of the test tubes instead")
     args = parser.parse_args()
+    if args.tubes:
+        tube_table()
+        return
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         procedural = folder / "procedural_colon.obj"
