@@ -17,6 +17,14 @@ default, so `Default: {}` is a complete scenario. Unknown keys, wrong types, imp
 values and missing files raise `ScenarioError` with one line naming the file and the key;
 `load_scenario` checks everything once, and the station trusts what it is given.
 Units are SI throughout (metres, seconds, newtons, tesla, A m^2).
+
+What loading a scenario may cost is bounded, so that nonsense costs one line and not a
+traceback, a hang or a huge allocation: a scenario file is read only if it is a regular
+file (not a directory, device or pipe) of text of at most 1 MB; a YAML document may nest 50
+levels and expand, through its aliases, to 100,000 nodes (schema.py); every number must be
+finite, and each block's check bounds its values, each bound with its reason beside it
+(anatomical ranges for the colon, material limits for the magnets, rates, image sizes, delay
+buffers and log lengths for what costs memory or time).
 """
 
 import dataclasses
@@ -384,7 +392,6 @@ def validate(scenario: Scenario) -> None:
     def bound(value, key: str, interval: str, unit: str = "", why: str = ""):
         checked("", need_range, value, key, interval, unit, why)
 
-    _check_finite(scenario)
     capsule, epm, outputs = scenario.capsule, scenario.epm, scenario.outputs
     bound(scenario.duration, "duration", f"[0, {MAX_DURATION:.0f}]", "s",
           "a million simulated seconds is 11.6 days")
@@ -447,25 +454,31 @@ def validate(scenario: Scenario) -> None:
         checked("", check_arm_config, epm.mount)
     else:
         checked("epm.mount.", check_stage, epm.mount)
-    bound(capsule.start_s, "capsule.start_s", ">= 0", "m")
+    half_length = model.half_length
+    bound(capsule.start_s, "capsule.start_s", f">= {half_length:g}", "m",
+          "the capsule's half length: it starts inside the colon")
     if scenario.colon.source == "procedural":
         shortest = sum(scenario.colon.segment(name).length_min for name in SEGMENT_NAMES)
-        bound(capsule.start_s, "capsule.start_s", f"[0, {shortest:.3f}]", "m",
-              "within the shortest colon the segments' length_min allow")
+        bound(capsule.start_s, "capsule.start_s",
+              f"[{half_length:g}, {shortest - half_length:.3f}]", "m",
+              "inside the shortest colon the segments' length_min allow")
     bound(capsule.lumen_lookahead, "capsule.lumen_lookahead", "(0, 0.5]", "m")
     sensors = (("imu", check_imu_config), ("ahrs", check_ahrs_config),
                ("magnetometer", check_magnetometer_config),
                ("contact_sensor", check_contact_sensor_config))
     for name, check_sensor in sensors:
         sensor = getattr(capsule, name)
+        if name in ("imu", "magnetometer") and sensor is not None:
+            need(sensor.sample_rate > 0,
+                 f"capsule.{name}.sample_rate must be > 0, got {sensor.sample_rate}")
         if sensor is not None:
-            checked(f"capsule.{name}.", check_sensor, sensor)
+            checked(f"capsule.{name}{': ' if name == 'contact_sensor' else '.'}", check_sensor,
+                    sensor)
         p_BS = getattr(sensor, "p_BS", None)
         if p_BS is not None:
-            half = 0.5 * model.length + model.radius
-            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half,
+            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half_length,
                  f"capsule.{name}.p_BS must lie inside the capsule (radius "
-                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half:.2f} mm), got {p_BS}")
+                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half_length:.2f} mm), got {p_BS}")
     need(capsule.ahrs is None or capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
     if capsule.camera is not None:
@@ -485,6 +498,10 @@ def validate(scenario: Scenario) -> None:
     driver = epm.driver
     if isinstance(driver, (AlongColon, HoldAbove)):
         checked("", check_path, driver)
+        need(not isinstance(driver, HoldAbove) or driver.height > epm.clearance,
+             f"epm.driver.height {getattr(driver, 'height', None)} m must be above "
+             f"epm.clearance ({epm.clearance} m): the skin lies between the capsule and the "
+             "magnet")
     elif isinstance(driver, Teleop):
         checked("epm.driver (Teleop): ", check_teleop, driver)
         if driver.operator == "simulated":
@@ -505,6 +522,9 @@ def validate(scenario: Scenario) -> None:
              "capsule.magnetometer")
     elif isinstance(driver, Plugin):
         checked("epm.driver (Plugin): factory: ", check_plugin, driver)
+    # Last, what no block's check bounds (the blocks' checks say what a NaN or an infinity
+    # should have been, and none lets one through).
+    _check_finite(scenario)
 
 
 def _check_tracker_resources(params) -> None:

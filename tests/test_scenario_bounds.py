@@ -169,67 +169,120 @@ def _sweep(base_files, values_of):
 
 
 def test_every_number_set_to_nonsense_is_refused_in_one_line_or_accepted(base_files):
-    # NaN, infinity, zero, negative, huge (the tiny 1e-9 and -inf: the slow test below).
-    results = _sweep(base_files, lambda leaf: ((math.nan, math.inf, 0.0, -1.0, 1e9)
-                                               if leaf.kind is float else INTS))
+    results = _sweep(base_files, lambda leaf: FLOATS if leaf.kind is float else INTS)
     refused = sum(outcome is not None for *_, outcome in results)
-    assert refused > 0.6 * len(results)
+    assert refused > 0.7 * len(results)
+
+
+def _override_many(settings) -> str:
+    """The YAML text that sets each (leaf, value) of `settings` at once."""
+    tree = {}
+    for leaf, value in settings:
+        node = tree
+        for key, tag in leaf.steps[:-1]:
+            node = node.setdefault((key, tag), {})
+        if isinstance(leaf.default, list):
+            value = [value] + list(leaf.default[1:])
+        node[leaf.steps[-1]] = _yaml(value)
+
+    def emit(node) -> str:
+        items = []
+        for (key, tag), child in node.items():
+            text = emit(child) if isinstance(child, dict) else child
+            items.append(f"{key}: {'!' + tag + ' ' if tag else ''}{text}")
+        return "{" + ", ".join(items) + "}"
+
+    return emit(tree)
+
+
+# Left to the plant's time-step bound (its own check): a 1 ns step is 10 million steps in
+# the 0.01 s run. The duration is the run's own.
+NOT_RUN = ("plant.time_step", "duration")
 
 
 @pytest.mark.slow
 def test_what_the_sweep_accepts_builds_and_runs(base_files):
-    """Every value the sweep accepts (all seven, tiny and -inf too) builds a station and
-    simulates 0.01 s without an error: measured once at ~30 minutes for ~550 cases, so the
-    test runs a sample of them: every accepted huge and tiny value."""
+    """The extreme values the sweep accepts (1e9, 1e-9, 2^32) build a station and simulate
+    0.01 s without an error. Each block's accepted values are set together (~60 runs, ~4
+    minutes; one run per value took ~30 minutes for the ~550 values accepted before the
+    bounds); a set the checks refuse together is split until each part loads."""
     from capsule_drake.io.run import simulate
 
     results = _sweep(base_files, lambda leaf: FLOATS if leaf.kind is float else INTS)
-    accepted = [(leaf, value) for leaf, value, outcome in results
-                if outcome is None and value in (1e9, 1e-9, 2 ** 32)]
-    for leaf, value in accepted:
-        scenario = load_scenario(base_files[leaf.base()],
-                                 override=[leaf.override(value), "{duration: 0.01}"])
-        result = simulate(scenario, out_dir=None, progress=False)
-        assert result.status in ("completed", "diverged", "left_colon"), (leaf.key, value,
-                                                                          result.metrics)
+    groups = {}
+    for leaf, value, outcome in results:
+        if outcome is None and value in (1e9, 1e-9, 2 ** 32) and leaf.key not in NOT_RUN:
+            block = (leaf.base(), leaf.key.rsplit(".", 1)[0], value)
+            groups.setdefault(block, []).append((leaf, value))
+    pending = list(groups.values())
+    runs = 0
+    while pending:
+        settings = pending.pop()
+        base = settings[0][0].base()
+        try:
+            scenario = load_scenario(base_files[base],
+                                     override=[_override_many(settings), "{duration: 0.01}"])
+        except ScenarioError:
+            assert len(settings) > 1, settings  # each alone loads (the sweep said so)
+            half = len(settings) // 2
+            pending += [settings[:half], settings[half:]]
+            continue
+        try:
+            result = simulate(scenario, out_dir=None, progress=False)
+        except ScenarioError as e:  # what only the colon's geometry tells (one line)
+            assert "\n" not in str(e), str(e)
+            continue
+        runs += 1
+        assert result.status in ("completed", "diverged", "left_colon"), (
+            [(leaf.key, value) for leaf, value in settings], result.metrics)
+    assert runs >= 0.9 * len(groups)
 
 
 # --- Named cases from the bug report, with their messages ---------------------------------
 
 @pytest.mark.parametrize("override, message", [
     ("{epm: {magnet: {dimensions: [.nan, 0.1]}}}",
-     "scenario: epm.magnet.dimensions must be finite, got [nan, 0.1]"),
+     "scenario: epm.magnet.dimensions must be in [0.0001, 0.5] m, got [nan, 0.1]"),
     ("{colon: {rectum: {diameter: 10}}}", "scenario: colon.rectum.diameter must be in [0.02, "
-     "0.06] m (a distended rectum is ~4 cm across"),
+     "0.06] m (a distended rectum is taken as ~4 cm across"),
     ("{colon: {transverse: {diameter: .inf}}}",
-     "scenario: colon.transverse.diameter must be finite, got inf"),
+     "scenario: colon.transverse.diameter must be in [0.02, 0.06] m"),
     ("{epm: {clearance: 1e6}}", "scenario: epm.clearance must be in [0, 0.5] m"),
     ("{random_seed: -1}", "scenario: random_seed must be in [0, 4294967295]"),
     ("{random_seed: 4294967296}", "scenario: random_seed must be in [0, 4294967295]"),
     ("{colon: {seed: -5}}", "scenario: colon.seed must be in [0, 4294967295]"),
     ("{outputs: {visual_period: 0}}", "scenario: outputs.visual_period must be finite and >= "),
     ("{outputs: {log_period: 1e-7}}", "scenario: outputs.log_period must be finite and >= "
-     "0.001 s (plant.time_step"),
+     "0.001 s (the plant's time step"),
     ("{duration: 1e5}", "scenario: duration / outputs.log_period must be at most 2,000,000"),
-    ("{duration: .nan}", "scenario: duration must be finite, got nan"),
-    ("{duration: .inf}", "scenario: duration must be finite, got inf"),
+    ("{duration: .nan}", "scenario: duration must be in [0, 1000000] s"),
+    ("{duration: .inf}", "scenario: duration must be in [0, 1000000] s"),
     ("{duration: 2e6, outputs: {log_period: 1.0}}", "scenario: duration must be in [0, 1000000]"),
-    ("{epm: {magnet: {remanence: -1.48}}}", "scenario: epm.magnet.remanence must be in (0, 1.6]"),
-    ("{epm: {magnet: {remanence: 0}}}", "scenario: epm.magnet.remanence must be in (0, 1.6]"),
-    ("{capsule: {ipm: {remanence: 0}}}", "scenario: capsule.ipm.remanence must be in (0, 1.6]"),
+    ("{epm: {magnet: {remanence: -1.48}}}", "scenario: epm.magnet.remanence must be in [0.1, 1.6] T"),
+    ("{epm: {magnet: {remanence: 0}}}", "scenario: epm.magnet.remanence must be in [0.1, 1.6] T"),
+    ("{capsule: {ipm: {remanence: 0}}}", "scenario: capsule.ipm.remanence must be in [0.1, 1.6] T"),
     ("{capsule: {ipm: {dimensions: [0.02, 0.01]}}}", "scenario: capsule.ipm must fit in the "
      "capsule"),
-    ("{contact: {friction: .inf}}", "scenario: contact.friction must be finite, got inf"),
+    ("{contact: {friction: .inf}}", "scenario: contact.friction must be in [0, 2]"),  # Drake
+    ("{colon: {taenia_angle: .nan}}", "scenario: colon.taenia_angle must be finite, got nan"),
     ("{contact: {friction: 5}}", "scenario: contact.friction must be in [0, 2]"),
     ("{capsule: {camera: {lens: {width: 100000}}}}",
      "scenario: capsule.camera: lens.width must be in [16, 4096] px"),
     ("{capsule: {camera: {lens: {width: 4096, height: 4096}}}}",
      "scenario: capsule.camera: lens.width x lens.height must be at most"),
     ("{capsule: {camera: {face_resolution_scale: 4, lens: {width: 2048, height: 2048}}}}",
-     "scenario: capsule.camera: lens and face_resolution_scale need render faces of"),
+     "scenario: capsule.camera: lens (width, height, fov_deg, fx, fy, distortion) and "
+     "face_resolution_scale need render faces of"),
     ("{plant: {stiction_tolerance: 0}}", "scenario: plant.stiction_tolerance must be finite "
      "and > 0"),
     ("{simulator: {start_time: 5}}", "scenario: simulator.start_time must be 0"),
+    ("{capsule: {start_s: 0}}", "scenario: capsule.start_s must be finite and >= 0.01575 m"),
+    ("{epm: {driver: !AlongColon {speed: 1e-9}}}",  # once asked for 211 GiB of samples
+     "scenario: epm.driver.speed must be in [0.001, 1] m/s"),
+    ("{epm: {driver: !AlongColon {settle_time: 1e9}}}",
+     "scenario: epm.driver.settle_time must be in [0, 1000] s"),
+    ("{epm: {mount: !Arm {limit_margin_deg: 200}}}",  # Drake asserted
+     "scenario: epm.mount.limit_margin_deg must be in [0, 30] deg"),
     ("{simulator: {integration_scheme: leapfrog}}", "scenario: simulator: Unknown integration "
      "scheme: leapfrog"),
 ])

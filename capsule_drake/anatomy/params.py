@@ -359,15 +359,17 @@ def check_colon_params(params: ColonParams) -> None:
         axial, low = (getattr(params, f"{mesh}_{item}") for item in ("axial_step", "min_step"))
         tolerance = getattr(params, f"{mesh}_tolerance")
         around = getattr(params, f"{mesh}_points_around")
-        bound(f"{mesh}_axial_step", "(0, 0.02]", "m")
-        bound(f"{mesh}_min_step", "(0, 0.02]", "m")
+        bound(f"{mesh}_axial_step", "[1e-4, 0.02]", "m")
+        bound(f"{mesh}_min_step", "[1e-4, 0.02]", "m")
         need(low <= axial, f"{mesh}_min_step", f"must be <= {mesh}_axial_step ({axial})", low)
         bound(f"{mesh}_tolerance", "[0, 0.005]", "m")
         need(8 <= around <= 1024, f"{mesh}_points_around", "must be in [8, 1024]", around)
-        vertices = longest / (low if tolerance > 0 else axial) * around
+        step = f"{mesh}_min_step" if tolerance > 0 else f"{mesh}_axial_step"
+        vertices = longest / getattr(params, step) * around
         need(vertices <= MAX_MESH_VERTICES, f"{mesh}_points_around",
-             f"x rings (up to {longest:.2f} m / {low if tolerance > 0 else axial:g} m) must "
-             f"stay below {MAX_MESH_VERTICES:,} vertices, not {vertices:,.0f}", around)
+             f"x rings (a colon of up to {longest:.2f} m over {step} "
+             f"{getattr(params, step):g} m) must stay below {MAX_MESH_VERTICES:,} vertices, "
+             f"not {vertices:,.0f}", around)
     need(1 <= params.collision_chunks <= 100, "collision_chunks",
          "must be in [1, 100] (each is a mesh file and a geometry)", params.collision_chunks)
     a = params.abdomen

@@ -170,7 +170,8 @@ def check_camera_config(config: CameraConfig) -> None:
                    "at 2 cm along a 1.5 m colon")
     need_range(config.face_resolution_scale, "face_resolution_scale", "[0.05, 4]", "",
                "1 = the lens's sharpest sampling")
-    need_range(config.latency, "latency", ">= 0", "s")
+    if not (math.isfinite(config.latency) and config.latency >= 0.0):
+        raise ValueError(f"camera latency {config.latency} must be >= 0 and finite")
     lens_config = config.lens
     for name in ("width", "height"):
         need_range(getattr(lens_config, name), f"lens.{name}", f"[16, {MAX_IMAGE_SIDE}]", "px",
@@ -185,7 +186,7 @@ def check_camera_config(config: CameraConfig) -> None:
     for name in ("fx", "fy"):
         value = getattr(lens_config, name)
         if value is not None:
-            need_range(value, f"lens.{name}", f"(0, {10 * MAX_IMAGE_SIDE}]", "px")
+            need_range(value, f"lens.{name}", f"[1, {10 * MAX_IMAGE_SIDE}]", "px")
     for name, size in (("cx", lens_config.width), ("cy", lens_config.height)):
         value = getattr(lens_config, name)
         if value is not None:
@@ -200,9 +201,10 @@ def check_camera_config(config: CameraConfig) -> None:
                          f"tick ({tick:.4g} s: one frame in flight at a time)")
     faces = _face_pixels(lens, config)
     if faces > MAX_FACE_PIXELS:
-        raise ValueError(f"lens and face_resolution_scale need render faces of ~{faces:,.0f} "
-                         f"px, more than {MAX_FACE_PIXELS:,} (a smaller image, a wider "
-                         "field of view or focal length, or a lower face_resolution_scale)")
+        raise ValueError(f"lens (width, height, fov_deg, fx, fy, distortion) and "
+                         f"face_resolution_scale need render faces of ~{faces:,.0f} px, more "
+                         f"than {MAX_FACE_PIXELS:,} (a smaller image, a shorter focal length "
+                         "or a lower face_resolution_scale needs fewer)")
 
 
 def _face_pixels(lens: Lens, config: CameraConfig, samples: int = 65) -> float:

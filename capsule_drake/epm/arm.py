@@ -31,7 +31,7 @@ from pydrake.systems.primitives import TrajectorySource
 from capsule_drake.epm.guard import EpmGuard
 from capsule_drake.epm.poses import pose_trajectory
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.schema import ScenarioError
+from capsule_drake.schema import ScenarioError, need_range
 
 ARM_JOINTS = tuple(f"arm_joint_{i}" for i in range(1, 8))
 ARM_BASE = "arm_link_0"
@@ -102,6 +102,29 @@ def check_arm_config(config: Arm) -> None:
         raise ValueError("epm.mount.max_speed and max_turn_rate must be > 0")
     if not config.reach > 0.0 or not config.unreachable_tolerance > 0.0:
         raise ValueError("epm.mount.reach and unreachable_tolerance must be > 0")
+    # Beyond the signs: what the arm (models/epm_arm.sdf, ~0.9 m from shoulder to flange)
+    # and its controller can mean. A margin past the joints' ranges leaves no range at all
+    # (Drake asserts), a period under 0.1 ms only adds events.
+    need_range(config.base_xyz, "epm.mount.base_xyz", "[-2, 2]", "m",
+               "beside the patient table")
+    need_range(config.base_yaw_deg, "epm.mount.base_yaw_deg", "[-360, 360]", "deg")
+    need_range(config.joint_stiffness, "epm.mount.joint_stiffness", "[0, 1e6]", "N m/rad")
+    need_range(config.joint_damping, "epm.mount.joint_damping", "[0, 1e5]", "N m s/rad")
+    need_range(config.control_period, "epm.mount.control_period", "[0.0001, 0.1]", "s")
+    need_range(config.velocity_scale, "epm.mount.velocity_scale", "[0.01, 1]", "",
+               "of the datasheet joint speeds")
+    need_range(config.limit_margin_deg, "epm.mount.limit_margin_deg", "[0, 30]", "deg",
+               "kept inside each joint's range; wider, some joints have none left")
+    need_range(config.centering_gain, "epm.mount.centering_gain", "[0, 100]", "1/s")
+    if config.posture_deg:
+        need_range(config.posture_deg, "epm.mount.posture_deg", "[-360, 360]", "deg")
+    need_range(config.max_speed, "epm.mount.max_speed", "[0.001, 2]", "m/s")
+    need_range(config.max_turn_rate, "epm.mount.max_turn_rate", "[0.001, 10]", "rad/s")
+    need_range(config.approach_speed, "epm.mount.approach_speed", "(0, 1]", "m/s")
+    need_range(config.approach_time, "epm.mount.approach_time", "(0, 10]", "s")
+    need_range(config.reach, "epm.mount.reach", "[0.1, 1.5]", "m",
+               "the arm reaches ~0.9 m from its shoulder")
+    need_range(config.unreachable_tolerance, "epm.mount.unreachable_tolerance", "(0, 0.1]", "m")
 
 
 def arm_base_pose(config: Arm) -> RigidTransform:

@@ -11,7 +11,7 @@ import dataclasses
 
 from capsule_drake.epm.poses import along_colon_trajectory, hold_above_trajectory
 from capsule_drake.scene import block
-from capsule_drake.schema import ScenarioError
+from capsule_drake.schema import ScenarioError, need_range
 
 
 @dataclasses.dataclass
@@ -49,12 +49,22 @@ class External:
 
 
 def check_path(path) -> None:
-    """Raises ValueError naming the first impossible field of a path driver."""
+    """Raises ValueError naming the first impossible field of a path driver. The EPM's
+    trajectory is sampled every 50 ms over settle_time + the colon's length / speed, so
+    these bounds keep it under ~150,000 samples (a few seconds to compute; a speed of 1e-9
+    m/s once asked for 211 GiB)."""
     if isinstance(path, AlongColon):
-        if not path.speed >= 0:
-            raise ValueError("epm.driver.speed must be >= 0")
-        if not path.settle_time >= 0:
-            raise ValueError("epm.driver.settle_time must be >= 0")
+        if path.speed != 0:
+            need_range(path.speed, "epm.driver.speed", "[0.001, 1]", "m/s",
+                       "or 0: the EPM holds over the start; a dragged capsule moves at mm/s "
+                       "to cm/s, and slower the path's samples grow as 1 / speed")
+        need_range(path.settle_time, "epm.driver.settle_time", "[0, 1000]", "s")
+        need_range(path.lead, "epm.driver.lead", "[-1, 1]", "m")
+        need_range(path.end_s, "epm.driver.end_s", "[0, 10]", "m",
+                   "0: the cecum end; a colon is 1.1-2 m long")
+    elif isinstance(path, HoldAbove):
+        need_range(path.height, "epm.driver.height", "(0, 2]", "m",
+                   "from the capsule's start up to the EPM's centre")
 
 
 def stage_trajectory(driver, colon, start_s: float, magnet, clearance: float):

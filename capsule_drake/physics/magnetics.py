@@ -331,9 +331,11 @@ class MagnetGeometry:
 
 
 # Bounds of a magnet's geometry (check_magnet_geometry).
-MAX_REMANENCE = 1.6
-"""Largest remanence (T): the saturation polarisation of Nd2Fe14B, the strongest permanent
-magnet material, is 1.61 T (N52 grades reach 1.43-1.48 T)."""
+MIN_REMANENCE, MAX_REMANENCE = 0.1, 1.6
+"""Remanence range (T): from the weakest permanent magnets (bonded and flexible ferrites,
+0.15-0.25 T; sintered ferrite 0.2-0.45 T) to the saturation polarisation of Nd2Fe14B, the
+strongest magnet material, 1.61 T (N52 grades reach 1.43-1.48 T). Zero would be no magnet,
+and a negative one the same magnet turned round (its pose says which way it points)."""
 MIN_MAGNET_SIZE = 1e-4
 """Smallest dimension (m) of a magnet: 0.1 mm, well below any capsule's magnet."""
 MAX_MAGNET_SIZE = 0.5
@@ -344,9 +346,9 @@ would weigh 0.7-1 t."""
 def check_magnet_geometry(geometry: "MagnetGeometry") -> None:
     """Raises ValueError naming the first impossible field (relative to the magnet: the
     caller says which one): a known shape, its number of dimensions, each in
-    [MIN_MAGNET_SIZE, MAX_MAGNET_SIZE], and a remanence in (0, MAX_REMANENCE]. With those,
-    the moment is positive and finite: a magnet of remanence 0 has none, and a negative
-    one would only be the same magnet turned round (its pose says which way it points)."""
+    [MIN_MAGNET_SIZE, MAX_MAGNET_SIZE], and a remanence in [MIN_REMANENCE, MAX_REMANENCE].
+    With those, the moment is positive and finite (a remanence of 0 gave a magnet without
+    a moment, and no word)."""
     expected = _SHAPE_DIMENSION_COUNT.get(geometry.shape)
     if expected is None:
         raise ValueError(f"shape must be one of {', '.join(sorted(_SHAPE_DIMENSION_COUNT))}, "
@@ -357,9 +359,9 @@ def check_magnet_geometry(geometry: "MagnetGeometry") -> None:
                          f"[a, b, c]), got {geometry.dimensions!r}")
     need_range(geometry.dimensions, "dimensions", f"[{MIN_MAGNET_SIZE:g}, {MAX_MAGNET_SIZE:g}]",
                "m")
-    need_range(geometry.remanence, "remanence", f"(0, {MAX_REMANENCE:g}]", "T",
-               "the strongest magnet material, Nd2Fe14B, saturates at 1.61 T; the direction "
-               "is the pose's")
+    need_range(geometry.remanence, "remanence", f"[{MIN_REMANENCE:g}, {MAX_REMANENCE:g}]", "T",
+               "from ferrite to Nd2Fe14B, which saturates at 1.61 T; the direction is the "
+               "pose's")
 
 
 # --- Finite-size source: the exact field of a uniformly magnetised cylinder -------------

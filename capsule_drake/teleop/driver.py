@@ -88,7 +88,16 @@ def check_teleop(teleop: Teleop) -> None:
     need_range(mapping.max_pitch_deg, "mapping.max_pitch_deg", "[0, 90]", "deg")
     need_range(mapping.max_lead_deg, "mapping.max_lead_deg", "[0, 180]", "deg")
     check_operator_config(teleop.simulated)
-    need_range(teleop.simulated.period, "simulated.period", f">= {MIN_PERIOD:g}", "s")
+    hand = teleop.simulated
+    need_range(hand.period, "simulated.period", f"[{MIN_PERIOD:g}, 1]", "s")
+    need_range(hand.reaction_time, "simulated.reaction_time", "[0, 2]", "s",
+               "a hand reacts to what it sees in ~0.2-0.3 s; its delay line holds one "
+               "sample per period of it")
+    if round(hand.reaction_time / hand.period) < 2:
+        # SimulatedOperator's delay line reads its last two samples.
+        raise ValueError(f"simulated.reaction_time {hand.reaction_time} s must be at least "
+                         f"1.5 x simulated.period ({1.5 * hand.period:g} s): the operator's "
+                         "delay line holds at least two samples")
     for name in ("forward", "backward"):
         try:
             check_channel_config(getattr(teleop.channel, name))
