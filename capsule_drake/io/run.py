@@ -19,6 +19,7 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
+from capsule_drake.anatomy.start_check import check_start
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
@@ -157,15 +158,20 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     if out is not None:  # before the build, which can take a while
         prepare_folder(out, scenario, meshcat is not None)
     builder = DiagramBuilder()
+    model = capsule_model()
     # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
     try:
         station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+        colon, _ = load_colon(scenario.colon)   # cached: the station's own
+        try:  # the capsule fits where it starts (an imported colon's ends may be open)
+            check_start(colon, scenario.capsule.start_s, model.radius,
+                        model.length + 2.0 * model.radius)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: {e}") from None
     except ScenarioError:  # nothing was run: leave no outputs of it
         if out is not None:
             (out / "scenario.yaml").unlink(missing_ok=True)
         raise
-    colon, _ = load_colon(scenario.colon)   # cached: the station's own
-    model = capsule_model()
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
     guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
