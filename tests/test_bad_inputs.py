@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io import outputs
 from capsule_drake.io.outputs import load_logs
@@ -88,6 +89,9 @@ SCENARIO_VALUES = [
     ("unresolvable UDP host", _text("{epm: {driver: !Teleop {operator: udp, udp: "
                                     "{host: no.such.host.invalid}}}}"),
      r"no\.such\.host\.invalid"),
+    ("start at an open end", _text("{colon: {source: '{tmp}/imported'}, "
+                                   "capsule: {start_s: 0.018}}"),
+     r"capsule\.start_s 0\.018 m: the capsule would stick out of the colon's open end"),
     ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),
      r"target_realtime_rate"),
 ]
@@ -234,6 +238,7 @@ def bad_files(tmp_path_factory):
     previous.mkdir()
     (previous / "metrics.json").write_text("{}")
     _tube().export(tmp / "tube.obj")
+    write_import(import_colon_mesh(tmp / "tube.obj"), tmp / "imported")
     (tmp / "garbage.obj").write_text("v 1 2\nf 1 2 x\nthis is not a mesh\n")
     trimesh.creation.icosphere(subdivisions=3, radius=0.05).export(tmp / "sphere.obj")
     x, y = np.meshgrid(np.linspace(0, 0.3, 40), np.linspace(0, 0.2, 30))
