@@ -159,9 +159,8 @@ def procedural_round_trip(request, tmp_path_factory):
 
 @pytest.mark.slow
 def test_round_trip_recovers_the_procedural_centreline_within_2_mm(procedural_round_trip):
-    """Measured over seeds 0-9: at most 0.28-1.24 mm from the original centreline to the
-    recovered one, 0.51-1.31 mm the other way (seed 0: 0.34 and 0.55; seed 3: 0.37 and
-    0.51; seed 4, the worst: 1.24 and 1.31)."""
+    """Measured over seeds 0-9: at most 0.35-0.95 mm from the original centreline to the
+    recovered one and the other way (seed 0: 0.64; seed 3: 0.90; seed 4: 0.50)."""
     from scipy.spatial import cKDTree
 
     original, (s, points, radius), report = procedural_round_trip
