@@ -253,7 +253,7 @@ def test_what_the_sweep_accepts_builds_and_runs(base_files):
     ("{colon: {seed: -5}}", "scenario: colon.seed must be in [0, 4294967295]"),
     ("{outputs: {visual_period: 0}}", "scenario: outputs.visual_period must be finite and >= "),
     ("{outputs: {log_period: 1e-7}}", "scenario: outputs.log_period must be finite and >= "
-     "0.001 s (the plant's time step"),
+     "0.0001 s (10 kHz"),
     ("{duration: 1e5}", "scenario: duration / outputs.log_period must be at most 2,000,000"),
     ("{duration: .nan}", "scenario: duration must be in [0, 1000000] s"),
     ("{duration: .inf}", "scenario: duration must be in [0, 1000000] s"),

@@ -438,38 +438,3 @@ _ANATOMY = {"rectum": "a distended rectum is taken as ~4 cm across",
             "ascending": "an ascending colon is ~46 mm across",
             "cecum": "a cecum is under 9 cm across"}
 
-
-# The fields the colon's course depends on (anatomy/course.py: `solve_course`).
-_COURSE_FIELDS = ("radius_blend_length", "landmark_jitter", "course_smoothing",
-                  "centerline_step")
-_COURSES_FOUND: dict = {}
-
-
-def check_colon_course(params: ColonParams) -> None:
-    """Raises ValueError (one line) when the procedural course has no room for the given
-    anatomy: solves the course (anatomy/course.py) once when any of the fields it depends on
-    (the segments' lengths and diameters, the landmark jitter and smoothing, the blend and
-    the step) is away from its default (the defaults found a course for each seed 0-59). About
-    0.2 s when the course is found, ~10 s for the 40 attempts that fail."""
-    default = ColonParams()
-    key = (repr([params.segment(name) for name in SEGMENT_NAMES]),
-           tuple(getattr(params, name) for name in _COURSE_FIELDS), params.seed)
-    if (key[:2] == (repr([default.segment(name) for name in SEGMENT_NAMES]),
-                    tuple(getattr(default, name) for name in _COURSE_FIELDS))
-            or key in _COURSES_FOUND):
-        return
-    import numpy as np
-
-    from capsule_drake.anatomy.course import solve_course
-
-    try:
-        solve_course(params, np.random.default_rng(params.seed))
-    except RuntimeError:
-        raise ValueError(
-            f"colon: the procedural course (fixed landmarks) has no room for these segments "
-            f"with colon.seed {params.seed}: no course without kinks or overlaps in 40 "
-            "attempts (narrower or shorter segments, or a smaller landmark_jitter, fit; "
-            "another seed may)") from None
-    if len(_COURSES_FOUND) > 100:
-        _COURSES_FOUND.clear()
-    _COURSES_FOUND[key] = True
