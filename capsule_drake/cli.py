@@ -188,7 +188,7 @@ def _port(text: str) -> int:
 
 
 def _host_argument(parser, what: str):
-    parser.add_argument("--host", default=LOOPBACK, metavar="ADDRESS",
+    parser.add_argument("--host", metavar="ADDRESS",
                         help=f"address {what} listen on (default {LOOPBACK}: this machine "
                              "only; 0.0.0.0 opens it to the network, which has no "
                              "authentication: only on a network you trust)")
@@ -366,7 +366,8 @@ def _teleop(args) -> int:
         args.scenario = "Teleop"
     # The verb makes the operator drive the EPM: `!Teleop` merges into the scenario's own
     # Teleop driver (or replaces another driver with the default one).
-    teleop = {"udp": {"port": args.port, "host": args.host}}
+    # The UDP bridge's host: --host, else the scenario's (127.0.0.1 by default).
+    teleop = {"udp": {"port": args.port, **({"host": args.host} if args.host else {})}}
     if args.operator is not None:
         teleop["operator"] = args.operator
     if args.delay is not None:
@@ -383,7 +384,7 @@ def _teleop(args) -> int:
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
 
     out_dir = _output_folder(args, "runs", f"teleop-{teleop.operator}")
-    meshcat = _meshcat(args.host, args.port if teleop.operator == "browser" else 0,
+    meshcat = _meshcat(args.host or LOOPBACK, args.port if teleop.operator == "browser" else 0,
                        announce=live)
 
     def announce(builder, station):
@@ -447,9 +448,9 @@ def _run(args) -> int:
     out_dir = _output_folder(args, "runs", args.scenario or "Default")
     meshcat = None
     if args.meshcat:
-        meshcat = _meshcat(args.host, args.port, announce=True)
+        meshcat = _meshcat(args.host or LOOPBACK, args.port, announce=True)
     elif not args.no_recording:  # only for the recording
-        meshcat = _meshcat(args.host, 0, announce=False)
+        meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       progress=not args.quiet, live_meshcat=args.meshcat)
     m = result.metrics

@@ -62,6 +62,7 @@ from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
 from capsule_drake.physics.contact import ContactConfig, check_contact_config
 from capsule_drake.physics.magnet_force import MagnetForceConfig, check_magnet_force_config
 from capsule_drake.physics.magnetics import MagnetGeometry, check_magnet_geometry
+from capsule_drake.physics.step_bound import time_step_bound
 from capsule_drake.schema import (MAX_TEXT_BYTES, MIN_PERIOD, ScenarioError, SchemaError, check,
                                   need_range, parse_yaml)
 from capsule_drake.teleop.driver import Teleop, check_teleop
@@ -331,6 +332,7 @@ def load_scenario(path: Path | str | None = None, name: str | None = None,
 
 
 # Bounds of the scenario's own settings (validate), each with its reason.
+MIN_TIME_STEP = 1e-5
 MAX_DURATION = 1e6
 """Longest run (s of simulated time): 11.6 days; the longest shipped scenario is 600 s, and
 a run goes at most ~10x real time."""
@@ -400,7 +402,9 @@ def validate(scenario: Scenario) -> None:
     bound(scenario.random_seed, "random_seed", SEED_RANGE, "",
           "Drake's RandomGenerator keeps 32 bits: 2^32 would repeat seed 0's noise")
     plant = scenario.plant
-    bound(plant.time_step, "plant.time_step", "> 0", "s", "a discrete plant")
+    bound(plant.time_step, "plant.time_step", f">= {MIN_TIME_STEP:g}", "s",
+          "a shorter step turns a minute of simulation into days; the convergence "
+          "reference is 0.25 ms")
     bound(plant.penetration_allowance, "plant.penetration_allowance", "> 0", "m")
     bound(plant.stiction_tolerance, "plant.stiction_tolerance", "> 0", "m/s")
     bound(plant.sap_near_rigid_threshold, "plant.sap_near_rigid_threshold", ">= 0")
@@ -527,6 +531,12 @@ def validate(scenario: Scenario) -> None:
     # Last, what no block's check bounds (the blocks' checks say what a NaN or an infinity
     # should have been, and none lets one through).
     _check_finite(scenario)
+    # The time step against what the magnets and the contact allow, once what it is
+    # computed from has been checked (physics/step_bound.py).
+    longest, why = time_step_bound(scenario)
+    need(scenario.plant.time_step <= longest,
+         f"plant.time_step {scenario.plant.time_step:g} s is longer than the {longest:g} s "
+         f"this scenario allows ({why})")
 
 
 # The fields the procedural colon's course depends on (anatomy/course.py: `solve_course`),

@@ -260,7 +260,8 @@ def test_a_long_step_is_over_the_bound_with_a_one_line_reason():
 def test_bound_follows_the_scenario():
     """Closer or stronger magnets shorten the bound; no applied force leaves the contact's."""
     base = load_scenario(name="Default")
-    closer = load_scenario(name="Default", override="epm: {clearance: 0.0}")
+    closer = load_scenario(name="Default",
+                           override="{epm: {clearance: 0.0}, plant: {time_step: 0.0005}}")
     assert time_step_bound(closer)[0] < time_step_bound(base)[0]
     off = load_scenario(name="Default", override="magnet_force: {apply: false}")
     bounds = step_bounds(off)
