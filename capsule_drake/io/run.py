@@ -66,10 +66,12 @@ class WriteError(OutputError):
 class Progress:
     """A one-line progress bar on stderr (plain lines every 10 % when not a terminal)."""
 
-    def __init__(self, total: float, enabled: bool = True, stream=sys.stderr):
+    def __init__(self, total: float, enabled: bool = True, stream=None):
         self.total = max(total, 1e-9)
         self.enabled = enabled
-        self.stream = stream
+        # sys.stderr as it is now (not when this module was imported: a test's capture,
+        # since closed, may have been stderr then).
+        self.stream = stream or sys.stderr
         self.tty = stream.isatty()
         self.start = time.perf_counter()
         self._last_decile = -1
@@ -98,9 +100,9 @@ class StepBar:
     """Steps done out of a total, with a label, on one line of stderr (the benchmark's runs,
     the import's stages); a new line once all are done."""
 
-    def __init__(self, total: int, enabled: bool = True, unit: str = "runs",
-                 stream=sys.stderr):
-        self.total, self.enabled, self.unit, self.stream = total, enabled, unit, stream
+    def __init__(self, total: int, enabled: bool = True, unit: str = "runs", stream=None):
+        self.total, self.enabled, self.unit = total, enabled, unit
+        self.stream = stream or sys.stderr
         self.done = 0
         self.start = time.perf_counter()
 
