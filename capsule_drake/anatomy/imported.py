@@ -117,6 +117,12 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
         check_tube(geometry, s, points, radius)
     except NotATubeError as e:
         raise NotATubeError(f"{path}: {e}") from None
+    except (ValueError, IndexError, np.linalg.LinAlgError) as e:
+        # No line could be followed through it (the fits had too few sections, or none
+        # closed around the line): what is left of a sheet or a scrap is not a tube.
+        text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise NotATubeError(f"{path}: not a tube: no centreline could be followed through "
+                            f"it ({text})") from None
     # s = 0 at the narrower end (the anus), unless asked otherwise.
     ends = max(2, int(np.searchsorted(s, min(0.05, 0.25 * s[-1]))))
     if (np.median(radius[:ends]) > np.median(radius[-ends:])) != reverse:
