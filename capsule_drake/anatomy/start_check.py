@@ -16,6 +16,8 @@ no wall within two lumen radii past the end (the procedural colon's ends are clo
 
 import numpy as np
 
+from .centerline_extraction import MeshSections
+
 WALL_TOLERANCE = 0.0005
 """How far [m] the capsule's surface may start beyond the wall (its contact is compliant,
 and a tabulated wall is a polygon's approximation)."""
@@ -26,8 +28,6 @@ def _open_ends(colon) -> tuple[bool, bool]:
     geometry = getattr(colon, "geometry", None)
     if geometry is None:  # the procedural colon: closed at both ends
         return False, False
-    from .centerline_extraction import MeshSections
-
     sections = MeshSections(geometry)
     cl = colon.centerline
     out = []

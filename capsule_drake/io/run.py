@@ -72,7 +72,7 @@ class Progress:
         # sys.stderr as it is now (not when this module was imported: a test's capture,
         # since closed, may have been stderr then).
         self.stream = stream or sys.stderr
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
         self.start = time.perf_counter()
         self._last_decile = -1
 
