@@ -15,7 +15,9 @@ from tube_set import (TUBES, centreline_errors, densify, make_tube, perturbed, y
 FAST = ("plain_open", "ripple_hemi_mm", "flat_caps", "tight_hemi", "elliptic_flat_mm",
         "small_coarse", "wide_hemi")
 """Small tubes of every kind of end, triangulation and unit: the fast loop's."""
-STABILITY_SLOW = ("long_ripple", "huge_mm", "mid_jitter_flat")
+# The 220k-face tube's stability (0.05 mm when measured) is not in the default run: two
+# imports of it take ~55 s. Add "huge_mm" here to check it.
+STABILITY_SLOW = ("long_ripple", "mid_jitter_flat")
 
 _IMPORTS = {}
 
