@@ -168,6 +168,7 @@ def _sweep(base_files, values_of):
     return results
 
 
+@pytest.mark.slow  # ~16 s: all 321 numeric fields, each with seven values
 def test_every_number_set_to_nonsense_is_refused_in_one_line_or_accepted(base_files):
     results = _sweep(base_files, lambda leaf: FLOATS if leaf.kind is float else INTS)
     refused = sum(outcome is not None for *_, outcome in results)
