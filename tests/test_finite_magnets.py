@@ -179,7 +179,6 @@ def test_magnetometer_reads_the_finite_field_with_the_finite_model():
     """With magnet_force.field_model finite the magnetometer reads the EPM's exact cylinder
     field at the sensor (the same field the force uses), not the dipole's."""
     from capsule_drake.capsule.model import CAPSULE_BODY
-    from capsule_drake.epm.mount import EPM_BODY
     from capsule_drake.station import make_station
 
     for model, field in (("dipole", lambda m, p: dipole_field(m, p)),
@@ -188,17 +187,18 @@ def test_magnetometer_reads_the_finite_field_with_the_finite_model():
             f"{{magnet_force: {{field_model: {model}}}, duration: 0.0, "
             f"capsule: {{magnetometer: {{}}}}}}"))
         station = make_station(scenario)
-        poses = station.GetOutputPort("body_poses").Eval(station.CreateDefaultContext())
+        context = station.CreateDefaultContext()
+        poses = station.GetOutputPort("body_poses").Eval(context)
         plant = station.GetSubsystemByName("plant")
         X_WS = poses[int(plant.GetBodyByName(CAPSULE_BODY).index())] @ \
             scenario.capsule.magnetometer.X_BS()
-        X_WE = poses[int(plant.GetBodyByName(EPM_BODY).index())]
-        m_E = M_EPM * X_WE.rotation().col(2)
-        expected = X_WS.rotation().inverse() @ field(
-            m_E, X_WS.translation() - X_WE.translation())
-        reading = station.GetSubsystemByName("capsule.magnetometer").calc_true_field(poses)
+        epm = station.GetOutputPort("epm.pose").Eval(context)   # the kinematic stage's
+        m_E = M_EPM * epm[3:] / np.linalg.norm(epm[3:])
+        expected = X_WS.rotation().inverse() @ field(m_E, X_WS.translation() - epm[:3])
+        reading = station.GetSubsystemByName("capsule.magnetometer").calc_true_field(
+            poses, {"epm": epm})
         np.testing.assert_allclose(reading, expected, rtol=1e-9)
         if model == "finite":
             dipole = X_WS.rotation().inverse() @ dipole_field(
-                m_E, X_WS.translation() - X_WE.translation())
+                m_E, X_WS.translation() - epm[:3])
             assert np.linalg.norm(reading - dipole) > 1e-3 * np.linalg.norm(dipole)

@@ -386,3 +386,41 @@ def test_applied_forces_of_two_contexts_are_independent():
     again = port.Eval(magnetic.GetMyContextFromRoot(context))
     for f, coeffs in zip(again, before):
         assert_allclose(f.F_Bq_W.get_coeffs(), coeffs, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("scalar", [float, AutoDiffXd])
+def test_a_posed_magnet_acts_as_the_same_magnet_on_a_body(scalar):
+    """The EPM given as a pose input (MagnetSpec.posed, as the kinematic stage gives it)
+    yields the same force, torque and fields as the EPM on a plant body at that pose, in
+    both scalar types; the posed magnet is given no applied force."""
+    diagram, plant, body_force, context = build(weld_epm=True)
+    _, _, p_epm, m_epm = world_magnets()
+    posed = [magnet_specs()[0],
+             MagnetSpec(name="epm", moment=970.0, posed=True)]
+    force = MagneticForce(plant, posed)
+    if scalar is AutoDiffXd:
+        body_force, force = body_force.ToAutoDiffXd(), force.ToAutoDiffXd()
+    plant_context = plant.GetMyContextFromRoot(context)
+    poses = plant.get_body_poses_output_port().Eval(plant_context)
+    if scalar is AutoDiffXd:
+        poses = [RigidTransform_[AutoDiffXd](X.GetAsMatrix4()) for X in poses]
+    values = []
+    for system in (body_force, force):
+        system_context = system.CreateDefaultContext()
+        system.get_body_poses_input_port().FixValue(system_context, poses)
+        if system is force:
+            pose = np.concatenate([p_epm, m_epm / np.linalg.norm(m_epm) * 3.0])  # unnormalised
+            system.get_pose_input_port("epm").FixValue(
+                system_context, pose if scalar is float else InitializeAutoDiff(pose).ravel())
+        outputs = [system.get_F_W_output_port(name).Eval(system_context)
+                   for name in ("ipm", "epm")]
+        outputs.append(system.get_B_B_output_port("ipm").Eval(system_context))
+        applied = system.get_applied_spatial_force_output_port().Eval(system_context)
+        values.append(([np.array([float(getattr(x, "value", lambda: x)()) for x in v])
+                        for v in outputs], len(applied)))
+    for a, b in zip(values[0][0], values[1][0]):
+        assert_allclose(b, a, rtol=1e-12, atol=1e-15)
+    assert values[0][1] == values[1][1] == 1   # only the capsule's magnet is pushed
+    B_epm = force.get_B_B_output_port("epm").Eval(system_context)
+    B_epm = np.array([float(getattr(x, "value", lambda: x)()) for x in B_epm])
+    assert np.linalg.norm(B_epm) > 0.0   # the capsule's field at the EPM, in its frame

@@ -155,9 +155,14 @@ class Magnetometer(LeafSystem):
         self._min_distance = float(min_distance)
         self._body_index = int(body.index())
         self._X_BS = self._config.X_BS()
-        self._sources = []  # (name, body index, p_BM, m_B, cylinder or ())
+        self._sources = []  # (name, body index (-1: posed), p_BM, m_B, cylinder or ())
         self._excluded = []
         for spec in sources:
+            cylinder = tuple(spec.cylinder) if field_model == "finite" else ()
+            if spec.posed:   # pose from the input <name>.pose; moment along its direction
+                self._sources.append((spec.name, -1, np.zeros(3),
+                                      np.array([0.0, 0.0, float(spec.moment)]), cylinder))
+                continue
             if spec.model_instance:
                 source_body = plant.GetBodyByName(
                     spec.body, plant.GetModelInstanceByName(spec.model_instance))
@@ -170,12 +175,13 @@ class Magnetometer(LeafSystem):
             norm = np.linalg.norm(axis)
             if norm == 0.0:
                 raise ValueError(f"Magnet {spec.name!r}: axis_B must be nonzero")
-            cylinder = tuple(spec.cylinder) if field_model == "finite" else ()
             self._sources.append((spec.name, int(source_body.index()),
                                   np.asarray(spec.p_BM, float).reshape(3),
                                   axis * (float(spec.moment) / norm), cylinder))
         self._body_poses_port = self.DeclareAbstractInputPort(
             "body_poses", AbstractValue.Make([RigidTransform()]))
+        self._pose_ports = {name: self.DeclareVectorInputPort(f"{name}.pose", 6)
+                            for name, index, *_ in self._sources if index < 0}
         gaussian = RandomDistribution.kGaussian
         self._white_port = self.DeclareVectorInputPort("white_noise", 3, gaussian)
         self._walk_port = self.DeclareVectorInputPort("bias_walk_noise", 3, gaussian)
@@ -213,6 +219,14 @@ class Magnetometer(LeafSystem):
     def get_body_poses_input_port(self):
         return self._body_poses_port
 
+    def posed_source_names(self) -> list[str]:
+        """Source magnets whose pose is an input (MagnetSpec.posed)."""
+        return list(self._pose_ports)
+
+    def get_pose_input_port(self, name):
+        """The input [p_WM, m_hat_W] of the posed source magnet `name`."""
+        return self._pose_ports[name]
+
     def get_noise_input_ports(self):
         """(white_noise, bias_walk_noise, initial_bias_noise)."""
         return self._white_port, self._walk_port, self._initial_port
@@ -226,17 +240,25 @@ class Magnetometer(LeafSystem):
     def get_bias_output_port(self):
         return self._bias_port
 
-    def calc_true_field(self, body_poses) -> np.ndarray:
-        """The ideal reading (T, sensor frame) for a list of body poses."""
+    def calc_true_field(self, body_poses, posed=None) -> np.ndarray:
+        """The ideal reading (T, sensor frame) for a list of body poses and, for posed
+        sources, `posed`: name -> [p_WM, m_hat_W]."""
         X_WS = body_poses[self._body_index] @ self._X_BS
         sources = []
-        for _, index, p_BM, m_B, cylinder in self._sources:
+        for name, index, p_BM, m_B, cylinder in self._sources:
+            if index < 0:
+                pose = np.asarray(posed[name], dtype=float)
+                sources.append((pose[:3], m_B[2] * pose[3:] / np.linalg.norm(pose[3:]),
+                                cylinder))
+                continue
             X_WB = body_poses[index]
             sources.append((X_WB @ p_BM, X_WB.rotation() @ m_B, cylinder))
         return field_in_sensor_frame(X_WS, sources, self._min_distance)
 
     def _update(self, context, discrete_state):
-        truth = self.calc_true_field(self._body_poses_port.Eval(context))
+        truth = self.calc_true_field(
+            self._body_poses_port.Eval(context),
+            {name: port.Eval(context) for name, port in self._pose_ports.items()})
         if context.get_discrete_state(self._started).get_value()[0] > 0.0:
             bias = (context.get_discrete_state(self._bias).get_value()
                     + self._noise.walk_sigma * self._walk_port.Eval(context))
@@ -259,6 +281,8 @@ def add_magnetometer(builder, parts, config: MagnetometerConfig):
         field_model=parts.field_model))
     builder.Connect(parts.plant.get_body_poses_output_port(),
                     magnetometer.get_body_poses_input_port())
+    for name in magnetometer.posed_source_names():   # the kinematic stage's EPM
+        builder.Connect(parts.output("epm.pose"), magnetometer.get_pose_input_port(name))
     add_random_sources(builder, magnetometer.get_noise_input_ports(), magnetometer.period())
     parts.export(magnetometer.get_B_S_output_port(), "capsule.magnetometer.B_S")
     parts.export(magnetometer.get_B_S_true_output_port(), "capsule.magnetometer.B_S_true")

@@ -18,7 +18,7 @@ from capsule_drake.epm.arm import Arm, ArmMount
 from capsule_drake.epm.guard import EpmGuard, floor_guard
 from capsule_drake.epm.paths import stage_trajectory
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.epm.stage import StageMount
+from capsule_drake.epm.stage import KinematicStageMount, StageMount
 
 EPM_BODY = "epm"
 
@@ -29,8 +29,8 @@ class EpmParts:
 
     magnet: object           # MagnetGeometry
     clearance: float         # smallest gap between the magnet and the skin (m)
-    mount: object            # StageMount or ArmMount
-    instance: object         # the carrier's model instance
+    mount: object            # KinematicStageMount, StageMount or ArmMount
+    instance: object         # the carrier's model instance (None: not in the plant)
     guard: EpmGuard          # the clearance floor (lowest_centre_height(x, y, m_hat))
     trajectory: object = None      # stage joint trajectory the EPM starts on
     start_command: np.ndarray = None   # [p_WE, m_hat_W] at the start
@@ -38,7 +38,12 @@ class EpmParts:
 
 def add_epm_models(parts, config):
     """Before Finalize: the carrier of `config.mount` (!Stage or !Arm); sets parts.epm."""
-    mount = ArmMount(config.mount) if isinstance(config.mount, Arm) else StageMount(config.mount)
+    if isinstance(config.mount, Arm):
+        mount = ArmMount(config.mount)
+    elif config.mount.kinematic:
+        mount = KinematicStageMount(config.mount)
+    else:
+        mount = StageMount(config.mount)
     instance = mount.add_models(parts.plant, parts.parser)
     parts.epm = EpmParts(config.magnet, config.clearance, mount, instance,
                          floor_guard(parts.colon.abdomen, config.magnet, config.clearance))
@@ -55,7 +60,11 @@ def add_epm_mount(builder, parts, config):
 
 
 def add_epm_pose(builder, parts):
-    """`epm_pose`: the EPM's centre and moment direction, exported as epm.pose."""
+    """`epm_pose`: the EPM's centre and moment direction, exported as epm.pose (the
+    kinematic stage's own pose output, or read from the plant's body poses)."""
+    if parts.epm.instance is None:
+        parts.export(parts.epm.mount.pose_output(), "epm.pose")
+        return
     plant = parts.plant
     pose = builder.AddNamedSystem("epm_pose", MagnetPose(
         plant, plant.GetBodyByName(EPM_BODY, parts.epm.instance)))

@@ -1,17 +1,27 @@
-"""The EPM on the five-axis stage (models/epm_stage.sdf): x, y, z, yaw, pitch PD servos.
+"""The EPM on the five-axis stage: x, y, z, yaw, pitch.
 
-A path driver sends the stage a joint trajectory straight to its servos; a pose-command
-driver goes through `PoseToStage`.
+By default the stage is kinematic: the EPM is where the stage's joint command puts it
+(`KinematicStage`), drawn from that pose, with no joints in the plant; a servo that tracks
+its command within a few milliseconds moves the EPM so, while the capsule takes tenths of a
+second to follow. With `kinematic: false` the stage is models/epm_stage.sdf in the plant, its
+five joints PD-servoed (implicit in SAP) and the 6.2 kg magnet's dynamics simulated.
+
+A path driver sends the stage a joint trajectory; a pose-command driver goes through
+`PoseToStage`.
 """
 
 import dataclasses
 
 import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (Cylinder, FramePoseVector, GeometryFrame, GeometryInstance,
+                              MakePhongIllustrationProperties)
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 
-from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.epm.poses import stage_joint_positions, stage_to_pose
 from capsule_drake.models import model_url
 from capsule_drake.schema import need_range
 
@@ -33,6 +43,10 @@ class Stage:
     """The EPM on a commanded five-axis stage: light and fast. Its weight is the stage's
     business (a servo that holds the EPM wherever it is sent, as a stiff arm would)."""
 
+    # True: the EPM is where the command puts it, with no stage in the plant (the fast
+    # default). False: the five servoed joints and the 6.2 kg magnet are simulated (about
+    # 10 % more per step), with the gains below.
+    kinematic: bool = True
     # Servo gains of the x, y, z axes.
     translation_gains: Gains = dataclasses.field(default_factory=Gains)
     # Servo gains of the yaw and pitch axes.
@@ -82,8 +96,135 @@ class PoseToStage(LeafSystem):
         discrete_state.set_value(self._state, x)
 
 
+class KinematicStage(LeafSystem):
+    """The stage as a commanded pose: desired joint state in, the same state and the EPM's
+    pose [p_WE, m_hat_W] out (direct feedthrough; no dynamics).
+
+    .. pydrake_system::
+
+        name: KinematicStage
+        input_ports:
+        - desired_state
+        output_ports:
+        - state
+        - pose
+    """
+
+    def __init__(self):
+        super().__init__()
+        self._desired = self.DeclareVectorInputPort("desired_state", 10)
+        self.DeclareVectorOutputPort("state", 10, self._calc_state)
+        self.DeclareVectorOutputPort("pose", 6, self._calc_pose)
+
+    def _calc_state(self, context, output):
+        output.SetFromVector(self._desired.Eval(context))
+
+    def _calc_pose(self, context, output):
+        output.SetFromVector(stage_to_pose(self._desired.Eval(context)[:5]))
+
+
+class EpmFrame(LeafSystem):
+    """The EPM's frame for SceneGraph from its pose [p_WE, m_hat_W]: the moment along the
+    frame's +z, yaw and pitch as the stage's joints give them (no roll about the moment)."""
+
+    def __init__(self, frame_id):
+        super().__init__()
+        self._frame_id = frame_id
+        self._desired = self.DeclareVectorInputPort("desired_state", 10)
+        self.DeclareAbstractOutputPort(
+            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
+
+    def _calc(self, context, output):
+        x, y, z, yaw, pitch = self._desired.Eval(context)[:5]
+        poses = output.get_mutable_value()
+        poses.clear()
+        poses.set_value(self._frame_id, RigidTransform(
+            RotationMatrix.MakeZRotation(yaw) @ RotationMatrix.MakeYRotation(pitch),
+            [x, y, z]))
+
+
+EPM_COLOUR = (0.62, 0.64, 0.68, 1.0)
+NORTH_COLOUR = (0.80, 0.15, 0.12, 1.0)
+
+
+class KinematicStageMount:
+    """The kinematic stage in a station: no plant model; the EPM is drawn by SceneGraph
+    from its commanded pose (source `epm_stage`, frame `epm`), and the magnet force reads
+    that pose (MagnetSpec.posed)."""
+
+    model_name = None
+    instance = None
+
+    def __init__(self, config: Stage):
+        self.config = config
+
+    def add_models(self, plant, parser):
+        """Nothing goes into the plant."""
+        return None
+
+    def add_visual(self, scene_graph, magnet):
+        """The EPM's look: a cylinder of the magnet's size with its north face marked."""
+        self._source = scene_graph.RegisterSource("epm_stage")
+        frame = scene_graph.RegisterFrame(self._source, GeometryFrame("epm"))
+        radius, length = epm_visual_size(magnet)
+        for name, shape, z, rgba in (
+                ("magnet", Cylinder(radius, length), 0.0, EPM_COLOUR),
+                ("north_cap", Cylinder(radius, 0.001), 0.5 * length + 0.0005, NORTH_COLOUR)):
+            instance = GeometryInstance(RigidTransform([0.0, 0.0, z]), shape, name)
+            instance.set_illustration_properties(MakePhongIllustrationProperties(rgba))
+            scene_graph.RegisterGeometry(self._source, frame, instance)
+        self._frame = frame
+
+    def connect(self, builder, parts, trajectory):
+        """After Finalize: the stage (`epm_stage`), starting where `trajectory` begins;
+        exports epm.state (stage joints [x y z yaw pitch, rates], as commanded)."""
+        self._q0 = trajectory.value(trajectory.start_time()).ravel()
+        self.add_visual(parts.scene_graph, parts.epm.magnet)
+        self.stage = builder.AddNamedSystem("epm_stage", KinematicStage())
+        frame = builder.AddNamedSystem("epm_frame", EpmFrame(self._frame))
+        self._inputs = [self.stage.GetInputPort("desired_state"),
+                        frame.GetInputPort("desired_state")]
+        builder.Connect(frame.get_output_port(),
+                        parts.scene_graph.get_source_pose_port(self._source))
+        parts.export(self.stage.GetOutputPort("state"), "epm.state")
+
+    def pose_output(self):
+        return self.stage.GetOutputPort("pose")
+
+    def _drive(self, builder, parts, port):
+        for input_port in self._inputs:
+            builder.Connect(port, input_port)
+        parts.export(port, "epm.desired_state")
+
+    def follow(self, builder, parts, trajectory):
+        """The stage follows the joint trajectory (`epm_path`); exports epm.desired_state.
+        Returns the path's system."""
+        path = builder.AddNamedSystem(
+            "epm_path", TrajectorySource(trajectory, output_derivative_order=1))
+        self._drive(builder, parts, path.get_output_port())
+        return path
+
+    def command_input(self, builder, parts):
+        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
+        epm.desired_state."""
+        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(self._q0))
+        self._drive(builder, parts, stage.get_output_port())
+        return stage.GetInputPort("epm_command")
+
+
+def epm_visual_size(magnet):
+    """(radius, length) of the cylinder that draws the EPM: its own for a cylinder, the
+    bounding cylinder of a cuboid, a sphere's diameter for both."""
+    dims = magnet.dimensions
+    if magnet.shape == "cylinder":
+        return 0.5 * dims[0], dims[1]
+    if magnet.shape == "sphere":
+        return 0.5 * dims[0], dims[0]
+    return 0.5 * float(np.hypot(dims[0], dims[1])), dims[2]
+
+
 class StageMount:
-    """The stage in a station: its model, its start, and how a driver commands it."""
+    """The servoed stage in a station: its model, its start, and how a driver commands it."""
 
     model_name = "epm_stage"
 

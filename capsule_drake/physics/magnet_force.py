@@ -3,6 +3,7 @@ dipoles by default; the exact field of cylinder magnets as a fidelity option).""
 
 import dataclasses
 import functools
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -49,13 +50,17 @@ class MagnetSpec:
     # [diameter, length] (m) of a cylinder magnetised along its axis (axis_B); empty: a
     # point. Read only by the "finite" field model.
     cylinder: list[float] = dataclasses.field(default_factory=list)
+    # True: the magnet is on no plant body (`body`, `model_instance`, `p_BM` and `axis_B`
+    # unused): its pose [p_WM, m_hat_W] comes from the input port ``<name>.pose``, as for
+    # an external magnet placed by a commanded stage. Nothing is applied to it.
+    posed: bool = False
 
 
 class _ResolvedMagnet(NamedTuple):
     """A MagnetSpec bound to a plant: only indices and numbers, no plant reference."""
 
     name: str
-    body_index: int
+    body_index: int  # -1 for a posed magnet
     p_BM: tuple  # (3,) floats
     m_B: tuple  # (3,) floats, moment vector in the body frame (A m^2)
     applies_force: bool  # False if the body is welded to the world
@@ -69,6 +74,21 @@ class _MagnetValues(NamedTuple):
     B_W: list  # field of all other magnets at each magnet (T), world frame
     tau_W: list  # torque about the magnet centre (N m), world frame
     f_W: list  # force (N), world frame
+
+
+def frame_with_z(direction):
+    """A rotation matrix whose third column is the unit vector `direction` (floats or
+    AutoDiffXd): the frame of a posed magnet, its moment along +z. Its x axis is the world
+    axis least aligned with the direction, made orthogonal to it."""
+    d = np.asarray(direction)
+    values = [abs(a.value()) if hasattr(a, "value") else abs(float(a)) for a in d]
+    e = np.zeros(3)
+    e[int(np.argmin(values))] = 1.0
+    x = e - (e @ d) * d
+    x = x / np.sqrt(x @ x)
+    y = np.array([d[1] * x[2] - d[2] * x[1], d[2] * x[0] - d[0] * x[2],
+                  d[0] * x[1] - d[1] * x[0]])
+    return np.stack([x, y, d], axis=1)
 
 
 def _accumulate(sums, i, value):
@@ -97,6 +117,11 @@ def _resolve_magnets(plant, magnets):
     welded.add(int(plant.world_body().index()))
     resolved = []
     for spec in magnets:
+        if spec.posed:
+            cylinder = tuple(float(x) for x in spec.cylinder)
+            resolved.append(_ResolvedMagnet(spec.name, -1, _ZERO3,
+                                            (0.0, 0.0, float(spec.moment)), False, cylinder))
+            continue
         if spec.model_instance:
             instance = plant.GetModelInstanceByName(spec.model_instance)
             body = plant.GetBodyByName(spec.body, instance)
@@ -210,7 +235,7 @@ def MagneticForce_(T):
             # costs microseconds, comparable to the physics itself.
             self._make_applied_force = ExternallyAppliedSpatialForce_[T]
             self._make_spatial_force = SpatialForce_[T]
-            self._body_indices = [BodyIndex(m.body_index) for m in magnets]
+            self._body_indices = [BodyIndex(max(m.body_index, 0)) for m in magnets]
             if T is float:
                 # Fast path (see _calc_magnet_values_float): plain floats.
                 self._pair = dipole_pair_interaction_float
@@ -240,13 +265,19 @@ def MagneticForce_(T):
             self._body_poses_port = self.DeclareAbstractInputPort(
                 "body_poses", AbstractValue.Make([RigidTransform_[T]()])
             )
+            # Posed magnets: [p_WM, m_hat_W] from an input port each (None for the others).
+            self._pose_ports = [
+                self.DeclareVectorInputPort(f"{m.name}.pose", 6) if m.body_index < 0 else None
+                for m in magnets]
+            self._moments = [float(np.linalg.norm(m.m_B)) for m in magnets]
             self._cache = self.DeclareCacheEntry(
                 description="magnet fields and wrenches",
                 value_producer=ValueProducer(
                     allocate=AbstractValue.Make(_MagnetValues([], [], [], [])).Clone,
                     calc=calc_values,
                 ),
-                prerequisites_of_calc={self._body_poses_port.ticket()},
+                prerequisites_of_calc={self._body_poses_port.ticket()} | {
+                    port.ticket() for port in self._pose_ports if port is not None},
             )
             deps = {self._cache.ticket()}
             self._applied_spatial_force_port = self.DeclareAbstractOutputPort(
@@ -317,6 +348,13 @@ def MagneticForce_(T):
         def get_body_poses_input_port(self):
             return self._body_poses_port
 
+        def get_pose_input_port(self, name):
+            """The input [p_WM, m_hat_W] of the posed magnet `name`."""
+            port = self._pose_ports[self._index_of(name)]
+            if port is None:
+                raise KeyError(f"magnet {name!r} is on a plant body, not posed")
+            return port
+
         def get_applied_spatial_force_output_port(self):
             return self._applied_spatial_force_port
 
@@ -344,6 +382,14 @@ def MagneticForce_(T):
             n = len(self._magnets)
             R_WB, p_WM, m_W = [], [], []
             for i, magnet in enumerate(self._magnets):
+                if self._pose_ports[i] is not None:
+                    pose = self._pose_ports[i].Eval(context)
+                    direction = pose[3:] / np.sqrt(pose[3:] @ pose[3:])
+                    R = frame_with_z(direction)
+                    R_WB.append(R)
+                    p_WM.append(np.asarray(pose[:3]))
+                    m_W.append(self._moments[i] * direction)
+                    continue
                 X_WB = poses[magnet.body_index].GetAsMatrix34()
                 R = X_WB[:, :3]
                 R_WB.append(R)
@@ -380,7 +426,16 @@ def MagneticForce_(T):
             """
             poses = self._body_poses_port.Eval(context)
             R_WB, p_WM, m_W = [], [], []
-            for magnet in self._magnets:
+            for magnet, pose_port, moment in zip(self._magnets, self._pose_ports,
+                                                 self._moments):
+                if pose_port is not None:
+                    x, y, z, u, v, w = pose_port.Eval(context).tolist()
+                    scale = 1.0 / math.sqrt(u * u + v * v + w * w)
+                    p_WM.append((x, y, z))
+                    m_W.append((moment * u * scale, moment * v * scale, moment * w * scale))
+                    R_WB.append(tuple(map(tuple, frame_with_z(
+                        np.array([u * scale, v * scale, w * scale])).tolist())))
+                    continue
                 # One array out of the bindings (each costs ~1 us) and one tolist().
                 (r00, r01, r02, x), (r10, r11, r12, y), (r20, r21, r22, z) = poses[
                     magnet.body_index
@@ -497,7 +552,7 @@ def _cylinder(geometry):
 
 def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str = "epm"):
     """`magnet_force` between the capsule's magnet (frame M of the capsule) and the EPM
-    (its body's origin, moment along +z), applied to the plant (through `magnet_force_hold`
+    (its body's origin, moment along +z; or the kinematic stage's pose), applied to the plant (through `magnet_force_hold`
     when it is held between updates); exports capsule.ipm_field_B (the field at the IPM in
     the capsule frame, a magnetometer's truth) and epm.F_W (the reaction on the EPM)."""
     plant = parts.plant
@@ -506,14 +561,17 @@ def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str
         MagnetSpec(name="ipm", body=parts.capsule_body.name(), model_instance="capsule",
                    p_BM=list(X_BM.translation()), axis_B=list(X_BM.rotation().col(2)),
                    moment=parts.ipm.moment(), cylinder=_cylinder(parts.ipm)),
-        MagnetSpec(name="epm", body=epm_body, model_instance=parts.epm.mount.model_name,
+        MagnetSpec(name="epm", body=epm_body, model_instance=parts.epm.mount.model_name or "",
                    p_BM=[0.0, 0.0, 0.0], axis_B=[0.0, 0.0, 1.0],
-                   moment=parts.epm.magnet.moment(), cylinder=_cylinder(parts.epm.magnet)),
+                   moment=parts.epm.magnet.moment(), cylinder=_cylinder(parts.epm.magnet),
+                   posed=parts.epm.instance is None),
     ]
     parts.field_model = config.field_model
     force = builder.AddNamedSystem("magnet_force", MagneticForce(
         plant, parts.magnets, field_model=config.field_model))
     builder.Connect(plant.get_body_poses_output_port(), force.get_body_poses_input_port())
+    if parts.epm.instance is None:   # the kinematic stage: the EPM where it is commanded
+        builder.Connect(parts.epm.mount.pose_output(), force.get_pose_input_port("epm"))
     if config.apply:
         port = force.get_applied_spatial_force_output_port()
         if config.update_period > plant.time_step():
