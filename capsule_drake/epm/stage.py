@@ -11,6 +11,7 @@ A path driver sends the stage a joint trajectory; a pose-command driver goes thr
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -21,7 +22,7 @@ from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 
-from capsule_drake.epm.poses import stage_joint_positions, stage_to_pose
+from capsule_drake.epm.poses import stage_joint_positions
 from capsule_drake.models import model_url
 from capsule_drake.schema import need_range
 
@@ -120,22 +121,35 @@ class KinematicStage(LeafSystem):
         output.SetFromVector(self._desired.Eval(context))
 
     def _calc_pose(self, context, output):
-        output.SetFromVector(stage_to_pose(self._desired.Eval(context)[:5]))
+        # stage_to_pose in plain floats: this runs at every step.
+        x, y, z, yaw, pitch = self._desired.Eval(context)[:5].tolist()
+        sin_pitch = math.sin(pitch)
+        output.SetFromVector(np.array([x, y, z, math.cos(yaw) * sin_pitch,
+                                       math.sin(yaw) * sin_pitch, math.cos(pitch)]))
 
 
 class EpmFrame(LeafSystem):
-    """The EPM's frame for SceneGraph from its pose [p_WE, m_hat_W]: the moment along the
-    frame's +z, yaw and pitch as the stage's joints give them (no roll about the moment)."""
+    """The EPM's frame for SceneGraph from the stage's joints: the moment along the frame's
+    +z, yaw and pitch as the stage gives them (no roll about the moment). The EPM is only
+    drawn (no collision, no camera sees it), so its pose is sampled every `period` (s): the
+    scene graph then reads an unchanged pose at the plant's steps in between."""
 
-    def __init__(self, frame_id):
+    def __init__(self, frame_id, initial_stage_q, period: float = 0.01):
         super().__init__()
         self._frame_id = frame_id
         self._desired = self.DeclareVectorInputPort("desired_state", 10)
+        self._sample = self.DeclareDiscreteState(np.asarray(initial_stage_q, dtype=float)[:5])
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._update)
         self.DeclareAbstractOutputPort(
-            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
+            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc,
+            prerequisites_of_calc={self.discrete_state_ticket(self._sample)})
+
+    def _update(self, context, discrete_state):
+        discrete_state.set_value(self._sample, self._desired.Eval(context)[:5])
 
     def _calc(self, context, output):
-        x, y, z, yaw, pitch = self._desired.Eval(context)[:5]
+        x, y, z, yaw, pitch = context.get_discrete_state(self._sample).value()
         poses = output.get_mutable_value()
         poses.clear()
         poses.set_value(self._frame_id, RigidTransform(
@@ -181,7 +195,7 @@ class KinematicStageMount:
         self._q0 = trajectory.value(trajectory.start_time()).ravel()
         self.add_visual(parts.scene_graph, parts.epm.magnet)
         self.stage = builder.AddNamedSystem("epm_stage", KinematicStage())
-        frame = builder.AddNamedSystem("epm_frame", EpmFrame(self._frame))
+        frame = builder.AddNamedSystem("epm_frame", EpmFrame(self._frame, self._q0))
         self._inputs = [self.stage.GetInputPort("desired_state"),
                         frame.GetInputPort("desired_state")]
         builder.Connect(frame.get_output_port(),

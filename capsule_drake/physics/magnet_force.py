@@ -433,8 +433,7 @@ def MagneticForce_(T):
                     scale = 1.0 / math.sqrt(u * u + v * v + w * w)
                     p_WM.append((x, y, z))
                     m_W.append((moment * u * scale, moment * v * scale, moment * w * scale))
-                    R_WB.append(tuple(map(tuple, frame_with_z(
-                        np.array([u * scale, v * scale, w * scale])).tolist())))
+                    R_WB.append(None)   # made only if its B_B is asked for (_calc_B_B)
                     continue
                 # One array out of the bindings (each costs ~1 us) and one tolist().
                 (r00, r01, r02, x), (r10, r11, r12, y), (r20, r21, r22, z) = poses[
@@ -496,7 +495,11 @@ def MagneticForce_(T):
 
         def _calc_B_B(self, i, context, output):
             values = self._cache.Eval(context)
-            output.SetFromVector(np.asarray(values.R_WB[i]).T @ np.asarray(values.B_W[i]))
+            R_WB = values.R_WB[i]
+            if R_WB is None:   # a posed magnet (float path)
+                pose = self._pose_ports[i].Eval(context)
+                R_WB = frame_with_z(pose[3:] / np.linalg.norm(pose[3:]))
+            output.SetFromVector(np.asarray(R_WB).T @ np.asarray(values.B_W[i]))
 
         def _calc_F_W(self, i, context, output):
             values = self._cache.Eval(context)
