@@ -1,11 +1,15 @@
-"""Real-time factor of a scenario and what its 1 ms step spends its time on.
+"""Real-time factors of the scenarios, their build times and memory, and what a step costs.
 
-    .venv/bin/python benchmarks/bench_realtime.py [--scenario NAME] [--scenario-text YAML]
-        [--sim-seconds 10] [--repeats 3]
+    .venv/bin/python benchmarks/bench_realtime.py [--scenarios Default,FastContact,WithArm,Navigation]
+        [--scenario-text YAML] [--sim-seconds 10] [--repeats 3]
 
-Physics and magnet only (no rendering, no Meshcat), the full-length colon, 1 ms step.
-Prints the median real-time factor over repeats of the scenario from diagrams/default.yaml,
-then what one step costs:
+Each scenario (diagrams/default.yaml, at its own plant step) runs in a process of its own, so
+that its build time and peak memory (resident set, build and simulation) are its own. No
+Meshcat; the Navigation scenario renders its camera and runs its tracker and follower as a
+run would. Prints, per scenario, the build time (colon and diagram), the peak memory, the
+median real-time factor over `repeats` simulations of `sim-seconds` after one second of
+settling, the wall time of one step, and, for the scenarios without a camera, what one step
+costs:
   - the magnet force (the MagneticForce system and its port traffic), as the difference
     between two variants that simulate the same motion: magnets of zero moment with the
     force applied, and the force not applied at all (the capsule rests on the wall in both);
@@ -16,8 +20,12 @@ then what one step costs:
 
 import argparse
 import copy
+import json
 import platform
+import resource
 import statistics
+import subprocess
+import sys
 import time
 
 from pydrake.geometry import HydroelasticContactRepresentation
@@ -77,17 +85,9 @@ def magnet_share_ms(scenario, sim_seconds: float, chunk: float = 0.05) -> float:
     return 1000.0 * statistics.median(differences) * scenario.plant.time_step / chunk
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", default="Default")
-    parser.add_argument("--scenario-text", default=None,
-                        help="YAML layered on the scenario, e.g. "
-                             "'{magnet_force: {field_model: finite}}'")
-    parser.add_argument("--sim-seconds", type=float, default=10.0)
-    parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-
-    scenario = load_scenario(name=args.scenario, override=args.scenario_text)
+def measure(name, override, sim_seconds, repeats, breakdown):
+    """The figures of one scenario, in this process (a dict)."""
+    scenario = load_scenario(name=name, override=override)
     start = time.perf_counter()
     load_colon(scenario.colon)
     colon_seconds = time.perf_counter() - start
@@ -95,35 +95,87 @@ def main():
     diagram = make_station(scenario)
     build_seconds = time.perf_counter() - start
 
-    factors, simulator = real_time_factors(diagram, args.sim_seconds, args.repeats)
-    step_ms = 1000.0 * scenario.plant.time_step / statistics.median(factors)
-    magnet_ms = magnet_share_ms(scenario, args.sim_seconds)
+    factors, simulator = real_time_factors(diagram, sim_seconds, repeats)
+    step = scenario.plant.time_step
+    figures = {"scenario": name, "contact": scenario.contact.model, "time_step_ms": 1e3 * step,
+               "colon_s": colon_seconds, "build_s": build_seconds, "factors": factors,
+               "step_ms": 1000.0 * step / statistics.median(factors),
+               # Before the breakdown's extra stations: the build and the simulations.
+               "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0**2}
+    if breakdown:
+        figures["magnet_ms"] = magnet_share_ms(scenario, sim_seconds)
+        context = simulator.get_context()
+        scene_graph = diagram.GetSubsystemByName("scene_graph")
+        query = scene_graph.get_query_output_port().Eval(
+            scene_graph.GetMyContextFromRoot(context))
+        n = 300
+        if scenario.contact.model == "hydroelastic":
+            def contact_query():
+                for _ in range(n):
+                    query.ComputeContactSurfaces(HydroelasticContactRepresentation.kPolygon)
+        else:
+            def contact_query():
+                for _ in range(n):
+                    query.ComputePointPairPenetration()
+        figures["query_ms"] = 1000.0 * median_seconds(contact_query, 3) / n
+    return figures
 
-    context = simulator.get_context()
-    scene_graph = diagram.GetSubsystemByName("scene_graph")
-    query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
-    n = 300
-    if scenario.contact.model == "hydroelastic":
-        def contact_query():
-            for _ in range(n):
-                query.ComputeContactSurfaces(HydroelasticContactRepresentation.kPolygon)
-    else:
-        def contact_query():
-            for _ in range(n):
-                query.ComputePointPairPenetration()
-    query_ms = 1000.0 * median_seconds(contact_query, 3) / n
 
-    print(f"machine: {platform.machine()}, {platform.python_version()}, "
-          f"scenario {args.scenario} (contact: {scenario.contact.model})")
-    print(f"colon build (and its mesh files): {colon_seconds:.2f} s; "
-          f"diagram build: {build_seconds:.2f} s")
-    print(f"real-time factor over {args.sim_seconds:.0f} s: median "
-          f"{statistics.median(factors):.2f} (runs: {', '.join(f'{f:.2f}' for f in factors)})")
-    print(f"step: {step_ms:.3f} ms of simulated 1 ms")
-    print(f"  magnet force (MagneticForce + port traffic) : {magnet_ms:.3f} ms")
-    print(f"  contact query                              : {query_ms:.3f} ms")
-    print(f"  solver, dynamics, servos, rest             : "
-          f"{step_ms - magnet_ms - query_ms:.3f} ms (by difference)")
+def cpu_name():
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown cpu"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenarios", default="Default,FastContact,WithArm,Navigation")
+    parser.add_argument("--scenario-text", default=None,
+                        help="YAML layered on every scenario, e.g. "
+                             "'{magnet_force: {field_model: finite}}'")
+    parser.add_argument("--sim-seconds", type=float, default=10.0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+
+    if args.one is not None:   # the child: one scenario, one JSON line
+        breakdown = load_scenario(name=args.one).capsule.camera is None
+        print(json.dumps(measure(args.one, args.scenario_text, args.sim_seconds,
+                                 args.repeats, breakdown)))
+        return
+
+    print(f"machine: {platform.machine()}, {cpu_name()}, Python "
+          f"{platform.python_version()}; {args.repeats} x {args.sim_seconds:g} s after 1 s")
+    print("| scenario | contact | step | build (colon + diagram) | peak memory "
+          "| real-time factor (median; runs) | wall per step | magnet force | contact query "
+          "| solver, dynamics, rest |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.scenarios.split(","):
+        command = [sys.executable, __file__, "--one", name, "--sim-seconds",
+                   str(args.sim_seconds), "--repeats", str(args.repeats)]
+        if args.scenario_text:
+            command += ["--scenario-text", args.scenario_text]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
+            continue
+        f = json.loads(done.stdout.strip().splitlines()[-1])
+        factors = f["factors"]
+        row = (f"| `{name}` | {f['contact']} | {f['time_step_ms']:g} ms | "
+               f"{f['colon_s']:.1f} + {f['build_s']:.1f} s | {f['peak_rss_gb']:.2f} GB | "
+               f"**{statistics.median(factors):.2f}** "
+               f"({', '.join(f'{x:.2f}' for x in factors)}) | {f['step_ms']:.3f} ms | ")
+        if "magnet_ms" in f:
+            rest = f["step_ms"] - f["magnet_ms"] - f["query_ms"]
+            row += f"{f['magnet_ms']:.3f} ms | {f['query_ms']:.3f} ms | {rest:.3f} ms |"
+        else:
+            row += "(camera, tracker) | | |"
+        print(row, flush=True)
 
 
 if __name__ == "__main__":
