@@ -142,11 +142,12 @@ def test_rotational_stiffness_bounds_the_dipole_energy_over_all_attitudes():
 
 # --- Drake's plant: the capsule turned by the magnet, at the bound's limit ---------------
 
-def magnet_pendulum(dt, r, theta0=0.02):
+def magnet_pendulum(dt, r, theta0=0.02, implicit=False):
     """The capsule of models/capsule.sdf on a pin across its axis at its centre of mass, the
     EPM welded below it, its centre r from the capsule's magnet (3 mm below the pin), both
     magnetised up: coaxial (the stiffest field), the magnet's pull on the lever arm
-    stiffening too, as the bound assumes. No gravity. (simulator, plant, context, joint)."""
+    stiffening too, as the bound assumes. No gravity. `implicit`: the magnet's torque made
+    implicit (MagneticForce's implicit_step). (simulator, plant, context, joint)."""
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=dt), builder)
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
@@ -163,8 +164,12 @@ def magnet_pendulum(dt, r, theta0=0.02):
     force = builder.AddSystem(MagneticForce(plant, [
         MagnetSpec(name="ipm", body="capsule", p_BM=p_BM, axis_B=[0.0, 0.0, 1.0],
                    moment=IPM_MOMENT),
-        MagnetSpec(name="epm", body="epm", axis_B=[0.0, 0.0, 1.0], moment=EPM_MOMENT)]))
+        MagnetSpec(name="epm", body="epm", axis_B=[0.0, 0.0, 1.0], moment=EPM_MOMENT)],
+        implicit_step=dt if implicit else 0.0))
     builder.Connect(plant.get_body_poses_output_port(), force.get_body_poses_input_port())
+    if implicit:
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        force.get_body_spatial_velocities_input_port())
     builder.Connect(force.get_applied_spatial_force_output_port(),
                     plant.get_applied_spatial_force_input_port())
     diagram = builder.Build()
@@ -174,8 +179,8 @@ def magnet_pendulum(dt, r, theta0=0.02):
     return simulator, plant, context, pin
 
 
-def pendulum_angles(dt, r, duration, theta0=0.02):
-    simulator, _, context, pin = magnet_pendulum(dt, r, theta0)
+def pendulum_angles(dt, r, duration, theta0=0.02, implicit=False):
+    simulator, _, context, pin = magnet_pendulum(dt, r, theta0, implicit)
     angles = []
     for k in range(1, int(round(duration / dt)) + 1):
         simulator.AdvanceTo(k * dt)
@@ -222,6 +227,53 @@ def test_drake_applies_the_magnet_explicitly_stable_below_two_over_omega_unstabl
     assert dt == pytest.approx(SAFETY * limit, rel=0.01)
     inside = pendulum_angles(dt, R_PENDULUM, 300 * dt)
     assert np.max(np.abs(inside)) < 1.2 * 0.02
+
+
+# --- the implicit magnet torque ---------------------------------------------------------
+
+@pytest.mark.parametrize("factor", [0.1, 2.0, 8.0])
+def test_the_implicit_torque_is_backward_euler_of_the_magnet_pendulum(factor):
+    """With the torque implicit, the pendulum at `factor` x the explicit limit 2/omega (where
+    explicit Euler spins off within 3 steps at 2x) follows the closed-form recurrence of
+    backward Euler for I theta'' = -k theta, k = I omega^2 (omega measured in Drake):
+    w+ = (I w - h k theta) / (I + h^2 k), theta+ = theta + h w+; within 3 % of the start
+    angle over 60 steps, decaying, never growing."""
+    omega = measured_omega(R_PENDULUM)
+    dt = factor * 2.0 / omega
+    angles = pendulum_angles(dt, R_PENDULUM, 60 * dt, implicit=True)
+    assert len(angles) == 60
+    a = (omega * dt) ** 2
+    theta, rate, expected = 0.02, 0.0, []
+    for _ in range(60):
+        rate = (rate - dt * omega**2 * theta) / (1.0 + a)
+        theta = theta + dt * rate
+        expected.append(theta)
+    assert np.max(np.abs(angles - np.array(expected))) < 0.03 * 0.02
+    assert np.max(np.abs(angles)) <= 0.02 + 1e-12
+    explicit = pendulum_angles(max(dt, 2.2 / omega), R_PENDULUM, 40 * dt)
+    assert factor < 1.0 or np.max(np.abs(explicit)) > 1.0
+
+
+def test_a_held_capsule_comes_to_feel_the_full_magnet_torque():
+    """The pendulum's pin locked (the capsule held, as friction holds it on the wall) at the
+    explicit limit 2/omega (a = (omega h)^2 = 4): the applied torque converges to the
+    explicit one, m x B plus the pull's moment. A prediction that took the capsule to turn
+    freely would apply only 1 / (1 + a) of it for good; the last step's reaction, read off
+    the velocity, corrects it by a factor a / (1 + a) = 0.8 a step: within 1e-5 after 60
+    steps. (At a = 64 the same takes ~900 steps: the convergence slows as the step grows.)"""
+    omega = measured_omega(R_PENDULUM)
+    dt = 2.0 / omega
+    simulator, plant, context, pin = magnet_pendulum(dt, R_PENDULUM, 0.05, implicit=True)
+    pin.Lock(context)
+    diagram = simulator.get_system()
+    force = next(s for s in diagram.GetSystems() if isinstance(s, MagneticForce))
+    force_context = force.GetMyContextFromRoot(simulator.get_context())
+    simulator.AdvanceTo(60 * dt)
+    applied = force.get_applied_spatial_force_output_port().Eval(force_context)[0]
+    explicit = force.get_F_W_output_port("ipm").Eval(force_context)[:3]
+    assert np.linalg.norm(explicit) > 1e-3
+    np.testing.assert_allclose(applied.F_Bq_W.rotational(), explicit, rtol=1e-5)
+    assert pin.get_angle(context) == pytest.approx(0.05, abs=1e-12)
 
 
 # --- the bound on the shipped scenarios --------------------------------------------------

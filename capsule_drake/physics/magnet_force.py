@@ -10,7 +10,7 @@ import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform_
-from pydrake.multibody.math import SpatialForce_
+from pydrake.multibody.math import SpatialForce_, SpatialVelocity
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce, ExternallyAppliedSpatialForce_
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem_, ValueProducer
@@ -74,6 +74,23 @@ class _MagnetValues(NamedTuple):
     B_W: list  # field of all other magnets at each magnet (T), world frame
     tau_W: list  # torque about the magnet centre (N m), world frame
     f_W: list  # force (N), world frame
+    m_W: list = None  # moments (A m^2), world frame (float path)
+    p_WM: list = None  # magnet centres (m), world frame (float path)
+
+
+def _cross_matrix(v):
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _central_inertia(plant, body_index):
+    """(rotational inertia about the centre of mass in the body frame (3x3), p_BoBcm_B) of
+    a plant body, from its default spatial inertia."""
+    body = plant.get_body(BodyIndex(body_index))
+    M_BBo_B = body.default_spatial_inertia()
+    p_BoBcm = np.asarray(M_BBo_B.get_com(), dtype=float)
+    I_Bcm = M_BBo_B.Shift(p_BoBcm).CalcRotationalInertia().CopyToFullMatrix3()
+    return np.asarray(I_Bcm, dtype=float), p_BoBcm
 
 
 def frame_with_z(direction):
@@ -208,18 +225,22 @@ def MagneticForce_(T):
 
         def _construct(
             self, plant, magnets, min_distance=DEFAULT_MIN_DISTANCE, converter=None,
-            field_model="dipole",
+            field_model="dipole", implicit_step=0.0,
         ):
-            Impl._setup(
-                self, _resolve_magnets(plant, magnets), min_distance, converter,
-                field_model,
-            )
+            magnets = _resolve_magnets(plant, magnets)
+            inertias = {m.body_index: _central_inertia(plant, m.body_index)
+                        for m in magnets if m.applies_force} if implicit_step > 0 else {}
+            Impl._setup(self, magnets, min_distance, converter, field_model,
+                        implicit_step, inertias)
 
         def _construct_copy(self, other, converter=None):
+            # The implicit torque is float only: a converted copy applies the torque as is
+            # (linearisation differentiates the forces, not the integrator).
             Impl._setup(self, other._magnets, other._min_distance, converter,
-                        other._field_model)
+                        other._field_model, 0.0, other._inertias)
 
-        def _setup(self, magnets, min_distance, converter, field_model):
+        def _setup(self, magnets, min_distance, converter, field_model, implicit_step=0.0,
+                   inertias=None):
             if field_model not in FIELD_MODELS:
                 raise ValueError(f"MagneticForce field_model must be one of {FIELD_MODELS},"
                                  f" got {field_model!r}")
@@ -229,6 +250,7 @@ def MagneticForce_(T):
                     "field carries no derivatives): linearise with field_model 'dipole'")
             LeafSystem_[T].__init__(self, converter)
             self._magnets = magnets
+            self._inertias = inertias or {}
             self._field_model = field_model
             self._min_distance = float(min_distance)
             # Resolve templates and indices once: a template lookup per call
@@ -280,6 +302,10 @@ def MagneticForce_(T):
                     port.ticket() for port in self._pose_ports if port is not None},
             )
             deps = {self._cache.ticket()}
+            self._implicit_step = float(implicit_step) if T is float else 0.0
+            if self._implicit_step > 0.0:
+                deps = self._declare_implicit_torque()
+                calc_applied = self._calc_applied_spatial_force_implicit
             self._applied_spatial_force_port = self.DeclareAbstractOutputPort(
                 "applied_spatial_force",
                 lambda: AbstractValue.Make([ExternallyAppliedSpatialForce_[T]()]),
@@ -305,6 +331,132 @@ def MagneticForce_(T):
                         prerequisites_of_calc=deps,
                     )
                 )
+
+        # --- the implicit magnetic torque (float only) ------------------------
+        def _declare_implicit_torque(self):
+            """With `implicit_step` h (the plant's step), the torque on each free magnet
+            body is integrated implicitly in its stiff part: the magnet's torque m x B
+            has the rotational stiffness K = [B]x [m]x (N m/rad, about the body's centre
+            of mass), so stiff on a 12 g capsule that an explicit step is stable only
+            while omega h < 2 (physics/step_bound.py). Applied instead of tau0:
+
+                tau = tau0 + h K w_hat,
+                w_hat = w_n + (I - h^2 K)^-1 h (tau0 + h K w_n + tau_other),
+
+            w_hat being the body's angular velocity after the step as predicted with the
+            torque linearised at the end of the step (backward Euler), I its central
+            inertia in world, and tau_other everything else that turned it during the last
+            step (contact, gyroscopic), read off its change of angular velocity:
+            I (w_n - w_{n-1}) / h - tau(n-1). Without tau_other the prediction would take
+            a capsule held by friction to turn freely and apply only a fraction of the
+            torque; with it, a held capsule feels tau0 exactly, and a free one is
+            integrated by linearly implicit Euler. The step's forces stay explicit.
+            The state: per free body [w_{n-1}, tau(n-1) about its centre of mass],
+            then a started flag; updated at every plant step."""
+            self._velocities_port = self.DeclareAbstractInputPort(
+                "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()]))
+            self._implicit_bodies = [i for i, _ in self._applied]
+            n = len(self._implicit_bodies)
+            self._implicit_state = self.DeclareDiscreteState(6 * n + 1)
+            self._implicit_cache = self.DeclareCacheEntry(
+                description="implicit magnet torques",
+                value_producer=ValueProducer(
+                    allocate=AbstractValue.Make([]).Clone,
+                    calc=self._calc_implicit_torques),
+                prerequisites_of_calc={
+                    self._cache.ticket(), self._velocities_port.ticket(),
+                    self.discrete_state_ticket(self._implicit_state)})
+            # Unrestricted, as the discrete plant's own step: the diagram computes every
+            # unrestricted update from the same context (the state before the step), where
+            # a discrete update would see the state after it.
+            self.DeclarePeriodicUnrestrictedUpdateEvent(self._implicit_step, 0.0,
+                                                        self._update_implicit_state)
+            return {self._implicit_cache.ticket()}
+
+        def get_body_spatial_velocities_input_port(self):
+            """Only with an implicit torque: connect the plant's
+            ``get_body_spatial_velocities_output_port()``."""
+            return self._velocities_port
+
+        def _calc_implicit_torques(self, context, abstract_value):
+            """Per free magnet: (tau applied about the magnet centre, the same about the
+            body's centre of mass, w_n), all numpy 3-vectors."""
+            values = self._cache.Eval(context)
+            velocities = self._velocities_port.Eval(context)
+            state = context.get_discrete_state(self._implicit_state).value()
+            started = state[-1] > 0.0
+            h = self._implicit_step
+            out = []
+            for k, i in enumerate(self._implicit_bodies):
+                magnet = self._magnets[i]
+                R = np.array(values.R_WB[i])
+                inertia_B, p_BoBcm = self._inertias[magnet.body_index]
+                I_W = R @ inertia_B @ R.T
+                w = np.asarray(velocities[magnet.body_index].rotational())
+                tau_M = np.array(values.tau_W[i])
+                f = np.array(values.f_W[i])
+                # Lever arm from the centre of mass to the magnet centre, in world.
+                r = R @ (np.array(magnet.p_BM) - p_BoBcm)
+                tau0 = tau_M + np.cross(r, f)
+                K = self._rotational_stiffness(values, i, r)
+                other = np.zeros(3)
+                if started:
+                    w_prev = state[6 * k:6 * k + 3]
+                    tau_prev = state[6 * k + 3:6 * k + 6]
+                    other = I_W @ (w - w_prev) / h - tau_prev
+                w_hat = w + np.linalg.solve(I_W - h * h * K, h * (tau0 + h * K @ w + other))
+                correction = h * K @ w_hat
+                out.append((tau_M + correction, tau0 + correction, w))
+            abstract_value.set_value(out)
+
+        def _rotational_stiffness(self, values, i, r):
+            """K (3x3, N m/rad): how the torque about magnet i's body's centre of mass
+            changes as the body turns about it, the moment turning and the magnet's centre
+            swinging on its lever arm `r` through the others' field and gradient. By
+            forward differences of the point-dipole interaction (the stiffness need only
+            be close: the torque applied is the field model's own, plus h K w_hat)."""
+            eps = 1e-6
+            m, p = np.array(values.m_W[i]), np.array(values.p_WM[i])
+            d_min = self._min_distance
+
+            def torque_about_cm(m_i, p_i, r_i):
+                total = np.zeros(3)
+                for j in range(len(self._magnets)):
+                    if j == i:
+                        continue
+                    result = dipole_pair_interaction_float(
+                        values.m_W[j], tuple(m_i), tuple(p_i - np.array(values.p_WM[j])),
+                        d_min)
+                    total += np.array(result.torque_target) + np.cross(
+                        r_i, result.force_target)
+                return total
+
+            base = torque_about_cm(m, p, r)
+            K = np.empty((3, 3))
+            for axis in range(3):
+                turn = np.zeros(3)
+                turn[axis] = eps
+                r_turned = r + np.cross(turn, r)
+                K[:, axis] = (torque_about_cm(m + np.cross(turn, m), p - r + r_turned,
+                                              r_turned) - base) / eps
+            return K
+
+        def _update_implicit_state(self, context, state):
+            torques = self._implicit_cache.Eval(context)
+            value = np.empty(6 * len(torques) + 1)
+            for k, (_, tau_cm, w) in enumerate(torques):
+                value[6 * k:6 * k + 3] = w
+                value[6 * k + 3:6 * k + 6] = tau_cm
+            value[-1] = 1.0
+            state.get_mutable_discrete_state(self._implicit_state).SetFromVector(value)
+
+        def _calc_applied_spatial_force_implicit(self, context, output):
+            values = self._cache.Eval(context)
+            torques = self._implicit_cache.Eval(context)
+            make_spatial_force = self._make_spatial_force
+            for (i, force), (tau, _, _) in zip(self._applied, torques):
+                force.F_Bq_W = make_spatial_force(np.concatenate((tau, values.f_W[i])))
+            output.set_value(self._applied_forces)
 
         @staticmethod
         def _finite_pair_function(magnets):
@@ -474,7 +626,7 @@ def MagneticForce_(T):
                     _accumulate3(tau_W, j, result.torque_target)
                     _accumulate3(f_W, i, result.force_source)
                     _accumulate3(tau_W, i, result.torque_source)
-            abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W))
+            abstract_value.set_value(_MagnetValues(R_WB, B_W, tau_W, f_W, m_W, p_WM))
 
         def _calc_applied_spatial_force(self, context, output):
             values = self._cache.Eval(context)
@@ -529,6 +681,10 @@ class MagnetForceConfig:
     # False: the forces are computed (and the outputs available) but not applied, so the
     # capsule lies on the wall under gravity: for ablation benchmarks.
     apply: bool = True
+    # True: the magnet's torque is integrated implicitly in its stiff part (the rotational
+    # stiffness of m x B; MagneticForce._declare_implicit_torque), so that the plant's step
+    # is not bounded by the magnet (explicitly, omega h < 2). Only with update_period 0.
+    implicit: bool = False
 
 
 def check_magnet_force_config(config: MagnetForceConfig, magnets: dict) -> None:
@@ -540,6 +696,10 @@ def check_magnet_force_config(config: MagnetForceConfig, magnets: dict) -> None:
         need_range(config.update_period, "magnet_force.update_period", f">= {MIN_PERIOD:g}",
                    "s", "or 0: every step; a shorter period is an event that recomputes the "
                    "force more often than any plant step can use")
+    if config.implicit and config.update_period != 0:
+        raise ValueError("magnet_force.implicit needs update_period 0 (the torque is made "
+                         "implicit at every plant step), got update_period "
+                         f"{config.update_period:g} s")
     if config.field_model == "finite":
         for where, geometry in magnets.items():
             if geometry.shape not in ("cylinder", "sphere") or geometry.legacy:
@@ -570,9 +730,14 @@ def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str
                    posed=parts.epm.instance is None),
     ]
     parts.field_model = config.field_model
+    implicit = config.apply and config.implicit and config.update_period <= plant.time_step()
     force = builder.AddNamedSystem("magnet_force", MagneticForce(
-        plant, parts.magnets, field_model=config.field_model))
+        plant, parts.magnets, field_model=config.field_model,
+        implicit_step=plant.time_step() if implicit else 0.0))
     builder.Connect(plant.get_body_poses_output_port(), force.get_body_poses_input_port())
+    if implicit:
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        force.get_body_spatial_velocities_input_port())
     if parts.epm.instance is None:   # the kinematic stage: the EPM where it is commanded
         builder.Connect(parts.epm.mount.pose_output(), force.get_pose_input_port("epm"))
     if config.apply:
