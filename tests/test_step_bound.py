@@ -15,7 +15,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
+from capsule_drake.physics.magnet_force import (MagneticForce, MagnetSpec,
+                                                _restoring_part)
 from capsule_drake.physics.magnetics import MagnetGeometry, dipole_field, dipole_force
 from capsule_drake.physics.step_bound import (SAFETY, capsule_inertia, closest_distance,
                                               magnet_stiffness, step_bounds, time_step_bound)
@@ -272,8 +273,29 @@ def test_a_held_capsule_comes_to_feel_the_full_magnet_torque():
     applied = force.get_applied_spatial_force_output_port().Eval(force_context)[0]
     explicit = force.get_F_W_output_port("ipm").Eval(force_context)[:3]
     assert np.linalg.norm(explicit) > 1e-3
-    np.testing.assert_allclose(applied.F_Bq_W.rotational(), explicit, rtol=1e-5)
+    np.testing.assert_allclose(applied.F_Bq_W.rotational(), explicit, rtol=1e-5,
+                               atol=1e-9 * np.linalg.norm(explicit))
     assert pin.get_angle(context) == pytest.approx(0.05, abs=1e-12)
+
+
+def test_the_pendulum_turned_against_the_field_is_not_held_back():
+    """The capsule pinned upside down (its magnet against the EPM's field, an unstable
+    equilibrium: the torque turns it further away) at 8 x the explicit limit: there the
+    symmetric stiffness has modes with h^2 omega^2 far above 1/2, so only its restoring part
+    is implicit (_restoring_part) and the unstable turn is left explicit. The capsule turns
+    away from upside down, as the physics does, monotonically at first, its angle finite
+    (with the full stiffness taken implicitly, I - h^2 S is not positive definite: the step
+    has no sound solution)."""
+    omega = measured_omega(R_PENDULUM)
+    dt = 8.0 * 2.0 / omega
+    angles = pendulum_angles(dt, R_PENDULUM, 10 * dt, theta0=math.pi - 0.02, implicit=True)
+    assert np.all(np.isfinite(angles))
+    away = np.abs(angles - math.pi)
+    assert away[1] > away[0] > 0.02
+    assert away[-1] > 0.5
+    S = np.array([[-2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(_restoring_part(S.tolist(), np.eye(3).tolist()),
+                               np.diag([-2.0, 0.0, 0.0]), atol=1e-12)
 
 
 # --- the bound on the shipped scenarios --------------------------------------------------

@@ -78,19 +78,81 @@ class _MagnetValues(NamedTuple):
     p_WM: list = None  # magnet centres (m), world frame (float path)
 
 
-def _cross_matrix(v):
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+def _cross(a, b):
+    """a x b of two 3-sequences of floats, as a tuple (numpy's cross costs ~30 us)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _central_inertia(plant, body_index):
-    """(rotational inertia about the centre of mass in the body frame (3x3), p_BoBcm_B) of
-    a plant body, from its default spatial inertia."""
+def _mat_vec(M, v):
+    """M v for a 3x3 matrix given as rows and a 3-sequence, as a list."""
+    return [M[0][0] * v[0] + M[0][1] * v[1] + M[0][2] * v[2],
+            M[1][0] * v[0] + M[1][1] * v[1] + M[1][2] * v[2],
+            M[2][0] * v[0] + M[2][1] * v[1] + M[2][2] * v[2]]
+
+
+def _cholesky3(A):
+    """The lower Cholesky factor of a symmetric 3x3 matrix (rows), or None if it is not
+    positive definite."""
+    a = A[0][0]
+    if not a > 0.0:
+        return None
+    l00 = math.sqrt(a)
+    l10, l20 = A[1][0] / l00, A[2][0] / l00
+    a = A[1][1] - l10 * l10
+    if not a > 0.0:
+        return None
+    l11 = math.sqrt(a)
+    l21 = (A[2][1] - l20 * l10) / l11
+    a = A[2][2] - l20 * l20 - l21 * l21
+    if not a > 0.0:
+        return None
+    return l00, l10, l20, l11, l21, math.sqrt(a)
+
+
+def _solve_spd3(L, b):
+    """x with L L^T x = b, L from _cholesky3."""
+    l00, l10, l20, l11, l21, l22 = L
+    y0 = b[0] / l00
+    y1 = (b[1] - l10 * y0) / l11
+    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    return [x0, x1, x2]
+
+
+def _restoring_part(S, I_W):
+    """The restoring part of a symmetric stiffness S (torque per radian) on a body of
+    inertia I_W: in mass-weighted coordinates (I^-1/2 S I^-1/2, whose eigenvalues are
+    -omega^2 of the turning modes) the positive eigenvalues, modes that the torque turns
+    further away, set to zero. Those grow in the physics too; left to the explicit torque,
+    they keep I - h^2 S positive definite."""
+    values, vectors = np.linalg.eigh(np.asarray(I_W))
+    root = vectors @ np.diag(values ** 0.5) @ vectors.T
+    inverse_root = vectors @ np.diag(values ** -0.5) @ vectors.T
+    modes, Q = np.linalg.eigh(inverse_root @ np.asarray(S) @ inverse_root)
+    A = root @ Q
+    return (A @ np.diag(np.minimum(modes, 0.0)) @ A.T).tolist()
+
+
+class _BodyInertia(NamedTuple):
+    """What the implicit torque needs of a magnet's body."""
+
+    p_McmM_B: dict   # magnet index -> its centre from the body's centre of mass (tuple)
+    I_B: tuple       # central inertia in the body frame (rows)
+
+
+def _central_inertia(plant, body_index, magnets):
+    """A plant body's central inertia and its magnets' centres from its centre of mass,
+    from its default spatial inertia."""
     body = plant.get_body(BodyIndex(body_index))
     M_BBo_B = body.default_spatial_inertia()
     p_BoBcm = np.asarray(M_BBo_B.get_com(), dtype=float)
-    I_Bcm = M_BBo_B.Shift(p_BoBcm).CalcRotationalInertia().CopyToFullMatrix3()
-    return np.asarray(I_Bcm, dtype=float), p_BoBcm
+    I_B = M_BBo_B.Shift(p_BoBcm).CalcRotationalInertia().CopyToFullMatrix3()
+    return _BodyInertia(
+        {i: tuple((np.array(m.p_BM, dtype=float) - p_BoBcm).tolist())
+         for i, m in enumerate(magnets) if m.body_index == body_index},
+        tuple(tuple(row) for row in np.asarray(I_B, dtype=float).tolist()))
 
 
 def frame_with_z(direction):
@@ -228,7 +290,7 @@ def MagneticForce_(T):
             field_model="dipole", implicit_step=0.0,
         ):
             magnets = _resolve_magnets(plant, magnets)
-            inertias = {m.body_index: _central_inertia(plant, m.body_index)
+            inertias = {m.body_index: _central_inertia(plant, m.body_index, magnets)
                         for m in magnets if m.applies_force} if implicit_step > 0 else {}
             Impl._setup(self, magnets, min_distance, converter, field_model,
                         implicit_step, inertias)
@@ -380,74 +442,98 @@ def MagneticForce_(T):
 
         def _calc_implicit_torques(self, context, abstract_value):
             """Per free magnet: (tau applied about the magnet centre, the same about the
-            body's centre of mass, w_n), all numpy 3-vectors."""
+            body's centre of mass, w_n), 3-tuples. Plain floats: this runs at every step,
+            and numpy's per-call overhead on 3x3 matrices would cost several times the
+            arithmetic."""
             values = self._cache.Eval(context)
             velocities = self._velocities_port.Eval(context)
-            state = context.get_discrete_state(self._implicit_state).value()
+            state = context.get_discrete_state(self._implicit_state).value().tolist()
             started = state[-1] > 0.0
             h = self._implicit_step
             out = []
             for k, i in enumerate(self._implicit_bodies):
                 magnet = self._magnets[i]
-                R = np.array(values.R_WB[i])
-                inertia_B, p_BoBcm = self._inertias[magnet.body_index]
-                I_W = R @ inertia_B @ R.T
-                w = np.asarray(velocities[magnet.body_index].rotational())
-                tau_M = np.array(values.tau_W[i])
-                f = np.array(values.f_W[i])
+                R = values.R_WB[i]
+                inertia = self._inertias[magnet.body_index]
+                w = velocities[magnet.body_index].rotational().tolist()
                 # Lever arm from the centre of mass to the magnet centre, in world.
-                r = R @ (np.array(magnet.p_BM) - p_BoBcm)
-                tau0 = tau_M + np.cross(r, f)
+                r = _mat_vec(R, inertia.p_McmM_B[i])
+                lever = _cross(r, values.f_W[i])
+                tau_M = values.tau_W[i]
+                tau0 = [tau_M[n] + lever[n] for n in range(3)]
                 K = self._rotational_stiffness(values, i, r)
-                other = np.zeros(3)
+                # Its symmetric part, taken implicitly in full while its modes turn the body
+                # away slower than 1 / (h sqrt 2) (the mass-weighted eigenvalues below
+                # 1 / (2 h^2): backward Euler is accurate on them and I - h^2 S positive
+                # definite); else only its restoring part (the body turned against the
+                # field: _restoring_part).
+                S = [[0.5 * (K[a][b] + K[b][a]) for b in range(3)] for a in range(3)]
+                RI = [_mat_vec(inertia.I_B, row) for row in R]   # rows of R I_B (I_B sym.)
+                I_W = [[sum(RI[a][n] * R[b][n] for n in range(3)) for b in range(3)]
+                       for a in range(3)]
+                if _cholesky3([[I_W[a][b] - 2.0 * h * h * S[a][b] for b in range(3)]
+                               for a in range(3)]) is None:
+                    S = _restoring_part(S, I_W)
+                other = (0.0, 0.0, 0.0)
                 if started:
-                    w_prev = state[6 * k:6 * k + 3]
-                    tau_prev = state[6 * k + 3:6 * k + 6]
-                    other = I_W @ (w - w_prev) / h - tau_prev
-                w_hat = w + np.linalg.solve(I_W - h * h * K, h * (tau0 + h * K @ w + other))
-                correction = h * K @ w_hat
-                out.append((tau_M + correction, tau0 + correction, w))
+                    dw = [(w[n] - state[6 * k + n]) / h for n in range(3)]
+                    I_dw = _mat_vec(I_W, dw)
+                    other = [I_dw[n] - state[6 * k + 3 + n] for n in range(3)]
+                S_w = _mat_vec(S, w)
+                rhs = [h * (tau0[n] + h * S_w[n] + other[n]) for n in range(3)]
+                A = [[I_W[a][b] - h * h * S[a][b] for b in range(3)] for a in range(3)]
+                dw_hat = _solve_spd3(_cholesky3(A), rhs)
+                S_w_hat = _mat_vec(S, [w[n] + dw_hat[n] for n in range(3)])
+                correction = [h * S_w_hat[n] for n in range(3)]
+                out.append((tuple(tau_M[n] + correction[n] for n in range(3)),
+                            [tau0[n] + correction[n] for n in range(3)], w))
             abstract_value.set_value(out)
 
         def _rotational_stiffness(self, values, i, r):
-            """K (3x3, N m/rad): how the torque about magnet i's body's centre of mass
+            """K (3 rows, N m/rad): how the torque about magnet i's body's centre of mass
             changes as the body turns about it, the moment turning and the magnet's centre
             swinging on its lever arm `r` through the others' field and gradient. By
-            forward differences of the point-dipole interaction (the stiffness need only
-            be close: the torque applied is the field model's own, plus h K w_hat)."""
+            forward differences of the point-dipole interaction in plain floats (the
+            stiffness need only be close: the torque applied is the field model's own,
+            plus h K w_hat)."""
             eps = 1e-6
-            m, p = np.array(values.m_W[i]), np.array(values.p_WM[i])
+            m, p = values.m_W[i], values.p_WM[i]
             d_min = self._min_distance
+            others = [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
+                      if j != i]
+            pair = dipole_pair_interaction_float
 
             def torque_about_cm(m_i, p_i, r_i):
-                total = np.zeros(3)
-                for j in range(len(self._magnets)):
-                    if j == i:
-                        continue
-                    result = dipole_pair_interaction_float(
-                        values.m_W[j], tuple(m_i), tuple(p_i - np.array(values.p_WM[j])),
-                        d_min)
-                    total += np.array(result.torque_target) + np.cross(
-                        r_i, result.force_target)
-                return total
+                tx = ty = tz = 0.0
+                for m_j, p_j in others:
+                    result = pair(m_j, m_i, (p_i[0] - p_j[0], p_i[1] - p_j[1],
+                                             p_i[2] - p_j[2]), d_min)
+                    lever = _cross(r_i, result.force_target)
+                    torque = result.torque_target
+                    tx += torque[0] + lever[0]
+                    ty += torque[1] + lever[1]
+                    tz += torque[2] + lever[2]
+                return tx, ty, tz
 
             base = torque_about_cm(m, p, r)
-            K = np.empty((3, 3))
+            columns = []
             for axis in range(3):
-                turn = np.zeros(3)
+                turn = [0.0, 0.0, 0.0]
                 turn[axis] = eps
-                r_turned = r + np.cross(turn, r)
-                K[:, axis] = (torque_about_cm(m + np.cross(turn, m), p - r + r_turned,
-                                              r_turned) - base) / eps
-            return K
+                dm, dr = _cross(turn, m), _cross(turn, r)
+                turned = torque_about_cm(
+                    (m[0] + dm[0], m[1] + dm[1], m[2] + dm[2]),
+                    (p[0] + dr[0], p[1] + dr[1], p[2] + dr[2]),
+                    (r[0] + dr[0], r[1] + dr[1], r[2] + dr[2]))
+                columns.append([(turned[n] - base[n]) / eps for n in range(3)])
+            return [[columns[c][row] for c in range(3)] for row in range(3)]
 
         def _update_implicit_state(self, context, state):
             torques = self._implicit_cache.Eval(context)
-            value = np.empty(6 * len(torques) + 1)
-            for k, (_, tau_cm, w) in enumerate(torques):
-                value[6 * k:6 * k + 3] = w
-                value[6 * k + 3:6 * k + 6] = tau_cm
-            value[-1] = 1.0
+            value = []
+            for _, tau_cm, w in torques:
+                value += w + tau_cm
+            value.append(1.0)
             state.get_mutable_discrete_state(self._implicit_state).SetFromVector(value)
 
         def _calc_applied_spatial_force_implicit(self, context, output):
@@ -455,7 +541,7 @@ def MagneticForce_(T):
             torques = self._implicit_cache.Eval(context)
             make_spatial_force = self._make_spatial_force
             for (i, force), (tau, _, _) in zip(self._applied, torques):
-                force.F_Bq_W = make_spatial_force(np.concatenate((tau, values.f_W[i])))
+                force.F_Bq_W = make_spatial_force(np.array(tau + tuple(values.f_W[i])))
             output.set_value(self._applied_forces)
 
         @staticmethod
