@@ -9,10 +9,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.cli import main as cli_main
+from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.io.run import simulate
 from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
-from capsule_drake.station import make_station
+from capsule_drake.station import make_station, settled_start
 
 
 def test_station_exports_named_ports():
@@ -116,8 +118,8 @@ def test_the_implicit_magnet_torque_runs_the_default_drag_at_four_times_the_expl
     finals = []
     for step, implicit in ((0.001, "false"), (0.004, "true")):
         scenario = load_scenario(override=f"{{magnet_force: {{implicit: {implicit}}}, "
-                                          f"duration: 3.0}}")
-        scenario.plant.time_step = step   # past the scenario's bound, which is explicit's
+                                          f"plant: {{time_step: 0.001}}, duration: 3.0}}")
+        scenario.plant.time_step = step   # 4 ms: past the contact's bound too
         station = make_station(scenario)
         assert station.GetSubsystemByName("magnet_force").HasInputPort(
             "body_spatial_velocities") == (implicit == "true")
@@ -261,3 +263,28 @@ def test_sensors_are_wired_and_seeded():
     # Measured = true + bias (~10 mg) + white noise (~0.03 m/s^2 per sample at 100 Hz).
     error = accel_after(3) - accel_after(3, "capsule.imu.accel_true")
     assert 0.0 < np.linalg.norm(error) < 1.0
+
+
+def test_a_settled_start_begins_at_rest_on_the_wall_without_the_snap():
+    """capsule.settle: the Default capsule, let settle 0.5 s (at a 0.5 ms step), starts the
+    run touching the wall (its surface within 1 mm of it), not on the centreline, and the
+    magnet's snap onto the wall that an unsettled start shows (0.5-0.6 m/s within 0.15 s)
+    is gone: under 0.1 m/s over the first 0.5 s. The settled pose is cached: a second
+    station of the same physics starts at the same pose."""
+    colon, _ = load_colon(load_scenario().colon)
+    model = capsule_model()
+    points = capsule_surface_points_C(model.radius, model.length)
+    speeds, starts = {}, {}
+    for settle in (0.0, 0.5):
+        scenario = load_scenario(override=f"{{capsule: {{settle: {settle}}}, "
+                                          f"outputs: {{log_period: 0.002}}, duration: 0.5}}")
+        result = simulate(scenario, progress=False)
+        speeds[settle] = np.linalg.norm(result.capsule_state[10:13], axis=0)
+        R, p = capsule_poses(result.capsule_state[:, :1])
+        starts[settle] = float(wall_excursion(colon, R, p, points)[0])
+    assert starts[0.0] < -5e-3          # on the centreline: 8 mm from the wall
+    assert -1e-3 < starts[0.5] < 1e-3   # on the wall
+    assert speeds[0.0].max() > 0.4
+    assert speeds[0.5].max() < 0.1
+    scenario = load_scenario(override="{capsule: {settle: 0.5}}")
+    assert settled_start(scenario) is settled_start(scenario)

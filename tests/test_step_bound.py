@@ -143,6 +143,10 @@ def test_rotational_stiffness_bounds_the_dipole_energy_over_all_attitudes():
 
 # --- Drake's plant: the capsule turned by the magnet, at the bound's limit ---------------
 
+EXPLICIT = "{plant: {time_step: 0.001}, magnet_force: {implicit: false}}"
+"""The Default scenario with its magnet force explicit, at a step its bound allows."""
+
+
 def magnet_pendulum(dt, r, theta0=0.02, implicit=False):
     """The capsule of models/capsule.sdf on a pin across its axis at its centre of mass, the
     EPM welded below it, its centre r from the capsule's magnet (3 mm below the pin), both
@@ -224,7 +228,7 @@ def test_drake_applies_the_magnet_explicitly_stable_below_two_over_omega_unstabl
     assert np.max(np.abs(unstable)) > 1.0
     # and the bound's step (SAFETY x the limit at the bound's own, larger omega) is well
     # inside: stable, and the amplitude kept within the invariant ellipse's.
-    dt = step_bounds(load_scenario(name="Default")).magnet_step
+    dt = step_bounds(load_scenario(name="Default", override=EXPLICIT)).magnet_step
     assert dt == pytest.approx(SAFETY * limit, rel=0.01)
     inside = pendulum_angles(dt, R_PENDULUM, 300 * dt)
     assert np.max(np.abs(inside)) < 1.2 * 0.02
@@ -301,8 +305,10 @@ def test_the_pendulum_turned_against_the_field_is_not_held_back():
 # --- the bound on the shipped scenarios --------------------------------------------------
 
 def test_default_bound_numbers():
-    """The Default scenario's numbers in the module's docstring."""
-    scenario = load_scenario(name="Default")
+    """The Default scenario's numbers in the module's docstring: with the magnet explicit,
+    its turning bounds the step at 1.11 ms; with its torque implicit (the default), the
+    contact's 2 ms, the pull allowing 2.69 ms."""
+    scenario = load_scenario(name="Default", override=EXPLICIT)
     distance, _ = closest_distance(scenario)
     assert distance == pytest.approx(0.0708, abs=1e-4)
     bounds = step_bounds(scenario)
@@ -310,6 +316,10 @@ def test_default_bound_numbers():
     assert bounds.stiffness.omega == pytest.approx(898, abs=2)
     assert bounds.plant_step == pytest.approx(1.11e-3, abs=1e-5)
     assert bounds.contact_step == pytest.approx(2e-3)
+    implicit = step_bounds(load_scenario(name="Default"))
+    assert implicit.stiffness.omega_translation == pytest.approx(371, abs=2)
+    assert implicit.magnet_step == pytest.approx(1.0 / 371, rel=0.01)
+    assert implicit.plant_step == pytest.approx(2e-3)
 
 
 @pytest.mark.parametrize("name", scenario_names(DEFAULT_SCENARIO_FILE))
@@ -321,7 +331,7 @@ def test_shipped_scenarios_are_within_their_bound(name):
 
 
 def test_a_long_step_is_over_the_bound_with_a_one_line_reason():
-    scenario = load_scenario(name="Default")
+    scenario = load_scenario(name="Default", override=EXPLICIT)
     scenario.plant.time_step = 0.1
     bound, why = time_step_bound(scenario)
     assert scenario.plant.time_step > bound

@@ -117,6 +117,16 @@ widest lumen (9 cm, the cecum) 1.3 m/s. The magnet's snap across a lumen 10 cm b
 (Close below: 2.3 m/s) is faster than the bound covers: its overshoot is over 1 mm at 1 ms.
 The run guard (io/guard.py) still stops a run that goes through the wall.
 
+4. The implicit magnet torque (magnet_force.implicit, the default)
+-------------------------------------------------------------------
+With `implicit` the magnet's torque is integrated by backward Euler in its stiff part
+(MagneticForce._declare_implicit_torque): no step bound from the turning, which is what sets
+omega above (898 rad/s). The pull stays explicit: its stiffness K = 4 F / r gives
+omega_translation (371 rad/s at the closest clearance, 2.7 ms), and the contact's 2 ms
+(section 3) is then the shorter. Backward Euler damps the magnet's wobble (by 1 / sqrt(1 +
+(omega dt)^2) a step) instead of keeping it; the convergence study
+(benchmarks/bench_step_convergence.py, README) shows what that costs in the drag.
+
 Measured (benchmarks/bench_time_step.py, 4 s of each case, Drake 1.58)
 ---------------------------------------------------------------------
 Largest excursion of the capsule beyond the colon wall (mm) per plant step (ms), the magnet
@@ -324,13 +334,21 @@ def step_bounds(scenario) -> StepBounds:
                                                  float(epm.dimensions[1]), m_epm, gap))
         stiffness = magnet_stiffness(m_epm, scenario.capsule.ipm.moment(), distance, capsule,
                                      scale)
-        magnet_step = SAFETY * 2.0 / stiffness.omega
-        mode = ("turns" if stiffness.omega_rotation >= stiffness.omega_translation
-                else "pulls")
-        magnet_why = (f"the magnet's force is applied explicitly, and with the EPM "
+        implicit = scenario.magnet_force.implicit and scenario.magnet_force.update_period == 0
+        if implicit:
+            # The torque is implicit (section 4): only the pull stays explicit.
+            omega, mode, what = (stiffness.omega_translation, "pulls",
+                                 "the magnet's torque is implicit but its pull explicit")
+        else:
+            omega = stiffness.omega
+            mode = ("turns" if stiffness.omega_rotation >= stiffness.omega_translation
+                    else "pulls")
+            what = "the magnet's force is applied explicitly"
+        magnet_step = SAFETY * 2.0 / omega
+        magnet_why = (f"{what}, and with the EPM "
                       f"{distance * 1e3:.1f} mm away ({distance_text}) its "
                       f"{stiffness.field:.3g} T field {mode} the capsule at up to "
-                      f"{stiffness.omega:.0f} rad/s: explicit Euler needs omega*dt <= "
+                      f"{omega:.0f} rad/s: explicit Euler needs omega*dt <= "
                       f"{SAFETY * 2:g}, half its stability limit of 2")
     if magnet_step <= contact_step:
         plant_step = magnet_step
