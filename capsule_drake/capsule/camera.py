@@ -560,6 +560,7 @@ class CapsuleCamera(LeafSystem):
         # layout, and an output port cached until the next frame. Its calculation reads the
         # query object but depends only on that pose: the scene it sees does not move.
         self._lazy_depth = bool(static_scene and c.render_depth)
+        self._depth_memo = None   # (frame pose bytes, range image) of the last lazy depth
         self._frame_pose_index = self.DeclareDiscreteState(np.full(12, np.nan))
         self._frame_pose_port = self.DeclareStateOutputPort("frame_pose",
                                                             self._frame_pose_index)
@@ -659,10 +660,19 @@ class CapsuleCamera(LeafSystem):
         if not np.all(np.isfinite(pose)):  # no frame yet
             depth.mutable_data[...] = np.inf
             return
+        # The depth is a function of the frame's pose alone (static scene), but Drake
+        # invalidates this cache at every unrestricted update (the plant's step), so a
+        # reader between two frames would render it again (~9 ms): the last frame's range
+        # is kept, keyed by its pose.
+        key = pose.tobytes()
+        if self._depth_memo is not None and self._depth_memo[0] == key:
+            depth.mutable_data[..., 0] = self._depth_memo[1]
+            return
         query_object = self._query_object_port.Eval(context)
         X_WC, renderer = self._view_at(pose)
         self._renderer.render_range(query_object, query_object.inspector().world_frame_id(),
                                     X_WC, out=depth.mutable_data[..., 0], renderer=renderer)
+        self._depth_memo = (key, depth.data[..., 0].copy())
 
     def _camera_pose_vector(self, query_object) -> np.ndarray:
         X_WC = query_object.GetPoseInWorld(self._parent_frame).multiply(self._X_PC)

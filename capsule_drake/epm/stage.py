@@ -76,7 +76,8 @@ class PoseToStage(LeafSystem):
         output_ports:
         - desired_state
 
-    A non-finite command holds the last state. Samples every `period` (s).
+    A non-finite command holds the last state. Samples every `period` (s): the stations use
+    the plant's step, the finest at which the EPM's pose can act on the capsule.
     """
 
     def __init__(self, initial_stage_q, period: float = 0.001):
@@ -86,15 +87,26 @@ class PoseToStage(LeafSystem):
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self.DeclareStateOutputPort("desired_state", self._state)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self._last = None   # (command and state bytes, the update they give)
 
     def _update(self, context, discrete_state):
-        command = np.asarray(self._command.Eval(context), dtype=float)
-        x = context.get_discrete_state(self._state).value().copy()
+        command = self._command.Eval(context)
+        state = context.get_discrete_state(self._state).value()
+        # The command changes at its source's rate (a navigator's 20 Hz, a path's samples),
+        # this samples at the plant's step: an unchanged command and state give the same
+        # update (a pure function of the two), kept from the last time.
+        key = command.tobytes() + state.tobytes()
+        if self._last is not None and self._last[0] == key:
+            discrete_state.set_value(self._state, self._last[1])
+            return
+        x = state.copy()
+        command = np.asarray(command, dtype=float)
         if np.all(np.isfinite(command)) and np.linalg.norm(command[3:]) > 1e-9:
             q = stage_joint_positions(command[:3], command[3:] / np.linalg.norm(command[3:]))
             q[3] = x[3] + np.angle(np.exp(1j * (q[3] - x[3])))
             x[:5] = q
         discrete_state.set_value(self._state, x)
+        self._last = (key, x)
 
 
 class KinematicStage(LeafSystem):
@@ -221,7 +233,8 @@ class KinematicStageMount:
     def command_input(self, builder, parts):
         """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
         epm.desired_state."""
-        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(self._q0))
+        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(
+            self._q0, period=parts.plant.time_step()))
         self._drive(builder, parts, stage.get_output_port())
         return stage.GetInputPort("epm_command")
 
@@ -285,7 +298,8 @@ class StageMount:
     def command_input(self, builder, parts):
         """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
         epm.desired_state."""
-        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(self._q0))
+        stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(
+            self._q0, period=parts.plant.time_step()))
         builder.Connect(stage.get_output_port(),
                         parts.plant.get_desired_state_input_port(self.instance))
         parts.export(stage.get_output_port(), "epm.desired_state")
