@@ -19,6 +19,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
+    MU0,
     cylinder_pair_interaction_float,
     dipole_pair_interaction,
     dipole_pair_interaction_float,
@@ -88,6 +89,66 @@ def _mat_vec(M, v):
     return [M[0][0] * v[0] + M[0][1] * v[1] + M[0][2] * v[2],
             M[1][0] * v[0] + M[1][1] * v[1] + M[1][2] * v[2],
             M[2][0] * v[0] + M[2][1] * v[1] + M[2][2] * v[2]]
+
+
+_K_DIPOLE = MU0 / (4.0 * math.pi)
+
+
+def _dipole_torque_about(m_s, p_s, m_t, p_t, r, min_distance):
+    """The torque of source dipole m_s at p_s on target dipole m_t at p_t about the point
+    p_t - r (m_t x B + r x F): dipole_pair_interaction_float's target side, inlined."""
+    sx, sy, sz = m_s
+    tx, ty, tz = m_t
+    px, py, pz = p_t[0] - p_s[0], p_t[1] - p_s[1], p_t[2] - p_s[2]
+    distance = math.sqrt(px * px + py * py + pz * pz)
+    if distance == 0.0:   # coincident: no direction (as dipole_pair_interaction_float)
+        return 0.0, 0.0, 0.0
+    ux, uy, uz = px / distance, py / distance, pz / distance
+    d = min_distance if distance < min_distance else distance
+    k3 = _K_DIPOLE / (d * d * d)
+    s_u = sx * ux + sy * uy + sz * uz
+    t_u = tx * ux + ty * uy + tz * uz
+    a = 3.0 * s_u
+    bx, by, bz = k3 * (a * ux - sx), k3 * (a * uy - sy), k3 * (a * uz - sz)
+    k4 = 3.0 * k3 / d
+    w = sx * tx + sy * ty + sz * tz - 5.0 * s_u * t_u
+    fx = k4 * (sx * t_u + tx * s_u + ux * w)
+    fy = k4 * (sy * t_u + ty * s_u + uy * w)
+    fz = k4 * (sz * t_u + tz * s_u + uz * w)
+    rx, ry, rz = r
+    return (ty * bz - tz * by + ry * fz - rz * fy,
+            tz * bx - tx * bz + rz * fx - rx * fz,
+            tx * by - ty * bx + rx * fy - ry * fx)
+
+
+def _rotate_symmetric(R, I):
+    """R I R^T for a rotation R and a symmetric I, both as rows."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    (i00, i01, i02), (_, i11, i12), (_, _, i22) = I
+    # Rows of R I.
+    a00 = r00 * i00 + r01 * i01 + r02 * i02
+    a01 = r00 * i01 + r01 * i11 + r02 * i12
+    a02 = r00 * i02 + r01 * i12 + r02 * i22
+    a10 = r10 * i00 + r11 * i01 + r12 * i02
+    a11 = r10 * i01 + r11 * i11 + r12 * i12
+    a12 = r10 * i02 + r11 * i12 + r12 * i22
+    a20 = r20 * i00 + r21 * i01 + r22 * i02
+    a21 = r20 * i01 + r21 * i11 + r22 * i12
+    a22 = r20 * i02 + r21 * i12 + r22 * i22
+    w00 = a00 * r00 + a01 * r01 + a02 * r02
+    w01 = a00 * r10 + a01 * r11 + a02 * r12
+    w02 = a00 * r20 + a01 * r21 + a02 * r22
+    w11 = a10 * r10 + a11 * r11 + a12 * r12
+    w12 = a10 * r20 + a11 * r21 + a12 * r22
+    w22 = a20 * r20 + a21 * r21 + a22 * r22
+    return ((w00, w01, w02), (w01, w11, w12), (w02, w12, w22))
+
+
+def _minus_scaled(A, c, B):
+    """A - c B for symmetric 3x3 A and B (rows)."""
+    return ((A[0][0] - c * B[0][0], A[0][1] - c * B[0][1], A[0][2] - c * B[0][2]),
+            (A[1][0] - c * B[1][0], A[1][1] - c * B[1][1], A[1][2] - c * B[1][2]),
+            (A[2][0] - c * B[2][0], A[2][1] - c * B[2][1], A[2][2] - c * B[2][2]))
 
 
 def _cholesky3(A):
@@ -467,12 +528,12 @@ def MagneticForce_(T):
                 # 1 / (2 h^2): backward Euler is accurate on them and I - h^2 S positive
                 # definite); else only its restoring part (the body turned against the
                 # field: _restoring_part).
-                S = [[0.5 * (K[a][b] + K[b][a]) for b in range(3)] for a in range(3)]
-                RI = [_mat_vec(inertia.I_B, row) for row in R]   # rows of R I_B (I_B sym.)
-                I_W = [[sum(RI[a][n] * R[b][n] for n in range(3)) for b in range(3)]
-                       for a in range(3)]
-                if _cholesky3([[I_W[a][b] - 2.0 * h * h * S[a][b] for b in range(3)]
-                               for a in range(3)]) is None:
+                s01, s02, s12 = (0.5 * (K[0][1] + K[1][0]), 0.5 * (K[0][2] + K[2][0]),
+                                 0.5 * (K[1][2] + K[2][1]))
+                S = ((K[0][0], s01, s02), (s01, K[1][1], s12), (s02, s12, K[2][2]))
+                I_W = _rotate_symmetric(R, inertia.I_B)
+                hh2 = 2.0 * h * h
+                if _cholesky3(_minus_scaled(I_W, hh2, S)) is None:
                     S = _restoring_part(S, I_W)
                 other = (0.0, 0.0, 0.0)
                 if started:
@@ -481,8 +542,7 @@ def MagneticForce_(T):
                     other = [I_dw[n] - state[6 * k + 3 + n] for n in range(3)]
                 S_w = _mat_vec(S, w)
                 rhs = [h * (tau0[n] + h * S_w[n] + other[n]) for n in range(3)]
-                A = [[I_W[a][b] - h * h * S[a][b] for b in range(3)] for a in range(3)]
-                dw_hat = _solve_spd3(_cholesky3(A), rhs)
+                dw_hat = _solve_spd3(_cholesky3(_minus_scaled(I_W, h * h, S)), rhs)
                 S_w_hat = _mat_vec(S, [w[n] + dw_hat[n] for n in range(3)])
                 correction = [h * S_w_hat[n] for n in range(3)]
                 out.append((tuple(tau_M[n] + correction[n] for n in range(3)),
@@ -501,18 +561,14 @@ def MagneticForce_(T):
             d_min = self._min_distance
             others = [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
                       if j != i]
-            pair = dipole_pair_interaction_float
 
             def torque_about_cm(m_i, p_i, r_i):
                 tx = ty = tz = 0.0
                 for m_j, p_j in others:
-                    result = pair(m_j, m_i, (p_i[0] - p_j[0], p_i[1] - p_j[1],
-                                             p_i[2] - p_j[2]), d_min)
-                    lever = _cross(r_i, result.force_target)
-                    torque = result.torque_target
-                    tx += torque[0] + lever[0]
-                    ty += torque[1] + lever[1]
-                    tz += torque[2] + lever[2]
+                    x, y, z = _dipole_torque_about(m_j, p_j, m_i, p_i, r_i, d_min)
+                    tx += x
+                    ty += y
+                    tz += z
                 return tx, ty, tz
 
             base = torque_about_cm(m, p, r)
