@@ -4,7 +4,8 @@
         [--scenario-text YAML] [--sim-seconds 10] [--repeats 3]
 
 Each scenario (diagrams/default.yaml, at its own plant step) runs in a process of its own, so
-that its build time and peak memory (resident set, build and simulation) are its own. No
+that its build time and peak memory (resident set, build and simulation) are its own, with
+the allocator setting the launchers use (ALLOCATOR, unless GLIBC_TUNABLES is set). No
 Meshcat; the Navigation scenario renders its camera and runs its tracker and follower as a
 run would. Prints, per scenario, the build time (colon and diagram), the peak memory, the
 median real-time factor over `repeats` simulations of `sim-seconds` after one second of
@@ -21,6 +22,7 @@ costs:
 import argparse
 import copy
 import json
+import os
 import platform
 import resource
 import statistics
@@ -34,6 +36,11 @@ from pydrake.systems.analysis import Simulator
 from capsule_drake.anatomy import load_colon
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import make_station
+
+
+ALLOCATOR = "glibc.malloc.tcache_count=65000:glibc.malloc.tcache_max=262144"
+"""The allocator setting ./capsule-sim and ./run-tests give every run (scripts/bootstrap.sh):
+the scenarios are measured with it unless GLIBC_TUNABLES is set already."""
 
 
 def median_seconds(fn, repeats: int) -> float:
@@ -149,8 +156,11 @@ def main():
                                  args.repeats, breakdown)))
         return
 
+    env = dict(os.environ)
+    env.setdefault("GLIBC_TUNABLES", ALLOCATOR)
     print(f"machine: {platform.machine()}, {cpu_name()}, Python "
-          f"{platform.python_version()}; {args.repeats} x {args.sim_seconds:g} s after 1 s")
+          f"{platform.python_version()}; {args.repeats} x {args.sim_seconds:g} s after 1 s; "
+          f"GLIBC_TUNABLES={env['GLIBC_TUNABLES']}")
     print("| scenario | contact | step | build (colon + diagram) | peak memory "
           "| real-time factor (median; runs) | wall per step | magnet force | contact query "
           "| solver, dynamics, rest |")
@@ -160,7 +170,7 @@ def main():
                    str(args.sim_seconds), "--repeats", str(args.repeats)]
         if args.scenario_text:
             command += ["--scenario-text", args.scenario_text]
-        done = subprocess.run(command, capture_output=True, text=True)
+        done = subprocess.run(command, capture_output=True, text=True, env=env)
         if done.returncode != 0:
             print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
             continue

@@ -60,3 +60,9 @@ if [ ! -x "$_venv/bin/python" ] || [ "$(cat "$_venv/.capsule-stamp" 2>/dev/null)
     fi
     _stamp > "$_venv/.capsule-stamp"
 fi
+# glibc's per-thread cache of freed memory blocks, enlarged (more blocks, and blocks up to
+# 256 kB): a simulation step allocates and frees many blocks (the contact surfaces, the
+# solver's problem, Python's objects), and the default cache sends most of them back to
+# the shared allocator. Measured: the Default scenario ~10 % faster (README, Performance).
+# A value the user sets is kept; other C libraries ignore it.
+export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.tcache_count=65000:glibc.malloc.tcache_max=262144}"
