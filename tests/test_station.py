@@ -265,6 +265,7 @@ def test_sensors_are_wired_and_seeded():
     assert 0.0 < np.linalg.norm(error) < 1.0
 
 
+@pytest.mark.slow
 def test_a_settled_start_begins_at_rest_on_the_wall_without_the_snap():
     """capsule.settle: the Default capsule, let settle 0.5 s (at a 0.5 ms step), starts the
     run touching the wall (its surface within 1 mm of it), not on the centreline, and the
