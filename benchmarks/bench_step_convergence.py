@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_step_convergence.py [--scenario Default]
         [--duration 20] [--steps 0.25,0.5,1,2,3,4] [--reference 0.25] [--scenario-text YAML]
+        [--log-every-step]
 
 Each step runs the same scenario (same seed) through the one run loop (io/run.py) with
 `plant.time_step` set to it, bypassing the scenario's step bound (physics/step_bound.py), so
@@ -13,7 +14,9 @@ that the table also shows what happens beyond it. Printed per step, against the 
     second (the capsule starts on the centreline and drops onto the wall);
   - the summed contact force after the first second: median and 95th percentile (N);
   - the real-time factor of that run (the run loop's, loggers and guard included).
-A step whose run diverged or stopped early says so in its row.
+A step whose run diverged or stopped early says so in its row. The runs log at the
+scenario's log period (10 ms by default), which can miss a one-step excursion into the wall;
+--log-every-step logs each run at its own step (slower).
 """
 
 import argparse
@@ -28,10 +31,12 @@ from capsule_drake.io.run import simulate
 from capsule_drake.scenario import load_scenario
 
 
-def run(name, override, step, duration):
+def run(name, override, step, duration, every_step=False):
     scenario = load_scenario(name=name, override=override)
     scenario.plant.time_step = step
     scenario.duration = duration
+    if every_step:
+        scenario.outputs.log_period = step
     return simulate(scenario, progress=False)
 
 
@@ -41,9 +46,17 @@ def axes(capsule_state):
     return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1)
 
 
-def compare(result, reference):
-    common = min(len(result.times), len(reference.times))
-    a, b = result.capsule_state[:, :common], reference.capsule_state[:, :common]
+def compare(result, reference, period=0.01):
+    """Position (mm) and axis (deg) differences at common times every `period` s (the
+    nearest logged sample of each run: their log periods may differ)."""
+    end = min(result.times[-1], reference.times[-1])
+    grid = np.arange(0.0, end + 1e-9, period)
+
+    def at(run):
+        k = np.clip(np.searchsorted(run.times, grid - 1e-9), 0, len(run.times) - 1)
+        return run.capsule_state[:, k]
+
+    a, b = at(result), at(reference)
     distance = 1000.0 * np.linalg.norm(a[4:7] - b[4:7], axis=0)
     cosine = np.clip(np.sum(axes(a) * axes(b), axis=1), -1.0, 1.0)
     angle = np.degrees(np.arccos(cosine))
@@ -67,13 +80,16 @@ def main():
     parser.add_argument("--duration", type=float, default=20.0)
     parser.add_argument("--steps", default="0.25,0.5,1,2,3,4", help="ms, comma separated")
     parser.add_argument("--reference", type=float, default=0.25, help="ms")
+    parser.add_argument("--log-every-step", action="store_true",
+                        help="log each run at its plant step (catches one-step excursions)")
     args = parser.parse_args()
     steps = sorted({float(s) for s in args.steps.split(",")} | {args.reference})
 
     scenario = load_scenario(name=args.scenario, override=args.scenario_text)
     results = {}
     for step in steps:
-        results[step] = run(args.scenario, args.scenario_text, 1e-3 * step, args.duration)
+        results[step] = run(args.scenario, args.scenario_text, 1e-3 * step, args.duration,
+                            args.log_every_step)
     reference = results[args.reference]
     ref_advance = reference.metrics["advance_m"]
 

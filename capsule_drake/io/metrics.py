@@ -38,11 +38,22 @@ def capsule_poses(state_log: np.ndarray):
     return R, state_log[4:7].T.copy()
 
 
+EXCURSION_CHUNK_POINTS = 200_000
+"""Surface points measured at once by wall_excursion: a long run logged finely (240,000
+poses of a 60 s run at 0.25 ms) would otherwise ask for tens of GB at once."""
+
+
 def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarray) -> np.ndarray:
-    """Per pose, how far the capsule reaches beyond the colon wall (m; <= 0 means inside)."""
-    points_W = np.einsum("kij,nj->kni", R_WC, points_C) + p_WC[:, None, :]
-    excursion = colon.excursion(points_W.reshape(-1, 3)).reshape(len(p_WC), len(points_C))
-    return excursion.max(axis=1)
+    """Per pose, how far the capsule reaches beyond the colon wall (m; <= 0 means inside).
+    Measured a chunk of poses at a time (EXCURSION_CHUNK_POINTS surface points)."""
+    out = np.empty(len(p_WC))
+    step = max(1, EXCURSION_CHUNK_POINTS // max(len(points_C), 1))
+    for k in range(0, len(p_WC), step):
+        R, p = R_WC[k:k + step], p_WC[k:k + step]
+        points_W = np.einsum("kij,nj->kni", R, points_C) + p[:, None, :]
+        out[k:k + step] = colon.excursion(points_W.reshape(-1, 3)).reshape(
+            len(p), len(points_C)).max(axis=1)
+    return out
 
 
 # What a run achieved along and against the colon: not reported for a run that diverged.
