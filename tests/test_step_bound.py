@@ -16,9 +16,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.physics.magnet_force import (MagneticForce, MagnetSpec,
-                                                _dipole_torque_about, _restoring_part)
-from capsule_drake.physics.magnetics import (MagnetGeometry, dipole_field, dipole_force,
-                                             dipole_pair_interaction_float)
+                                                _restoring_part)
+from capsule_drake.physics.magnetics import MagnetGeometry, dipole_field, dipole_force
 from capsule_drake.physics.step_bound import (SAFETY, capsule_inertia, closest_distance,
                                               magnet_stiffness, step_bounds, time_step_bound)
 from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, load_scenario, scenario_names
@@ -301,22 +300,6 @@ def test_the_pendulum_turned_against_the_field_is_not_held_back():
     S = np.array([[-2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]])
     np.testing.assert_allclose(_restoring_part(S.tolist(), np.eye(3).tolist()),
                                np.diag([-2.0, 0.0, 0.0]), atol=1e-12)
-
-
-def test_the_stiffness_torque_is_the_dipole_pair_torque_about_the_centre_of_mass():
-    """The implicit torque's inlined dipole torque about a point (_dipole_torque_about) is
-    the pair interaction's m x B plus the lever's r x F, over random dipoles and points."""
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        m_s, m_t = 100.0 * rng.normal(size=3), rng.normal(size=3)
-        p_s, p_t, r = 0.1 * rng.normal(size=3), 0.1 * rng.normal(size=3), 0.003 * rng.normal(
-            size=3)
-        pair = dipole_pair_interaction_float(tuple(m_s), tuple(m_t), tuple(p_t - p_s), 0.01)
-        expected = np.array(pair.torque_target) + np.cross(r, pair.force_target)
-        got = _dipole_torque_about(tuple(m_s), tuple(p_s), tuple(m_t), tuple(p_t), tuple(r),
-                                   0.01)
-        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12 * np.abs(
-            expected).max())
 
 
 # --- the bound on the shipped scenarios --------------------------------------------------

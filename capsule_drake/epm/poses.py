@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import functools
 
+import math
+
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -150,10 +152,12 @@ def hold_above_trajectory(colon, start_s: float, path, clearance: float,
 
 
 def stage_to_pose(q) -> np.ndarray:
-    """[p_WE (3), m_hat_W (3)] of the stage's joint positions [x, y, z, yaw, pitch]."""
-    x, y, z, yaw, pitch = np.asarray(q, dtype=float)[:5]
-    return np.array([x, y, z, np.cos(yaw) * np.sin(pitch), np.sin(yaw) * np.sin(pitch),
-                     np.cos(pitch)])
+    """[p_WE (3), m_hat_W (3)] of the stage's joint positions [x, y, z, yaw, pitch].
+    Plain floats: the kinematic stage calls it at every plant step."""
+    x, y, z, yaw, pitch = np.asarray(q, dtype=float)[:5].tolist()
+    sin_pitch = math.sin(pitch)
+    return np.array([x, y, z, math.cos(yaw) * sin_pitch, math.sin(yaw) * sin_pitch,
+                     math.cos(pitch)])
 
 
 def pose_trajectory(stage_trajectory, sample_period: float = 0.05):

@@ -11,7 +11,6 @@ A path driver sends the stage a joint trajectory; a pose-command driver goes thr
 """
 
 import dataclasses
-import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -22,7 +21,7 @@ from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 
-from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.epm.poses import stage_joint_positions, stage_to_pose
 from capsule_drake.models import model_url
 from capsule_drake.schema import need_range
 
@@ -133,11 +132,7 @@ class KinematicStage(LeafSystem):
         output.SetFromVector(self._desired.Eval(context))
 
     def _calc_pose(self, context, output):
-        # stage_to_pose in plain floats: this runs at every step.
-        x, y, z, yaw, pitch = self._desired.Eval(context)[:5].tolist()
-        sin_pitch = math.sin(pitch)
-        output.SetFromVector(np.array([x, y, z, math.cos(yaw) * sin_pitch,
-                                       math.sin(yaw) * sin_pitch, math.cos(pitch)]))
+        output.SetFromVector(stage_to_pose(self._desired.Eval(context)))
 
 
 class EpmFrame(LeafSystem):

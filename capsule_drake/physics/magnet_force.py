@@ -19,7 +19,6 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
-    MU0,
     cylinder_pair_interaction_float,
     dipole_pair_interaction,
     dipole_pair_interaction_float,
@@ -89,36 +88,6 @@ def _mat_vec(M, v):
     return [M[0][0] * v[0] + M[0][1] * v[1] + M[0][2] * v[2],
             M[1][0] * v[0] + M[1][1] * v[1] + M[1][2] * v[2],
             M[2][0] * v[0] + M[2][1] * v[1] + M[2][2] * v[2]]
-
-
-_K_DIPOLE = MU0 / (4.0 * math.pi)
-
-
-def _dipole_torque_about(m_s, p_s, m_t, p_t, r, min_distance):
-    """The torque of source dipole m_s at p_s on target dipole m_t at p_t about the point
-    p_t - r (m_t x B + r x F): dipole_pair_interaction_float's target side, inlined."""
-    sx, sy, sz = m_s
-    tx, ty, tz = m_t
-    px, py, pz = p_t[0] - p_s[0], p_t[1] - p_s[1], p_t[2] - p_s[2]
-    distance = math.sqrt(px * px + py * py + pz * pz)
-    if distance == 0.0:   # coincident: no direction (as dipole_pair_interaction_float)
-        return 0.0, 0.0, 0.0
-    ux, uy, uz = px / distance, py / distance, pz / distance
-    d = min_distance if distance < min_distance else distance
-    k3 = _K_DIPOLE / (d * d * d)
-    s_u = sx * ux + sy * uy + sz * uz
-    t_u = tx * ux + ty * uy + tz * uz
-    a = 3.0 * s_u
-    bx, by, bz = k3 * (a * ux - sx), k3 * (a * uy - sy), k3 * (a * uz - sz)
-    k4 = 3.0 * k3 / d
-    w = sx * tx + sy * ty + sz * tz - 5.0 * s_u * t_u
-    fx = k4 * (sx * t_u + tx * s_u + ux * w)
-    fy = k4 * (sy * t_u + ty * s_u + uy * w)
-    fz = k4 * (sz * t_u + tz * s_u + uz * w)
-    rx, ry, rz = r
-    return (ty * bz - tz * by + ry * fz - rz * fy,
-            tz * bx - tx * bz + rz * fx - rx * fz,
-            tx * by - ty * bx + rx * fy - ry * fx)
 
 
 def _rotate_symmetric(R, I):
@@ -576,13 +545,18 @@ def MagneticForce_(T):
             others = [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
                       if j != i]
 
+            pair = dipole_pair_interaction_float
+
             def torque_about_cm(m_i, p_i, r_i):
                 tx = ty = tz = 0.0
                 for m_j, p_j in others:
-                    x, y, z = _dipole_torque_about(m_j, p_j, m_i, p_i, r_i, d_min)
-                    tx += x
-                    ty += y
-                    tz += z
+                    result = pair(m_j, m_i, (p_i[0] - p_j[0], p_i[1] - p_j[1],
+                                             p_i[2] - p_j[2]), d_min)
+                    lever = _cross(r_i, result.force_target)
+                    torque = result.torque_target
+                    tx += torque[0] + lever[0]
+                    ty += torque[1] + lever[1]
+                    tz += torque[2] + lever[2]
                 return tx, ty, tz
 
             base = torque_about_cm(m, p, r)
