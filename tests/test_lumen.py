@@ -179,7 +179,7 @@ def test_tracker_runs_a_users_detector_by_name_and_survives_a_broken_one():
 
 
 def test_bad_detector_names_give_one_line_scenario_errors():
-    for name, words in (("nonsense", "is not 'gaussian'"),
+    for name, words in (("nonsense", "is not 'core', 'gaussian', 'median'"),
                         ("no_such_module_x:f", "no module .no_such_module_x. on the Python path"),
                         ("test_lumen:missing_function", "has no function")):
         with pytest.raises(ScenarioError, match=words) as info:

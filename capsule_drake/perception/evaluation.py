@@ -26,10 +26,18 @@ from capsule_drake.anatomy import ColonParams
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.perception import photometry
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
+from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 from capsule_drake.perception.views import camera_scene
 
 KINDS = ("lumen", "wall")
+RENDERERS = ("vtk", "raycast")
+IMAGE_CONDITIONS = ("nominal",) + tuple(photometry.CONDITIONS)
+"""Conditions applied to a finished frame (perception/photometry.py), either image path."""
+LIGHT_CONDITIONS = tuple(f"light_{group}" for group in SHADING_GROUPS) + ("light_all",)
+"""Conditions the ray caster renders (perception/raycast.py): one group of its shading drawn
+at random per frame, or all of them."""
 
 
 @dataclasses.dataclass
@@ -83,42 +91,93 @@ def _camera_pose(colon, kind: str, rng, max_tilt_deg: float):
 def sample_frames(count: int, colons: int = 5, seed: int = 0, wall_fraction: float = 0.25,
                   config: CameraConfig | None = None, lookahead: float = 0.05,
                   max_tilt_deg: float = 30.0, progress=None) -> list[Frame]:
-    """`count` frames spread evenly over `colons` random colons (seeds seed, seed + 1, ...),
-    a `wall_fraction` of them facing the wall. Deterministic in `seed`. `progress`, if
-    given, is called with the number of frames done."""
+    """`count` frames from the simulator's camera spread evenly over `colons` random colons
+    (seeds seed, seed + 1, ...), a `wall_fraction` of them facing the wall. Deterministic in
+    `seed`. `progress`, if given, is called with the number of frames done."""
+    return condition_frames(count, colons, seed, "vtk", ("nominal",), config, wall_fraction,
+                            lookahead, max_tilt_deg, progress)["nominal"]
+
+
+def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str = "vtk",
+                     conditions=("nominal",), config: CameraConfig | None = None,
+                     wall_fraction: float = 0.25, lookahead: float = 0.05,
+                     max_tilt_deg: float = 30.0, progress=None) -> dict[str, list[Frame]]:
+    """The same seeded poses as `sample_frames`, rendered by `renderer` ("vtk": the
+    simulator's camera; "raycast": the independent ray caster) through the lens of `config`, under each
+    of `conditions` (IMAGE_CONDITIONS, and with the ray caster LIGHT_CONDITIONS too).
+    Returns {condition: frames}. Each condition's random strength is drawn per frame from
+    a generator seeded by (seed, frame, condition), so a condition's frames do not change
+    when others are added."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+    allowed = IMAGE_CONDITIONS + (LIGHT_CONDITIONS if renderer == "raycast" else ())
+    unknown = [c for c in conditions if c not in allowed]
+    if unknown:
+        raise ValueError(f"unknown condition(s) {unknown} for the {renderer} renderer; "
+                         f"known: {', '.join(allowed)}")
     config = config or CameraConfig()
     rng = np.random.default_rng(seed)
-    frames = []
+    out = {condition: [] for condition in conditions}
+    done = 0
     for k in range(colons):
         share = count // colons + (1 if k < count % colons else 0)
         if share == 0:
             continue
         colon_params = ColonParams(seed=seed + k)
         colon, _ = load_colon(colon_params)
-        diagram, context, plant, scene_graph, walls = camera_scene(
-            0.1, config, colon=colon_params)
-        body = plant.GetBodyByName(CAPSULE_BODY)
-        frame_id = plant.GetBodyFrameIdOrThrow(body.index())
-        X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
-        plant_context = plant.GetMyMutableContextFromRoot(context)
-        renderer = LensRenderer(config)
-        _, field = renderer.lens.pixel_rays()
+        if renderer == "vtk":
+            render = _vtk_renderer(colon_params, config)
+        else:
+            caster = RayCaster(colon.visual_mesh(), config.lens, far=config.far)
         for i in range(share):
             kind = "wall" if rng.uniform() < wall_fraction else "lumen"
             X_WC, s = _camera_pose(colon, kind, rng, max_tilt_deg)
-            plant.SetFreeBodyPose(plant_context, body, X_WC.multiply(X_BC.inverse()))
-            query = scene_graph.get_query_output_port().Eval(
-                scene_graph.GetMyContextFromRoot(context))
-            window = walls(X_WC.translation())
-            rgb = renderer.render_rgba(query, frame_id, X_BC, renderer=window)[..., :3].copy()
-            depth = renderer.render_range(query, frame_id, X_BC, renderer=window)
+            if renderer == "vtk":
+                rgb, depth, lens_model, field = render(X_WC)
+            else:
+                hits = caster.cast(X_WC)
+                depth, lens_model, field = caster.range_image(hits), caster.lens, caster.field
             point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
                                     lookahead)
-            pixel, visible = project_lumen(renderer.lens, X_WC, point, depth)
-            frames.append(Frame(seed + k, float(s), kind, rgb, field, pixel, bool(visible)))
+            pixel, visible = project_lumen(lens_model, X_WC, point, depth)
+            for n, condition in enumerate(conditions):
+                draw = np.random.default_rng([seed, done, n])
+                image_condition = condition
+                if renderer == "raycast":
+                    group = condition[len("light_"):] if condition in LIGHT_CONDITIONS else None
+                    shading = (Shading() if group is None else Shading.sample(
+                        draw, None if group == "all" else group))
+                    rgb = caster.shade(hits, shading)
+                    image_condition = "nominal" if group is not None else condition
+                image = photometry.apply(image_condition, rgb, field, draw)
+                out[condition].append(Frame(seed + k, float(s), kind, image, field, pixel,
+                                            bool(visible)))
+            done += 1
             if progress is not None:
-                progress(len(frames))
-    return frames
+                progress(done)
+    return out
+
+
+def _vtk_renderer(colon_params, config: CameraConfig):
+    """A function X_WC -> (rgb, range, lens, field) rendering the simulator's camera view."""
+    diagram, context, plant, scene_graph, walls = camera_scene(0.1, config, colon=colon_params)
+    body = plant.GetBodyByName(CAPSULE_BODY)
+    frame_id = plant.GetBodyFrameIdOrThrow(body.index())
+    X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    renderer = LensRenderer(config)
+    _, field = renderer.lens.pixel_rays()
+
+    def render(X_WC):
+        plant.SetFreeBodyPose(plant_context, body, X_WC.multiply(X_BC.inverse()))
+        query = scene_graph.get_query_output_port().Eval(
+            scene_graph.GetMyContextFromRoot(context))
+        window = walls(X_WC.translation())
+        rgb = renderer.render_rgba(query, frame_id, X_BC, renderer=window)[..., :3].copy()
+        depth = renderer.render_range(query, frame_id, X_BC, renderer=window)
+        return rgb, depth, renderer.lens, field
+
+    return render
 
 
 @dataclasses.dataclass

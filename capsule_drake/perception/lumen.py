@@ -34,6 +34,10 @@ import numpy as np
 from capsule_drake.plugins import load_function
 
 PREFILTERS = ("gaussian", "median")
+DETECTORS = ("core", "gaussian", "median")
+CORE_FEATURES = ("depth", "surround", "rim_fraction", "radius", "area_fraction")
+"""What the core detector's confidence is a logistic function of (detect_lumen_core)."""
+CORE_CONFIDENCE_WEIGHTS = (0.0, 1.0, 1.0, -1.0, -1.0, 0.0)
 
 
 @dataclasses.dataclass
@@ -71,9 +75,28 @@ class LumenParams:
     min_contrast: float = 0.5
     max_rim_fraction: float = 0.35
     max_radius: float = 0.85
-    # Confidence at or above which the lumen is reported visible (0.5: every gate passed;
-    # 1: contrast 1 and the region well inside the field).
+    # Confidence at or above which the lumen is reported visible. "core": the calibrated
+    # probability that the lumen is in view and found within 5 % of the diagonal (0.5 by
+    # default). "gaussian" and "median": 0.5 means every gate passed, 1 contrast 1 and the
+    # region well inside the field.
     min_confidence: float = 0.5
+    # --- the "core" detector (detect_lumen_core), the default ---
+    # Longest side of its working image (px).
+    core_work_size: int = 64
+    # Sigma of its masked Gaussian blur, as a fraction of the working image's longest side.
+    core_sigma: float = 0.08
+    # The core: connected to the darkest point of the blurred log intensity, the pixels
+    # within this fraction of (field median - darkest) above the darkest.
+    core_level: float = 0.6
+    # ... and within this fraction of the field's radius of the darkest point (a dark
+    # periphery joined to the lumen does not pull the centre outward).
+    core_radius: float = 1.0
+    # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
+    # benchmarks/tune_lumen.py on the simulator's frames of colon seeds 0-4 under the
+    # nominal, noise and exposure conditions; scored elsewhere on other seeds, every
+    # condition and the ray caster's frames).
+    confidence_weights: list[float] = dataclasses.field(
+        default_factory=lambda: list(CORE_CONFIDENCE_WEIGHTS))
 
 
 def check_lumen_params(params: LumenParams) -> None:
@@ -98,6 +121,19 @@ def check_lumen_params(params: LumenParams) -> None:
             raise ValueError(f"lumen detector {name} {value} must be in [0, 1]")
     if not params.dark_bias >= 0.0:
         raise ValueError("lumen detector dark_bias must be >= 0")
+    if params.core_work_size < 16:
+        raise ValueError(f"lumen detector core_work_size {params.core_work_size} must be "
+                         f">= 16")
+    if not 0.0 < params.core_sigma <= 0.5:
+        raise ValueError(f"lumen detector core_sigma {params.core_sigma} must be in (0, 0.5]")
+    if not 0.0 < params.core_radius <= 1.0:
+        raise ValueError(f"lumen detector core_radius {params.core_radius} must be in (0, 1]")
+    if not 0.0 < params.core_level <= 1.0:
+        raise ValueError(f"lumen detector core_level {params.core_level} must be in (0, 1]")
+    if (len(params.confidence_weights) != len(CORE_FEATURES) + 1
+            or not np.all(np.isfinite(params.confidence_weights))):
+        raise ValueError(f"lumen detector confidence_weights must be {len(CORE_FEATURES) + 1}"
+                         f" finite numbers (bias, then {', '.join(CORE_FEATURES)})")
 
 
 @dataclasses.dataclass
@@ -283,6 +319,107 @@ def detect_lumen(rgb: np.ndarray, field_mask: np.ndarray | None = None,
                           confidence, full_region, float(t), features)
 
 
+def _masked_blur(values, weight, sigma):
+    """Gaussian blur of `values` over the pixels of `weight` only (normalised convolution),
+    so the black surround of a fisheye's field does not darken its rim."""
+    blurred = cv2.GaussianBlur(values * weight, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.GaussianBlur(weight, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+    return blurred / np.maximum(total, 1e-6)
+
+
+def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
+                      params: LumenParams | None = None) -> LumenDetection:
+    """Finds the lumen's core: the darkest region of the image, light being at the lens,
+    taken as the dark hole's centre rather than as the whole dark class.
+
+    1. intensity = R + G + B (a colour cast moves no pixel's rank much), downsampled by area
+       to `core_work_size` over the field;
+    2. its logarithm, blurred over the field only (`core_sigma`): exposure becomes an offset
+       and a tone curve nearly a scale, which the relative levels below do not see;
+    3. the darkest point of the blurred field (one pixel inside its edge), and the core: the
+       pixels connected to it within `core_level` of (field median - darkest) above it;
+    4. centre: the core's centroid, weighted by how far below that level each pixel lies;
+    5. confidence: a logistic function of the measures in CORE_FEATURES, fitted so that it
+       estimates the probability that a lumen is in view and within 5 % of the diagonal of
+       the centre (`benchmarks/tune_lumen.py`):
+       depth, the log contrast between the field's median and the darkest point; surround,
+       the core's log contrast with a ring around it; rim_fraction, the share of the core's
+       boundary on the edge of the field (a view facing the wall darkens toward its rim);
+       radius, the centre's distance from the field's centre over the field's radius; and
+       area_fraction, the core's share of the field.
+
+    Args: as `detect_lumen`.
+    """
+    params = params or LumenParams()
+    H, W = rgb.shape[:2]
+    if field_mask is None:
+        field_mask = np.ones((H, W), dtype=bool)
+    if not field_mask.any():
+        return LumenDetection.nothing(rgb.shape)
+    intensity = rgb[..., :3].astype(np.float32).sum(axis=2)
+    scale = max(H, W) / params.core_work_size
+    size = (max(1, round(W / scale)), max(1, round(H / scale)))
+    weight = cv2.resize(field_mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    work = cv2.resize(intensity * field_mask, size, interpolation=cv2.INTER_AREA)
+    inside = weight > 0.99
+    work = np.where(inside, work / np.maximum(weight, 1e-6), 0.0).astype(np.float32)
+    mask = inside.astype(np.float32)
+    if mask.sum() < 16:
+        return LumenDetection.nothing(rgb.shape)
+    # +6: three channels' worth of the darkest levels' noise, so black does not reach -inf.
+    log = _masked_blur(np.log(work + 6.0), mask, params.core_sigma * max(size))
+    kernel = np.ones((3, 3), np.uint8)
+    inner = cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
+    if not inner.any():
+        return LumenDetection.nothing(rgb.shape)
+    darkest = np.unravel_index(int(np.argmin(np.where(inner, log, np.inf))), log.shape)
+    low = float(log[darkest])
+    median = float(np.median(log[inside]))
+    depth = median - low
+    cut = low + params.core_level * max(depth, 1e-6)
+    below = (log <= cut) & inside
+    field_radius = np.sqrt(inside.sum() / np.pi)
+    if params.core_radius < 1.0:
+        yy, xx = np.ogrid[0:size[1], 0:size[0]]
+        below &= ((yy - darkest[0]) ** 2 + (xx - darkest[1]) ** 2
+                  <= (params.core_radius * field_radius) ** 2)
+    below = below.astype(np.uint8)
+    _, labels = cv2.connectedComponents(below, connectivity=8)
+    core = labels == labels[darkest]
+    v, u = np.nonzero(core)
+    weights = cut - log[core] + 1e-3
+    centre_work = np.array([np.sum(u * weights), np.sum(v * weights)]) / np.sum(weights)
+    pixel = (centre_work + 0.5) * scale - 0.5
+
+    core8 = core.astype(np.uint8)
+    boundary = core & ~cv2.erode(core8, kernel, borderValue=0).astype(bool)
+    edge = ~cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
+    rim_fraction = float((boundary & edge).sum() / max(boundary.sum(), 1))
+    ring = (cv2.dilate(core8, kernel, iterations=max(2, round(0.06 * max(size)))).astype(bool)
+            & ~core & inside)
+    surround = float(np.median(log[ring]) - np.mean(log[core])) if ring.any() else 0.0
+    fv, fu = np.nonzero(inside)
+    radius = float(np.hypot(centre_work[0] - fu.mean(), centre_work[1] - fv.mean())
+                   / field_radius)
+    features = {"depth": depth, "surround": surround, "rim_fraction": rim_fraction,
+                "radius": radius, "area_fraction": float(core.sum() / inside.sum())}
+    weights_ = params.confidence_weights
+    logit = weights_[0] + sum(w * features[name] for w, name in zip(weights_[1:],
+                                                                     CORE_FEATURES))
+    confidence = float(1.0 / (1.0 + np.exp(-np.clip(logit, -50.0, 50.0))))
+    visible = confidence >= params.min_confidence
+    region = cv2.resize(core8 * 255, (W, H), interpolation=cv2.INTER_NEAREST)
+    features["centre"] = pixel
+    return LumenDetection(bool(visible), pixel if visible else np.full(2, np.nan),
+                          confidence, region, float(np.exp(cut) - 6.0), features)
+
+
+def core_detector(params: LumenParams | None = None) -> Detector:
+    """The default detector (detect_lumen_core) as a detector function."""
+    params = params or LumenParams()
+    return lambda rgb, field_mask=None: detect_lumen_core(rgb, field_mask, params)
+
+
 def gaussian_detector(params: LumenParams | None = None) -> Detector:
     """The seed's detector (Gaussian pre-filter) as a detector function."""
     params = dataclasses.replace(params or LumenParams(), prefilter="gaussian")
@@ -296,12 +433,15 @@ def median_detector(params: LumenParams | None = None) -> Detector:
 
 
 def load_detector(name: str, params: LumenParams | None = None) -> Detector:
-    """A detector by name: "gaussian", "median", or "package.module:function" naming a
+    """A detector by name: "core" (the default), "gaussian", "median" (the dark-class
+    detectors of the seed and of STORM), or "package.module:function" naming a
     user's function with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool or
     None) -> LumenDetection (or an object with visible, pixel, confidence and, optionally,
     region). Raises ValueError with one line if it cannot be found."""
+    if name == "core":
+        return core_detector(params)
     if name == "gaussian":
         return gaussian_detector(params)
     if name == "median":
         return median_detector(params)
-    return load_function("lumen detector", name, "'gaussian', 'median'")
+    return load_function("lumen detector", name, "'core', 'gaussian', 'median'")
