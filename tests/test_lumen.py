@@ -212,18 +212,25 @@ def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, ca
 
     out = tmp_path / "eval"
     code = main(["eval-lumen", "--frames", "6", "--colons", "1", "--seed", "20", "--quiet",
-                 "--detector", "gaussian", "--detector", "test_lumen:offset_detector",
+                 "--renderer", "raycast", "--lens", "fisheye",
+                 "--conditions", "nominal,noise,light_all",
+                 "--detector", "core", "--detector", "test_lumen:offset_detector",
                  "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "gaussian" in printed and "test_lumen:offset_detector" in printed
+    assert "core on raycast, fisheye" in printed and "test_lumen:offset_detector" in printed
+    assert "nan" not in printed
     import json
     results = json.loads((out / "results.json").read_text())
-    assert results["gaussian"]["frames"] == 6
-    assert (out / "gaussian_sheet.png").stat().st_size > 10_000
-    assert (out / "test_lumen_offset_detector_sheet.png").exists()
+    assert set(results["core"]["raycast_fisheye"]) == {"nominal", "noise", "light_all"}
+    assert results["core"]["raycast_fisheye"]["noise"]["frames"] == 6
+    assert (out / "core_raycast_fisheye_sheet.png").stat().st_size > 10_000
+    assert (out / "test_lumen_offset_detector_raycast_fisheye_sheet.png").exists()
+    assert "| light_all |" in (out / "tables.md").read_text()
     assert main(["eval-lumen", "--detector", "nope:nothing", "--frames", "1"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+    assert main(["eval-lumen", "--conditions", "fog", "--frames", "1"]) == 2
+    assert "--conditions" in capsys.readouterr().err
 
 
 def test_station_tracks_the_lumen_and_feeds_the_pseudo_force():

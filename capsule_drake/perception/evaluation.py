@@ -219,12 +219,50 @@ class EvalResult:
         return "\n".join([
             f"{'detector':14s} {'frames':>6s} {'median err':>10s} {'p90 err':>8s} "
             f"{'detected':>8s} {'false pos':>9s} {'ms/frame':>8s}",
-            f"{name:14s} {s['frames']:6d} {100 * s['median_error']:9.1f}% "
-            f"{100 * s['p90_error']:7.1f}% {100 * s['detection_rate']:7.1f}% "
-            f"{100 * s['false_positive_rate']:8.1f}% {s['ms_per_frame']:8.2f}",
+            f"{name:14s} {s['frames']:6d} {_percent(s['median_error'], 10)} "
+            f"{_percent(s['p90_error'], 8)} {_percent(s['detection_rate'], 8)} "
+            f"{_percent(s['false_positive_rate'], 9)} {s['ms_per_frame']:8.2f}",
             f"(errors as % of the image diagonal, {self.diagonal:.0f} px, over the "
             f"{s['lumen_visible']} frames with the lumen in view; detected: of those; "
             f"false pos: of the {s['lumen_hidden']} frames without it)"])
+
+
+def _percent(value: float, width: int) -> str:
+    """A fraction as a percentage right-aligned in `width`, or "-" when undefined (no frame
+    of that kind)."""
+    return f"{100 * value:{width - 1}.1f}%" if np.isfinite(value) else f"{'-':>{width}s}"
+
+
+ACCEPTANCE = {"median_error": 0.015, "p90_error": 0.04, "detection_rate": 0.95,
+              "false_positive_rate": 0.10}
+"""What a detector must reach on every condition: median and 90th-percentile error (fraction
+of the diagonal) at most, detection (of lumen-visible frames) at least, false positives (of
+frames without a visible lumen) at most."""
+
+
+def meets(summary: dict) -> bool:
+    """Whether a summary meets ACCEPTANCE (an undefined rate, no frame of its kind, passes)."""
+    def ok(key, at_most):
+        value = summary[key]
+        return not np.isfinite(value) or (value <= ACCEPTANCE[key] if at_most
+                                          else value >= ACCEPTANCE[key])
+    return (ok("median_error", True) and ok("p90_error", True)
+            and ok("detection_rate", False) and ok("false_positive_rate", True))
+
+
+def condition_table(summaries: dict, title: str) -> str:
+    """A Markdown table of per-condition summaries ({condition: summary})."""
+    rows = [f"{title}", "",
+            "| condition | frames | median error | p90 error | detected | false positives "
+            "| ms/frame | meets |", "|---|---|---|---|---|---|---|---|"]
+    for condition, s in summaries.items():
+        rows.append(
+            f"| {condition} | {s['frames']} | {_percent(s['median_error'], 1)} | "
+            f"{_percent(s['p90_error'], 1)} | {_percent(s['detection_rate'], 1)} (of "
+            f"{s['lumen_visible']}) | {_percent(s['false_positive_rate'], 1)} (of "
+            f"{s['lumen_hidden']}) | {s['ms_per_frame']:.2f} | "
+            f"{'yes' if meets(s) else '**no**'} |")
+    return "\n".join(rows)
 
 
 def evaluate(frames: list[Frame], detector) -> EvalResult:
@@ -277,6 +315,15 @@ def annotated_sheet(result: EvalResult, count: int = 16, columns: int = 4) -> np
         tiles.append(np.zeros((h, w, 3), dtype=np.uint8))
     rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
     return np.vstack(rows)
+
+
+def mixed_sheet(frames_by_condition: dict, detector, count: int = 24) -> np.ndarray:
+    """A contact sheet whose i-th frame comes from the i-th condition in turn (so one sheet
+    shows them all), annotated as `annotated_sheet`."""
+    names = list(frames_by_condition)
+    chosen = [frames_by_condition[names[i % len(names)]][i]
+              for i in range(min(count, min(len(f) for f in frames_by_condition.values())))]
+    return annotated_sheet(evaluate(chosen, detector), count, 6)
 
 
 def save_evaluation(frames: list[Frame], detectors: dict, out_dir) -> list[str]:

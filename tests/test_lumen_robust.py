@@ -1,0 +1,137 @@
+"""The independent image path (ray caster) against closed forms on a straight tube, the
+image-space conditions, and the core detector: synthetic blobs, invariance to exposure and
+tone, a wall-facing view rejected, its calibrated confidence on rendered frames."""
+
+import numpy as np
+import pytest
+import trimesh
+from pydrake.math import RigidTransform, RotationMatrix
+
+from capsule_drake.perception import photometry
+from capsule_drake.perception.evaluation import condition_frames, evaluate
+from capsule_drake.perception.lens import LensConfig
+from capsule_drake.perception.lumen import LumenParams, detect_lumen_core, load_detector
+from capsule_drake.perception.raycast import RayCaster, Shading
+
+from test_lumen import _field, _image
+
+RADIUS = 0.025
+
+
+@pytest.fixture(scope="module")
+def tube_caster():
+    """A straight tube of radius 25 mm along +z, 0.6 m long, the camera on its axis 0.3 m
+    from either end, looking along it; a pinhole lens so that pixel angles are simple."""
+    around, rings = 256, 121
+    phi = 2 * np.pi * np.arange(around) / around
+    z = np.linspace(-0.3, 0.3, rings)
+    vertices = np.array([[RADIUS * np.cos(a), RADIUS * np.sin(a), h] for h in z for a in phi])
+    faces = []
+    for i in range(rings - 1):
+        for j in range(around):
+            a, b = i * around + j, i * around + (j + 1) % around
+            faces += [[a, b, b + around], [a, b + around, a + around]]
+    tube = trimesh.Trimesh(vertices, np.array(faces), process=False)
+    lens = LensConfig(model="pinhole_radtan", fov_deg=120.0, width=129, height=129)
+    return RayCaster(tube, lens, far=0.2)
+
+
+def _axis_pose():
+    return RigidTransform(RotationMatrix(), [0.0, 0.0, 0.0])
+
+
+def test_ray_caster_range_is_the_tube_radius_over_the_sine(tube_caster):
+    hits = tube_caster.cast(_axis_pose())
+    depth = tube_caster.range_image(hits)
+    rays, field = tube_caster.lens.pixel_rays()
+    theta = np.arccos(np.clip(rays[..., 2], -1, 1))
+    expected = RADIUS / np.sin(np.maximum(theta, 1e-9))
+    seen = field & (expected < 0.19)
+    assert seen.sum() > 1000
+    # The 256-gon's flats lie up to R (1 - cos(pi / 256)) inside the circle.
+    np.testing.assert_allclose(depth[seen], expected[seen], rtol=1e-4)
+    assert np.isinf(depth[64, 64])  # straight down the tube: nothing within 0.2 m
+
+
+def test_ray_caster_shading_follows_its_closed_form(tube_caster):
+    """One LED at the lens, plain albedo: linear radiance ~ cos(theta)^n sin(theta)
+    (sin(theta) / R)^k on the tube wall seen at angle theta off the axis."""
+    for k, n in ((2.0, 1.0), (1.5, 4.0), (2.6, 0.0)):
+        shading = Shading(falloff_exponent=k, spot_exponent=n, led_count=1, led_offset=0.0,
+                          specular=0.0, variation=0.0, vessel_width=1e-9, gamma=1.0,
+                          exposure=2.0)
+        hits = tube_caster.cast(_axis_pose())
+        image = tube_caster.shade(hits, shading)[..., 0].astype(float)
+        rays, field = tube_caster.lens.pixel_rays()
+        theta = np.arccos(np.clip(rays[..., 2], -1, 1))
+        model = np.cos(theta) ** n * np.sin(theta) * (np.sin(theta) / RADIUS) ** k
+        pixels = field & (image > 20) & (image < 250)
+        ratio = image[pixels] / model[pixels]
+        assert pixels.sum() > 500
+        # 8-bit rounding only: within 1 level of the scaled model.
+        assert np.all(np.abs(image[pixels] - np.median(ratio) * model[pixels]) <= 1.0 + 1e-6)
+
+
+def test_conditions_keep_shape_and_the_black_surround():
+    rgb = _image([(128, 128, 20, 170)])
+    field = _field()
+    for name in photometry.CONDITIONS:
+        out = photometry.apply(name, rgb, field, np.random.default_rng(1))
+        assert out.shape == rgb.shape and out.dtype == np.uint8, name
+        assert not out[~field].any(), name
+    assert not np.array_equal(photometry.apply("noise", rgb, field, np.random.default_rng(1)),
+                              rgb)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_core_detector_finds_a_dark_blob_centre(seed):
+    rng = np.random.default_rng(100 + seed)
+    centre = rng.uniform(70, 186, 2)
+    rgb = _image([(centre[0], centre[1], rng.uniform(10, 25), 180.0)], seed=seed)
+    result = load_detector("core")(rgb, _field())
+    assert result.visible, result.features
+    assert np.linalg.norm(result.pixel - centre) < 3.0, (result.pixel, centre)
+
+
+def test_core_detector_is_unmoved_by_exposure_and_tone():
+    """Exposure scales the linear signal and a tone curve raises it to a power: in the log
+    the first is an offset and the second a scale, neither of which moves the core."""
+    rgb = _image([(100.0, 150.0, 16.0, 170.0)], seed=4, noise=0.0)
+    reference = detect_lumen_core(rgb, _field())
+    for transform in (lambda x: 0.5 * x, lambda x: 255.0 * (x / 255.0) ** 1.5,
+                      lambda x: 255.0 * (x / 255.0) ** 0.7):
+        changed = np.clip(np.round(transform(rgb.astype(float))), 0, 255).astype(np.uint8)
+        result = detect_lumen_core(changed, _field())
+        assert np.linalg.norm(result.features["centre"] - reference.features["centre"]) < 1.5
+
+
+def test_core_detector_rejects_a_view_facing_the_wall():
+    """Light at the lens, the wall ahead: bright in the middle, darkening toward the whole
+    rim, no hole."""
+    v, u = np.mgrid[0:256, 0:256].astype(float)
+    r = np.hypot(u - 127.5, v - 127.5) / 128.0
+    red = 230.0 * np.exp(-2.5 * r ** 2) + np.random.default_rng(0).normal(0, 3, r.shape)
+    rgb = np.stack([red, 0.55 * red, 0.5 * red], -1).clip(0, 255).astype(np.uint8)
+    assert not detect_lumen_core(rgb, _field()).visible
+
+
+def test_core_params_are_checked():
+    from capsule_drake.perception.lumen import check_lumen_params
+    for bad in (dict(core_sigma=0.0), dict(core_level=1.5), dict(core_radius=0.0),
+                dict(confidence_weights=[1.0, 2.0]), dict(core_work_size=4)):
+        with pytest.raises(ValueError, match="lumen detector"):
+            check_lumen_params(LumenParams(**bad))
+
+
+@pytest.mark.slow
+def test_core_detector_on_the_ray_casters_frames_under_random_light():
+    """Frames neither renderer-tuned nor seen while tuning (colon seeds 40-41, random light
+    and the `everything` image condition): the acceptance figures of the issue, loosened
+    for 40 frames."""
+    frames = condition_frames(40, colons=2, seed=40, renderer="raycast",
+                              conditions=("light_all", "everything"))
+    for condition, chosen in frames.items():
+        summary = evaluate(chosen, load_detector("core")).summary()
+        assert summary["lumen_visible"] >= 20, condition
+        assert summary["median_error"] < 0.02, (condition, summary)
+        assert summary["detection_rate"] >= 0.85, (condition, summary)
