@@ -37,7 +37,7 @@ PREFILTERS = ("gaussian", "median")
 DETECTORS = ("core", "gaussian", "median")
 CORE_FEATURES = ("depth", "surround", "rim_fraction", "radius", "area_fraction")
 """What the core detector's confidence is a logistic function of (detect_lumen_core)."""
-CORE_CONFIDENCE_WEIGHTS = (0.0, 1.0, 1.0, -1.0, -1.0, 0.0)
+CORE_CONFIDENCE_WEIGHTS = (19.80, -1.428, 4.823, -7.734, -21.81, 3.402)
 
 
 @dataclasses.dataclass
@@ -84,13 +84,13 @@ class LumenParams:
     # Longest side of its working image (px).
     core_work_size: int = 64
     # Sigma of its masked Gaussian blur, as a fraction of the working image's longest side.
-    core_sigma: float = 0.08
+    core_sigma: float = 0.05
     # The core: connected to the darkest point of the blurred log intensity, the pixels
     # within this fraction of (field median - darkest) above the darkest.
     core_level: float = 0.6
     # ... and within this fraction of the field's radius of the darkest point (a dark
     # periphery joined to the lumen does not pull the centre outward).
-    core_radius: float = 1.0
+    core_radius: float = 0.45
     # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
     # benchmarks/tune_lumen.py on the simulator's frames of colon seeds 0-4 under the
     # nominal, noise and exposure conditions; scored elsewhere on other seeds, every
