@@ -121,9 +121,9 @@ def check_lumen_params(params: LumenParams) -> None:
             raise ValueError(f"lumen detector {name} {value} must be in [0, 1]")
     if not params.dark_bias >= 0.0:
         raise ValueError("lumen detector dark_bias must be >= 0")
-    if params.core_work_size < 16:
+    if not 16 <= params.core_work_size <= 4096:
         raise ValueError(f"lumen detector core_work_size {params.core_work_size} must be "
-                         f">= 16")
+                         f"in [16, 4096] (px)")
     if not 0.0 < params.core_sigma <= 0.5:
         raise ValueError(f"lumen detector core_sigma {params.core_sigma} must be in (0, 0.5]")
     if not 0.0 < params.core_radius <= 1.0:
