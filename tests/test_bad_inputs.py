@@ -26,6 +26,7 @@ from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io import outputs
 from capsule_drake.io.outputs import load_logs
+from tube_set import straight_tube
 
 REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "capsule_drake.cli"]
@@ -198,15 +199,7 @@ CASES = SCENARIO_VALUES + SCENARIO_FILES + FLAGS + PLUGINS + IMPORT
 
 def _tube(length=0.3, radius=0.02, rings=60, around=32):
     """An open straight tube (the valid mesh the flag cases import)."""
-    z = np.linspace(0.0, length, rings)
-    a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
-    vertices = np.array([[radius * np.cos(t), radius * np.sin(t), zz] for zz in z for t in a])
-    faces = []
-    for i in range(rings - 1):
-        for j in range(around):
-            k, n = i * around + j, i * around + (j + 1) % around
-            faces += [[k, n, k + around], [n, n + around, k + around]]
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return straight_tube(length, radius, rings, around)
 
 
 def _branch():

@@ -4,7 +4,6 @@ tone, a wall-facing view rejected, its calibrated confidence on rendered frames.
 
 import numpy as np
 import pytest
-import trimesh
 from pydrake.math import RigidTransform, RotationMatrix
 
 from capsule_drake.perception import photometry
@@ -14,6 +13,7 @@ from capsule_drake.perception.lumen import LumenParams, detect_lumen_core, load_
 from capsule_drake.perception.raycast import RayCaster, Shading
 
 from test_lumen import _field, _image
+from tube_set import straight_tube
 
 RADIUS = 0.025
 
@@ -22,16 +22,7 @@ RADIUS = 0.025
 def tube_caster():
     """A straight tube of radius 25 mm along +z, 0.6 m long, the camera on its axis 0.3 m
     from either end, looking along it; a pinhole lens so that pixel angles are simple."""
-    around, rings = 256, 121
-    phi = 2 * np.pi * np.arange(around) / around
-    z = np.linspace(-0.3, 0.3, rings)
-    vertices = np.array([[RADIUS * np.cos(a), RADIUS * np.sin(a), h] for h in z for a in phi])
-    faces = []
-    for i in range(rings - 1):
-        for j in range(around):
-            a, b = i * around + j, i * around + (j + 1) % around
-            faces += [[a, b, b + around], [a, b + around, a + around]]
-    tube = trimesh.Trimesh(vertices, np.array(faces), process=False)
+    tube = straight_tube(0.6, RADIUS, rings=121, around=256, start=-0.3)
     lens = LensConfig(model="pinhole_radtan", fov_deg=120.0, width=129, height=129)
     return RayCaster(tube, lens, far=0.2)
 

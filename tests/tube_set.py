@@ -34,6 +34,20 @@ ENDS = ("open", "hemisphere", "flat")
 MESHES = ("rings", "jittered", "delaunay")
 
 
+def straight_tube(length=0.3, radius=0.02, rings=60, around=32, start=0.0):
+    """An open straight tube along +z from `start` to `start + length` (a uniform grid of
+    rings), its vertices exactly on the circle of `radius`."""
+    z = np.linspace(start, start + length, rings)
+    a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    vertices = np.array([[radius * np.cos(t), radius * np.sin(t), zz] for zz in z for t in a])
+    faces = []
+    for i in range(rings - 1):
+        for j in range(around):
+            k, n = i * around + j, i * around + (j + 1) % around
+            faces += [[k, n, k + around], [n, n + around, k + around]]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
 @dataclasses.dataclass(frozen=True)
 class TubeSpec:
     """How to make one tube (lengths in metres)."""

@@ -14,9 +14,7 @@ visible unless outside the field or hidden behind nearer tissue.
 """
 
 import dataclasses
-import json
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -324,20 +322,3 @@ def mixed_sheet(frames_by_condition: dict, detector, count: int = 24) -> np.ndar
     chosen = [frames_by_condition[names[i % len(names)]][i]
               for i in range(min(count, min(len(f) for f in frames_by_condition.values())))]
     return annotated_sheet(evaluate(chosen, detector), count, 6)
-
-
-def save_evaluation(frames: list[Frame], detectors: dict, out_dir) -> list[str]:
-    """Evaluates each named detector on `frames`; writes `<name>_sheet.png` (the first 24
-    frames annotated) and results.json (the summaries) into `out_dir`; returns the tables."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tables, summaries = [], {}
-    for name, detector in detectors.items():
-        result = evaluate(frames, detector)
-        tables.append(result.table(name))
-        summaries[name] = result.summary()
-        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
-        cv2.imwrite(str(out / f"{safe}_sheet.png"),
-                    cv2.cvtColor(annotated_sheet(result, 24, 6), cv2.COLOR_RGB2BGR))
-    (out / "results.json").write_text(json.dumps(summaries, indent=2))
-    return tables

@@ -34,7 +34,6 @@ import numpy as np
 from capsule_drake.plugins import load_function
 
 PREFILTERS = ("gaussian", "median")
-DETECTORS = ("core", "gaussian", "median")
 CORE_FEATURES = ("depth", "surround", "rim_fraction", "radius", "area_fraction")
 """What the core detector's confidence is a logistic function of (detect_lumen_core)."""
 CORE_CONFIDENCE_WEIGHTS = (19.80, -1.428, 4.823, -7.734, -21.81, 3.402)
@@ -75,12 +74,11 @@ class LumenParams:
     min_contrast: float = 0.5
     max_rim_fraction: float = 0.35
     max_radius: float = 0.85
-    # Confidence at or above which the lumen is reported visible. "core": the calibrated
-    # probability that the lumen is in view and found within 5 % of the diagonal (0.5 by
-    # default). "gaussian" and "median": 0.5 means every gate passed, 1 contrast 1 and the
+    # Confidence at or above which the lumen is reported visible. "core": the fitted
+    # probability that a lumen is in view (0.5 by default). "gaussian" and "median": 0.5 means every gate passed, 1 contrast 1 and the
     # region well inside the field.
     min_confidence: float = 0.5
-    # --- the "core" detector (detect_lumen_core), the default ---
+    # --- the "core" detector (detect_lumen_core) ---
     # Longest side of its working image (px).
     core_work_size: int = 64
     # Sigma of its masked Gaussian blur, as a fraction of the working image's longest side.
@@ -92,9 +90,9 @@ class LumenParams:
     # periphery joined to the lumen does not pull the centre outward).
     core_radius: float = 0.45
     # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
-    # benchmarks/tune_lumen.py on the simulator's frames of colon seeds 0-4 under the
-    # nominal, noise and exposure conditions; scored elsewhere on other seeds, every
-    # condition and the ray caster's frames).
+    # benchmarks/tune_lumen.py on colon seeds 0-4 only: the simulator's frames under the
+    # nominal, noise and exposure conditions and the ray caster's under its nominal light;
+    # scored on seeds 100-104 under every condition, README).
     confidence_weights: list[float] = dataclasses.field(
         default_factory=lambda: list(CORE_CONFIDENCE_WEIGHTS))
 
@@ -319,7 +317,7 @@ def detect_lumen(rgb: np.ndarray, field_mask: np.ndarray | None = None,
                           confidence, full_region, float(t), features)
 
 
-def _masked_blur(values, weight, sigma):
+def masked_blur(values, weight, sigma):
     """Gaussian blur of `values` over the pixels of `weight` only (normalised convolution),
     so the black surround of a fisheye's field does not darken its rim."""
     blurred = cv2.GaussianBlur(values * weight, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
@@ -337,11 +335,11 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     2. its logarithm, blurred over the field only (`core_sigma`): exposure becomes an offset
        and a tone curve nearly a scale, which the relative levels below do not see;
     3. the darkest point of the blurred field (one pixel inside its edge), and the core: the
-       pixels connected to it within `core_level` of (field median - darkest) above it;
+       pixels connected to it within `core_level` of (field median - darkest) above it and
+       within `core_radius` of the field's radius from it;
     4. centre: the core's centroid, weighted by how far below that level each pixel lies;
     5. confidence: a logistic function of the measures in CORE_FEATURES, fitted so that it
-       estimates the probability that a lumen is in view and within 5 % of the diagonal of
-       the centre (`benchmarks/tune_lumen.py`):
+       estimates the probability that a lumen is in view (`benchmarks/tune_lumen.py`):
        depth, the log contrast between the field's median and the darkest point; surround,
        the core's log contrast with a ring around it; rim_fraction, the share of the core's
        boundary on the edge of the field (a view facing the wall darkens toward its rim);
@@ -367,7 +365,7 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     if mask.sum() < 16:
         return LumenDetection.nothing(rgb.shape)
     # +6: three channels' worth of the darkest levels' noise, so black does not reach -inf.
-    log = _masked_blur(np.log(work + 6.0), mask, params.core_sigma * max(size))
+    log = masked_blur(np.log(work + 6.0), mask, params.core_sigma * max(size))
     kernel = np.ones((3, 3), np.uint8)
     inner = cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
     if not inner.any():
@@ -433,8 +431,8 @@ def median_detector(params: LumenParams | None = None) -> Detector:
 
 
 def load_detector(name: str, params: LumenParams | None = None) -> Detector:
-    """A detector by name: "core" (the default), "gaussian", "median" (the dark-class
-    detectors of the seed and of STORM), or "package.module:function" naming a
+    """A detector by name: "core" (detect_lumen_core), "gaussian", "median" (the
+    dark-class detectors of the seed and of STORM), or "package.module:function" naming a
     user's function with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool or
     None) -> LumenDetection (or an object with visible, pixel, confidence and, optionally,
     region). Raises ValueError with one line if it cannot be found."""

@@ -14,6 +14,7 @@ from capsule_drake.capsule.camera import CameraConfig, add_camera_walls, capsule
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.physics.contact import add_colon_visuals
+from capsule_drake.perception.lumen import masked_blur
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 
 
@@ -62,8 +63,7 @@ def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
     if mask is None:
         mask = np.ones(grey.shape, dtype=bool)
-    weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), blur_px)
-    grey = cv2.GaussianBlur(grey * mask, (0, 0), blur_px) / np.maximum(weight, 1e-6)
+    grey = masked_blur(grey, mask.astype(np.float32), blur_px)
     grey[~mask] = np.inf
     v, u = np.unravel_index(np.argmin(grey), grey.shape)
     return np.array([u, v], dtype=float)
