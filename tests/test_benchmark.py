@@ -131,3 +131,31 @@ def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_pat
         assert main(["benchmark", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+
+
+class _Log:
+    def __init__(self, rows):
+        self._data = np.asarray(rows, dtype=float).T
+
+    def data(self):
+        return self._data
+
+
+def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
+    from types import SimpleNamespace
+
+    from capsule_drake.navigation.benchmark import _detection_scores
+    camera = SimpleNamespace(lens=SimpleNamespace(width=300, height=400))  # diagonal 500 px
+    truth = [[100, 100]] * 5 + [[np.nan, np.nan]]
+    truth_visible = [[1]] * 5 + [[0]]
+    # Off by 5, 10, 15 px where found; missed once; a false detection where the truth is
+    # not visible does not count toward either score.
+    found = [[105, 100], [100, 110], [100, 85], [np.nan, np.nan], [100, 100], [50, 50]]
+    found_visible = [[1], [1], [1], [0], [0], [1]]
+    data = {"lumen_pixel": _Log(truth), "lumen_visible": _Log(truth_visible),
+            "tracker_lumen_pixel": _Log(found), "tracker_lumen_visible": _Log(found_visible)}
+    error, rate = _detection_scores(camera, data)
+    assert error == pytest.approx(100 * 10 / 500)
+    assert rate == pytest.approx(3 / 5)
+    assert all(np.isnan(_detection_scores(None, data)))
+    assert all(np.isnan(_detection_scores(camera, {k: data[k] for k in list(data)[:2]})))

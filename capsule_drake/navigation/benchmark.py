@@ -45,7 +45,8 @@ CONTACT_THRESHOLD = 0.05
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
-           "centring_error_deg", "epm_path_m", "coverage", "sim_time_s", "wall_time_s")
+           "centring_error_deg", "detection_error_pct", "detection_rate", "epm_path_m",
+           "coverage", "sim_time_s", "wall_time_s")
 
 
 # Built-in navigators: the named scenario each runs, and YAML laid over it.
@@ -111,6 +112,10 @@ def run_task(task: Task) -> dict:
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
+        if station.HasOutputPort("capsule.lumen_tracker.lumen_pixel"):
+            for name in ("lumen_pixel", "lumen_visible"):
+                extra[f"tracker_{name}"] = LogVectorOutput(
+                    station.GetOutputPort(f"capsule.lumen_tracker.{name}"), builder, period)
 
     def at_cecum(station, context):
         state = station.GetOutputPort("capsule.state").Eval(context)
@@ -137,7 +142,8 @@ def run_task(task: Task) -> dict:
 
 # The columns of a run the guard found diverged: not reported.
 DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
-                "peak_contact_force_N", "centring_error_deg", "coverage")
+                "peak_contact_force_N", "centring_error_deg", "detection_error_pct",
+                "detection_rate", "coverage")
 
 
 def _metrics(task, colon, result, data, camera, stopped) -> dict:
@@ -160,6 +166,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
             angles = np.degrees(np.arccos(np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1),
                                                   -1.0, 1.0)))
             centring = float(np.median(angles))
+    detection_error, detection_rate = _detection_scores(camera, data)
     coverage = float(data["coverage"].data()[0, -1]) if "coverage" in data and \
         data["coverage"].data().size else np.nan
     segments = colon.centerline.segment_ranges()
@@ -174,12 +181,41 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         "wall_contact_s": round(float(np.sum(dt[load > CONTACT_THRESHOLD])), 2),
         "peak_contact_force_N": round(float(load.max()) if load.size else 0.0, 3),
         "centring_error_deg": round(centring, 1) if np.isfinite(centring) else np.nan,
+        "detection_error_pct": (round(detection_error, 2) if np.isfinite(detection_error)
+                                else np.nan),
+        "detection_rate": round(detection_rate, 3) if np.isfinite(detection_rate) else np.nan,
         "epm_path_m": round(float(np.sum(np.linalg.norm(np.diff(epm, axis=1), axis=0))), 3),
         "coverage": round(coverage, 4) if np.isfinite(coverage) else np.nan,
         # Through each segment; the cecum, a blind end, counts when the run reached it.
         "segments_passed": [name for name, (_, end) in segments.items()
                             if furthest >= end or (name == list(segments)[-1] and len(reached))],
     }
+
+
+def _detection_scores(camera, data) -> tuple[float, float]:
+    """How the run's lumen tracker did against the lumen truth, sampled together: the
+    median distance between detected and true pixel (% of the image diagonal) where both
+    see the lumen, and the share of truth-visible samples the tracker reported visible.
+    NaN for a run without a tracker. The tracker holds its last frame's result, so a sample
+    may compare a frame up to one camera period old with the current truth."""
+    if camera is None or "tracker_lumen_pixel" not in data or "lumen_pixel" not in data:
+        return np.nan, np.nan
+    truth = data["lumen_pixel"].data().T
+    truth_visible = (data["lumen_visible"].data()[0] > 0.5) & np.all(np.isfinite(truth), axis=1)
+    found = data["tracker_lumen_pixel"].data().T
+    count = min(len(truth), len(found))
+    truth, truth_visible, found = truth[:count], truth_visible[:count], found[:count]
+    found_visible = ((data["tracker_lumen_visible"].data()[0][:count] > 0.5)
+                     & np.all(np.isfinite(found), axis=1))
+    if not truth_visible.any():
+        return np.nan, np.nan
+    rate = float(found_visible[truth_visible].mean())
+    both = truth_visible & found_visible
+    if not both.any():
+        return np.nan, rate
+    diagonal = float(np.hypot(camera.lens.width, camera.lens.height))
+    error = 100.0 * float(np.median(np.linalg.norm(found[both] - truth[both], axis=1))) / diagonal
+    return error, rate
 
 
 def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
@@ -270,6 +306,8 @@ def summary(results: list[dict]) -> list[dict]:
                     "wall_contact_s": mean("wall_contact_s"),
                     "peak_contact_force_N": mean("peak_contact_force_N"),
                     "centring_error_deg": mean("centring_error_deg"),
+                    "detection_error_pct": mean("detection_error_pct"),
+                    "detection_rate": mean("detection_rate"),
                     "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage")})
     return out
 
