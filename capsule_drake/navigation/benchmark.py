@@ -25,7 +25,6 @@ import csv
 import dataclasses
 import json
 import multiprocessing
-import time
 from pathlib import Path
 
 import numpy as np

@@ -114,22 +114,15 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
         raise ValueError(f"unknown condition(s) {unknown} for the {renderer} renderer; "
                          f"known: {', '.join(allowed)}")
     config = config or CameraConfig()
-    rng = np.random.default_rng(seed)
     out = {condition: [] for condition in conditions}
     done = 0
-    for k in range(colons):
-        share = count // colons + (1 if k < count % colons else 0)
-        if share == 0:
-            continue
-        colon_params = ColonParams(seed=seed + k)
-        colon, _ = load_colon(colon_params)
+    for colon_params, colon, poses in seeded_poses(count, colons, seed, wall_fraction,
+                                                   max_tilt_deg):
         if renderer == "vtk":
             render = _vtk_renderer(colon_params, config)
         else:
             caster = RayCaster(colon.visual_mesh(), config.lens, far=config.far)
-        for i in range(share):
-            kind = "wall" if rng.uniform() < wall_fraction else "lumen"
-            X_WC, s = _camera_pose(colon, kind, rng, max_tilt_deg)
+        for kind, X_WC, s in poses:
             if renderer == "vtk":
                 rgb, depth, lens_model, field = render(X_WC)
             else:
@@ -148,12 +141,31 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
                     rgb = caster.shade(hits, shading)
                     image_condition = "nominal" if group is not None else condition
                 image = photometry.apply(image_condition, rgb, field, draw)
-                out[condition].append(Frame(seed + k, float(s), kind, image, field, pixel,
-                                            bool(visible)))
+                out[condition].append(Frame(colon_params.seed, float(s), kind, image, field,
+                                            pixel, bool(visible)))
             done += 1
             if progress is not None:
                 progress(done)
     return out
+
+
+def seeded_poses(count: int, colons: int = 5, seed: int = 0, wall_fraction: float = 0.25,
+                 max_tilt_deg: float = 30.0):
+    """The evaluation's camera poses: `count` shared among colon seeds `seed`..`seed +
+    colons - 1`. Yields (ColonParams, Colon, [(kind, X_WC, s), ...]) per colon."""
+    rng = np.random.default_rng(seed)
+    for k in range(colons):
+        share = count // colons + (1 if k < count % colons else 0)
+        if share == 0:
+            continue
+        colon_params = ColonParams(seed=seed + k)
+        colon, _ = load_colon(colon_params)
+        poses = []
+        for _ in range(share):
+            kind = "wall" if rng.uniform() < wall_fraction else "lumen"
+            X_WC, s = _camera_pose(colon, kind, rng, max_tilt_deg)
+            poses.append((kind, X_WC, s))
+        yield colon_params, colon, poses
 
 
 def _vtk_renderer(colon_params, config: CameraConfig):
