@@ -573,9 +573,11 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     _created_folders.clear()
     # A termination signal (kill, timeout, a closed terminal) ends a run as Ctrl-C does:
-    # what was logged is written, then the exit status says which signal it was.
+    # what was logged is written, then the exit status says which signal it was. SIGINT
+    # too: a process started in the background (nohup, `&` in a script) inherits it ignored,
+    # and Python then installs no Ctrl-C handler of its own.
     if threading.current_thread() is threading.main_thread():
-        for number in (signal.SIGTERM, signal.SIGHUP):
+        for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(number, _raise_interrupted)
     try:
         if args.verb == "run":

@@ -383,13 +383,27 @@ def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkey
         assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
 
 
-def _start(tmp_path, duration="60"):
+def _start(tmp_path, duration="60", preexec_fn=None):
     out = tmp_path / "run"
     process = subprocess.Popen(CLI + ["run", "--duration", duration, "--no-recording",
                                       "--quiet", "--out", str(out)],
                                cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True)
+                               text=True, preexec_fn=preexec_fn)
     return process, out
+
+
+@pytest.mark.slow
+def test_sigint_ends_a_run_started_in_the_background(tmp_path):
+    # A background job (nohup, `&` in a script) inherits SIGINT ignored; `kill -INT` must
+    # still end the run with its outputs written.
+    process, out = _start(tmp_path, preexec_fn=lambda: signal.signal(signal.SIGINT,
+                                                                     signal.SIG_IGN))
+    _wait_for_simulation(out, process)
+    time.sleep(1.0)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert json.loads((out / "metrics.json").read_text())["status"] == "interrupted"
 
 
 def _wait_for_simulation(out: Path, process, timeout=120):
