@@ -158,8 +158,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     epm = result.epm_pose[:3]
     centring = np.nan
     if camera is not None and "lumen_pixel" in data:
-        pixel = data["lumen_pixel"].data().T
-        visible = (data["lumen_visible"].data()[0] > 0.5) & np.all(np.isfinite(pixel), axis=1)
+        pixel, visible = _logged_lumen(data, "lumen")
         if visible.any():
             rays = camera.lens.unproject(pixel[visible])
             angles = np.degrees(np.arccos(np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1),
@@ -191,6 +190,13 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     }
 
 
+def _logged_lumen(data, prefix: str):
+    """The logged `<prefix>_pixel` samples (N, 2) and whether each saw the lumen (N,)."""
+    pixel = data[f"{prefix}_pixel"].data().T
+    visible = (data[f"{prefix}_visible"].data()[0] > 0.5) & np.all(np.isfinite(pixel), axis=1)
+    return pixel, visible
+
+
 def _detection_scores(camera, data) -> tuple[float, float]:
     """How the run's lumen tracker did against the lumen truth, sampled together: the
     median distance between detected and true pixel (% of the image diagonal) where both
@@ -199,13 +205,11 @@ def _detection_scores(camera, data) -> tuple[float, float]:
     may compare a frame up to one camera period old with the current truth."""
     if camera is None or "tracker_lumen_pixel" not in data or "lumen_pixel" not in data:
         return np.nan, np.nan
-    truth = data["lumen_pixel"].data().T
-    truth_visible = (data["lumen_visible"].data()[0] > 0.5) & np.all(np.isfinite(truth), axis=1)
-    found = data["tracker_lumen_pixel"].data().T
+    truth, truth_visible = _logged_lumen(data, "lumen")
+    found, found_visible = _logged_lumen(data, "tracker_lumen")
     count = min(len(truth), len(found))
-    truth, truth_visible, found = truth[:count], truth_visible[:count], found[:count]
-    found_visible = ((data["tracker_lumen_visible"].data()[0][:count] > 0.5)
-                     & np.all(np.isfinite(found), axis=1))
+    truth, truth_visible = truth[:count], truth_visible[:count]
+    found, found_visible = found[:count], found_visible[:count]
     if not truth_visible.any():
         return np.nan, np.nan
     rate = float(found_visible[truth_visible].mean())

@@ -391,8 +391,7 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
 
     core8 = core.astype(np.uint8)
     boundary = core & ~cv2.erode(core8, kernel, borderValue=0).astype(bool)
-    edge = ~cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
-    rim_fraction = float((boundary & edge).sum() / max(boundary.sum(), 1))
+    rim_fraction = float((boundary & ~inner).sum() / max(boundary.sum(), 1))
     ring = (cv2.dilate(core8, kernel, iterations=max(2, round(0.06 * max(size)))).astype(bool)
             & ~core & inside)
     surround = float(np.median(log[ring]) - np.mean(log[core])) if ring.any() else 0.0
