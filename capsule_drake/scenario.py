@@ -48,6 +48,8 @@ from capsule_drake.capsule.ahrs import AhrsConfig, check_ahrs_config
 from capsule_drake.capsule.camera import CameraConfig, check_camera_config
 from capsule_drake.capsule.contact_sensor import ContactSensorConfig, check_contact_sensor_config
 from capsule_drake.capsule.imu import ImuConfig, check_imu_config
+from capsule_drake.capsule.magnetic_array import (MagneticArrayConfig,
+                                                  check_magnetic_array_config)
 from capsule_drake.capsule.magnetometer import MagnetometerConfig, check_magnetometer_config
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.epm.arm import Arm, check_arm_config
@@ -56,6 +58,7 @@ from capsule_drake.epm.stage import Stage, check_stage
 from capsule_drake.guidance.pseudo_force import PseudoForceConfig, check_pseudo_force_config
 from capsule_drake.io.guard import GuardConfig, check_guard_config
 from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
+from capsule_drake.navigation.localization import LocalizerConfig, check_localizer_config
 from capsule_drake.navigation.plugin import Plugin, check_plugin
 from capsule_drake.perception.lumen import check_lumen_params, load_detector
 from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
@@ -117,6 +120,11 @@ class CapsuleConfig:
     # capsule's true start pose.
     ahrs: AhrsConfig | None = None
     magnetometer: MagnetometerConfig | None = None
+    # The Hall sensors around the IPM for localisation (capsule/magnetic_array.py), and the
+    # pose estimator on them, the IMU and the EPM's pose (navigation/localization.py; needs
+    # capsule.imu and capsule.magnetic_array).
+    magnetic_array: MagneticArrayConfig | None = None
+    localizer: LocalizerConfig | None = None
     # The force the colon wall presses on the capsule, as a force sensor in its shell
     # would measure it (capsule/contact_sensor.py).
     contact_sensor: ContactSensorConfig | None = None
@@ -496,6 +504,17 @@ def validate(scenario: Scenario) -> None:
                  f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half_length:.2f} mm), got {p_BS}")
     need(capsule.ahrs is None or capsule.imu is not None,
          "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
+    if capsule.magnetic_array is not None:
+        checked("capsule.magnetic_array.", check_magnetic_array_config, capsule.magnetic_array)
+        for i, p_BS in enumerate(capsule.magnetic_array.positions):
+            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half_length,
+                 f"capsule.magnetic_array.positions[{i}] must lie inside the capsule (radius "
+                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half_length:.2f} mm), "
+                 f"got {p_BS}")
+    if capsule.localizer is not None:
+        checked("capsule.localizer.", check_localizer_config, capsule.localizer)
+        need(capsule.imu is not None and capsule.magnetic_array is not None,
+             "capsule.localizer needs capsule.imu and capsule.magnetic_array")
     if capsule.camera is not None:
         checked("capsule.camera: ", check_camera_config, capsule.camera)
     tracker = capsule.lumen_tracker
@@ -531,10 +550,9 @@ def validate(scenario: Scenario) -> None:
              "epm.driver (LumenFollower) needs capsule.camera (it follows the lumen seen)")
         need(driver.lumen != "detected" or tracker is not None,
              "epm.driver (LumenFollower) lumen detected needs capsule.lumen_tracker")
-        need(driver.pose != "sensors" or None not in (capsule.imu, capsule.ahrs,
-                                                      capsule.magnetometer),
-             "epm.driver (LumenFollower) pose sensors needs capsule.imu, capsule.ahrs and "
-             "capsule.magnetometer")
+        need(driver.pose != "sensors" or capsule.localizer is not None,
+             "epm.driver (LumenFollower) pose sensors needs capsule.localizer (with "
+             "capsule.imu and capsule.magnetic_array)")
     elif isinstance(driver, Plugin):
         checked("epm.driver (Plugin): factory: ", check_plugin, driver)
     # Last, what no block's check bounds (the blocks' checks say what a NaN or an infinity

@@ -105,6 +105,48 @@ def field_in_sensor_frame(X_WS: RigidTransform, sources, min_distance=DEFAULT_MI
     return X_WS.rotation().inverse().multiply(B_W)
 
 
+def resolve_sources(plant, body_index: int, sources, field_model: str):
+    """The source magnets as (name, body index (-1: posed), p_BM, m_B, cylinder or ()),
+    and the names of those on the body `body_index` (a sensor's own body: left out)."""
+    resolved, excluded = [], []
+    for spec in sources:
+        cylinder = tuple(spec.cylinder) if field_model == "finite" else ()
+        if spec.posed:   # pose from the input <name>.pose; moment along its direction
+            resolved.append((spec.name, -1, np.zeros(3),
+                             np.array([0.0, 0.0, float(spec.moment)]), cylinder))
+            continue
+        if spec.model_instance:
+            source_body = plant.GetBodyByName(
+                spec.body, plant.GetModelInstanceByName(spec.model_instance))
+        else:
+            source_body = plant.GetBodyByName(spec.body)
+        if int(source_body.index()) == body_index:
+            excluded.append(spec.name)
+            continue
+        axis = np.asarray(spec.axis_B, float).reshape(3)
+        norm = np.linalg.norm(axis)
+        if norm == 0.0:
+            raise ValueError(f"Magnet {spec.name!r}: axis_B must be nonzero")
+        resolved.append((spec.name, int(source_body.index()),
+                         np.asarray(spec.p_BM, float).reshape(3),
+                         axis * (float(spec.moment) / norm), cylinder))
+    return resolved, excluded
+
+
+def source_poses(resolved, body_poses, posed=None):
+    """[(p_WM, m_W, cylinder)] of `resolve_sources`' magnets for a list of body poses and,
+    for posed sources, `posed`: name -> [p_WM, m_hat_W]."""
+    out = []
+    for name, index, p_BM, m_B, cylinder in resolved:
+        if index < 0:
+            pose = np.asarray(posed[name], dtype=float)
+            out.append((pose[:3], m_B[2] * pose[3:] / np.linalg.norm(pose[3:]), cylinder))
+            continue
+        X_WB = body_poses[index]
+        out.append((X_WB @ p_BM, X_WB.rotation() @ m_B, cylinder))
+    return out
+
+
 class Magnetometer(LeafSystem):
     """Samples the field of a set of magnets at a point of a body, with a sensor's errors.
 
@@ -155,29 +197,8 @@ class Magnetometer(LeafSystem):
         self._min_distance = float(min_distance)
         self._body_index = int(body.index())
         self._X_BS = self._config.X_BS()
-        self._sources = []  # (name, body index (-1: posed), p_BM, m_B, cylinder or ())
-        self._excluded = []
-        for spec in sources:
-            cylinder = tuple(spec.cylinder) if field_model == "finite" else ()
-            if spec.posed:   # pose from the input <name>.pose; moment along its direction
-                self._sources.append((spec.name, -1, np.zeros(3),
-                                      np.array([0.0, 0.0, float(spec.moment)]), cylinder))
-                continue
-            if spec.model_instance:
-                source_body = plant.GetBodyByName(
-                    spec.body, plant.GetModelInstanceByName(spec.model_instance))
-            else:
-                source_body = plant.GetBodyByName(spec.body)
-            if int(source_body.index()) == self._body_index:
-                self._excluded.append(spec.name)
-                continue
-            axis = np.asarray(spec.axis_B, float).reshape(3)
-            norm = np.linalg.norm(axis)
-            if norm == 0.0:
-                raise ValueError(f"Magnet {spec.name!r}: axis_B must be nonzero")
-            self._sources.append((spec.name, int(source_body.index()),
-                                  np.asarray(spec.p_BM, float).reshape(3),
-                                  axis * (float(spec.moment) / norm), cylinder))
+        self._sources, self._excluded = resolve_sources(plant, self._body_index, sources,
+                                                        field_model)
         self._body_poses_port = self.DeclareAbstractInputPort(
             "body_poses", AbstractValue.Make([RigidTransform()]))
         self._pose_ports = {name: self.DeclareVectorInputPort(f"{name}.pose", 6)
@@ -244,16 +265,8 @@ class Magnetometer(LeafSystem):
         """The ideal reading (T, sensor frame) for a list of body poses and, for posed
         sources, `posed`: name -> [p_WM, m_hat_W]."""
         X_WS = body_poses[self._body_index] @ self._X_BS
-        sources = []
-        for name, index, p_BM, m_B, cylinder in self._sources:
-            if index < 0:
-                pose = np.asarray(posed[name], dtype=float)
-                sources.append((pose[:3], m_B[2] * pose[3:] / np.linalg.norm(pose[3:]),
-                                cylinder))
-                continue
-            X_WB = body_poses[index]
-            sources.append((X_WB @ p_BM, X_WB.rotation() @ m_B, cylinder))
-        return field_in_sensor_frame(X_WS, sources, self._min_distance)
+        return field_in_sensor_frame(X_WS, source_poses(self._sources, body_poses, posed),
+                                     self._min_distance)
 
     def _update(self, context, discrete_state):
         truth = self.calc_true_field(

@@ -57,7 +57,6 @@ from pydrake.systems.primitives import Demultiplexer
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
-from capsule_drake.navigation.localization import MagneticLocalizer
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.scene import block
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
@@ -537,9 +536,8 @@ class LumenFollower:
     # fold) or "detected" (the lumen tracker's; needs capsule.lumen_tracker).
     lumen: str = "truth"
     # Where it knows the capsule's pose from: "truth" (the simulation) or "sensors" (the
-    # AHRS's orientation and the MagneticLocalizer's position from the magnetometer and the
-    # EPM's pose, from the capsule's known start; needs capsule.imu, capsule.ahrs and
-    # capsule.magnetometer).
+    # capsule's own estimate, capsule.localizer: its Hall sensors, IMU and the EPM's pose,
+    # from the capsule's known start).
     pose: str = "truth"
     # The control law's gains, limits and timings.
     control: LumenFollowerConfig = dataclasses.field(default_factory=LumenFollowerConfig)
@@ -558,8 +556,8 @@ def check_lumen_follower(config: LumenFollower) -> None:
 @block(LumenFollower)
 def add_lumen_follower(builder, parts, config: LumenFollower,
                        name: str = "lumen_follower") -> LumenFollowerController:
-    """`lumen_follower` and what it reads: the capsule's pose (the truth, or `<name>
-    .localizer` on the sensors), the lumen (`<name>.lumen_seen` from the truth, or the
+    """`lumen_follower` and what it reads: the capsule's pose (the truth, or
+    capsule.localizer's estimate), the lumen (`<name>.lumen_seen` from the truth, or the
     tracker's); its command goes to the EPM's carrier and is exported as epm.command."""
     magnet = parts.epm.magnet
     follower = builder.AddNamedSystem(name, LumenFollowerController(
@@ -569,17 +567,8 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
     demux = builder.AddNamedSystem(f"{name}.pose", Demultiplexer([7, 6]))
     builder.Connect(parts.capsule_state, demux.get_input_port())
     pose_port = demux.get_output_port(0)
-    if config.pose == "sensors":
-        q = parts.X_WB0.rotation().ToQuaternion()
-        magnetometer = builder.GetSubsystemByName("capsule.magnetometer")
-        localizer = builder.AddNamedSystem(f"{name}.localizer", MagneticLocalizer(
-            magnetometer.config.X_BS(), magnet.moment(), parts.X_WB0.translation(),
-            q_WB0=[q.w(), q.x(), q.y(), q.z()]))
-        builder.Connect(parts.output("capsule.magnetometer.B_S"), localizer.GetInputPort("B_S"))
-        builder.Connect(parts.output("capsule.ahrs.q_WB"), localizer.GetInputPort("q_WB"))
-        builder.Connect(parts.output("epm.pose"), localizer.GetInputPort("epm_pose"))
-        pose_port = localizer.GetOutputPort("capsule_pose")
-        parts.export(pose_port, f"{name}.capsule_pose")
+    if config.pose == "sensors":   # the capsule's own estimate (navigation/localization.py)
+        pose_port = parts.output("capsule.localizer.pose")
     builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
     camera = builder.GetSubsystemByName("capsule.camera")
     if config.lumen == "truth":
