@@ -89,13 +89,15 @@ class MagneticArrayConfig:
     # then dominates the localisation error (README, "Magnetic localisation").
     offset_drift_sigma: float = 5e-6
     # Gain error per axis after calibration (fraction, 1 sigma): the sensors' sensitivity
-    # error (+-5 % typical, DS) calibrated in a known field to this residual. U. The
-    # self-field's part is calibrated away with the offset; the EPM field's is not.
-    gain_sigma: float = 0.01
-    # Cross-axis sensitivity (fraction of each other axis, 1 sigma per term): the datasheet
-    # calls it insignificant for this monolithic 3-axis sensor; 0.5 % covers the axes'
-    # mismatch (+-0.5-1 %, DS) and the sensor's placement on its board. U.
-    cross_axis_sigma: float = 0.005
+    # error (+-5 % typical, DS) and axis mismatch (+-0.5-1 %, DS), calibrated with each
+    # sensor's 3 x 3 matrix in a known uniform field (a Helmholtz coil) to this residual.
+    # U. The self-field's part is calibrated away with the offset; the EPM field's is not.
+    # The localisation's worst runs double with 1 % (README, "Magnetic localisation").
+    gain_sigma: float = 0.003
+    # Cross-axis sensitivity after the same calibration (fraction of each other axis,
+    # 1 sigma per term; the datasheet calls it insignificant for this monolithic sensor,
+    # the board's placement adds to it). U.
+    cross_axis_sigma: float = 0.002
     # Change of the IPM's field between calibration and use (fraction, 1 sigma per run):
     # NdFeB's remanence falls 0.12 %/K; over the +-1.5 K above. U.
     self_field_drift_sigma: float = 0.0018

@@ -11,7 +11,9 @@ Navigators, each a named scenario whose `epm.driver` drives the EPM (diagrams/de
 all run through the one run loop (io/run.py `simulate`, which seeds the random context):
 - "autonomy-truth" (scenario Navigation), "autonomy-detected" (NavigationDetected): the
   lumen follower (navigation/autonomy.py), steering from the lumen truth or from the lumen
-  tracker on the camera's frames;
+  tracker on the camera's frames, on the capsule's true pose;
+- "autonomy-sensors" (NavigationSensors): the follower on what the capsule senses, the
+  tracker's lumen and the magnetic localiser's pose estimate, with finite-size magnets;
 - "teleop-guided", "teleop-unguided": the simulated operator at the haptic device
   (scenario Teleop), with and without the pseudo-force on the hand;
 - "package.module:function": a user's navigator (`!Plugin`; the interface is in
@@ -44,14 +46,16 @@ CONTACT_THRESHOLD = 0.05
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
-           "centring_error_deg", "detection_error_pct", "detection_rate", "epm_path_m",
-           "coverage", "sim_time_s", "wall_time_s")
+           "centring_error_deg", "detection_error_pct", "detection_rate",
+           "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
+           "epm_path_m", "coverage", "sim_time_s", "wall_time_s")
 
 
 # Built-in navigators: the named scenario each runs, and YAML laid over it.
 NAVIGATORS = {
     "autonomy-truth": ("Navigation", ""),
     "autonomy-detected": ("NavigationDetected", ""),
+    "autonomy-sensors": ("NavigationSensors", ""),
     "teleop-guided": ("Teleop", ""),
     "teleop-unguided": ("Teleop", "{pseudo_force: null}"),
 }
@@ -111,6 +115,9 @@ def run_task(task: Task) -> dict:
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
+        if station.HasOutputPort("capsule.localizer.pose"):
+            extra["localizer_pose"] = LogVectorOutput(
+                station.GetOutputPort("capsule.localizer.pose"), builder, period)
         if station.HasOutputPort("capsule.lumen_tracker.lumen_pixel"):
             for name in ("lumen_pixel", "lumen_visible"):
                 extra[f"tracker_{name}"] = LogVectorOutput(
@@ -142,7 +149,8 @@ def run_task(task: Task) -> dict:
 # The columns of a run the guard found diverged: not reported.
 DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
                 "peak_contact_force_N", "centring_error_deg", "detection_error_pct",
-                "detection_rate", "coverage")
+                "detection_rate", "loc_pos_err_median_mm", "loc_pos_err_p95_mm",
+                "loc_rot_err_median_deg", "coverage")
 
 
 def _metrics(task, colon, result, data, camera, stopped) -> dict:
@@ -165,6 +173,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
                                                   -1.0, 1.0)))
             centring = float(np.median(angles))
     detection_error, detection_rate = _detection_scores(camera, data)
+    localisation = _localisation_errors(data, state)
     coverage = float(data["coverage"].data()[0, -1]) if "coverage" in data and \
         data["coverage"].data().size else np.nan
     segments = colon.centerline.segment_ranges()
@@ -182,6 +191,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         "detection_error_pct": (round(detection_error, 2) if np.isfinite(detection_error)
                                 else np.nan),
         "detection_rate": round(detection_rate, 3) if np.isfinite(detection_rate) else np.nan,
+        **localisation,
         "epm_path_m": round(float(np.sum(np.linalg.norm(np.diff(epm, axis=1), axis=0))), 3),
         "coverage": round(coverage, 4) if np.isfinite(coverage) else np.nan,
         # Through each segment; the cecum, a blind end, counts when the run reached it.
@@ -195,6 +205,37 @@ def _logged_lumen(data, prefix: str):
     pixel = data[f"{prefix}_pixel"].data().T
     visible = (data[f"{prefix}_visible"].data()[0] > 0.5) & np.all(np.isfinite(pixel), axis=1)
     return pixel, visible
+
+
+def localisation_errors(estimate, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the estimated pose's position error (m) and orientation error (rad, the
+    angle of the rotation between them), for poses [q wxyz, p] as rows of (N, 7) arrays."""
+    estimate, truth = np.asarray(estimate, dtype=float), np.asarray(truth, dtype=float)
+    position = np.linalg.norm(estimate[:, 4:7] - truth[:, 4:7], axis=1)
+    q1 = estimate[:, :4] / np.linalg.norm(estimate[:, :4], axis=1, keepdims=True)
+    q2 = truth[:, :4] / np.linalg.norm(truth[:, :4], axis=1, keepdims=True)
+    angle = 2.0 * np.arccos(np.clip(np.abs(np.sum(q1 * q2, axis=1)), 0.0, 1.0))
+    return position, angle
+
+
+def _localisation_errors(data, state) -> dict:
+    """The run's localiser against the truth, sample by sample: median and 95th percentile
+    of the position error (mm), median orientation error (deg). NaN without a localiser."""
+    keys = ("loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg")
+    if "localizer_pose" not in data:
+        return dict.fromkeys(keys, np.nan)
+    estimate = data["localizer_pose"].data().T
+    truth = np.asarray(state).T[:, :7]
+    count = min(len(estimate), len(truth))
+    if count == 0:
+        return dict.fromkeys(keys, np.nan)
+    position, angle = localisation_errors(estimate[:count], truth[:count])
+    ok = np.isfinite(position) & np.isfinite(angle)
+    if not ok.any():
+        return dict.fromkeys(keys, np.nan)
+    return dict(zip(keys, (round(1000.0 * float(np.median(position[ok])), 2),
+                           round(1000.0 * float(np.percentile(position[ok], 95)), 2),
+                           round(float(np.degrees(np.median(angle[ok]))), 2))))
 
 
 def _detection_scores(camera, data) -> tuple[float, float]:
@@ -293,15 +334,23 @@ class RowWriter:
 
 def summary(results: list[dict]) -> list[dict]:
     """Per navigator: runs, cecal intubation rate, mean time to cecum (of those that
-    reached it), mean progress, and the means of the other columns."""
+    reached it), mean progress, and the means of the other columns; for the localisation
+    errors, the worst run's too."""
     out = []
     for navigator in dict.fromkeys(r["row"]["navigator"] for r in results):
         rows = [r["row"] for r in results if r["row"]["navigator"] == navigator]
 
+        def finite(key):
+            values = np.array([row.get(key, np.nan) for row in rows], dtype=float)
+            return values[np.isfinite(values)]
+
         def mean(key):
-            values = np.array([row[key] for row in rows], dtype=float)
-            values = values[np.isfinite(values)]
+            values = finite(key)
             return round(float(values.mean()), 3) if len(values) else np.nan
+
+        def worst(key):
+            values = finite(key)
+            return round(float(values.max()), 3) if len(values) else np.nan
 
         out.append({"navigator": navigator, "runs": len(rows),
                     "reached_cecum": f"{sum(row['reached_cecum'] for row in rows)}/{len(rows)}",
@@ -311,6 +360,10 @@ def summary(results: list[dict]) -> list[dict]:
                     "centring_error_deg": mean("centring_error_deg"),
                     "detection_error_pct": mean("detection_error_pct"),
                     "detection_rate": mean("detection_rate"),
+                    **{f"{key}{suffix}": how(key)
+                       for key in ("loc_pos_err_median_mm", "loc_pos_err_p95_mm",
+                                   "loc_rot_err_median_deg")
+                       for suffix, how in (("", mean), ("_worst", worst))},
                     "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage")})
     return out
 
