@@ -79,12 +79,14 @@ class LocalizerConfig:
     # far |a| is from g.
     accel_noise: float = 0.3
     accel_motion_factor: float = 3.0
-    # Random walks of the state: position along the capsule's axis and across it
-    # (m/sqrt(s): a capsule in the lumen moves along its axis), orientation beyond the
-    # gyroscope's noise (rad/sqrt(s)), gyroscope bias (rad/s/sqrt(s)).
-    position_walk: float = 0.02
-    lateral_walk: float = 0.02
-    orientation_walk: float = 0.02
+    # Random walks of the state: position (m/sqrt(s)), orientation beyond the gyroscope's
+    # noise (rad/sqrt(s)), gyroscope bias (rad/s/sqrt(s)). They also stand for the sensors'
+    # errors that are constant over a run (gains, offsets) and the field model's, which a
+    # filter that takes every sample as independent would average as if they were noise:
+    # with smaller walks its covariance claims more than it knows (its NEES rises above
+    # the state's dimension; tests/test_localization.py).
+    position_walk: float = 0.01
+    orientation_walk: float = 0.01
     gyro_bias_walk: float = 1e-4
     # A gyroscope sample within this share of its range counts as saturated (a tumble):
     # the orientation's uncertainty then grows by saturated_turn (rad per update).
@@ -107,7 +109,6 @@ def check_localizer_config(config: LocalizerConfig) -> None:
     need_range(config.accel_noise, "accel_noise", "(0, 100]", "m/s^2")
     need_range(config.accel_motion_factor, "accel_motion_factor", "[0, 100]")
     need_range(config.position_walk, "position_walk", "(0, 10]", "m/sqrt(s)")
-    need_range(config.lateral_walk, "lateral_walk", "(0, 10]", "m/sqrt(s)")
     need_range(config.gyro_range, "gyro_range", "(0, 1000]", "rad/s")
     need_range(config.saturated_turn, "saturated_turn", "[0, 3.2]", "rad")
     need_range(config.orientation_walk, "orientation_walk", "(0, 10]", "rad/sqrt(s)")
@@ -235,13 +236,10 @@ class PoseEstimate:
         F = np.eye(N)
         F[3:6, 3:6] = step.T
         F[3:6, 6:9] = -dt * np.eye(3)
-        Q = np.diag(np.concatenate([np.zeros(3),
+        Q = np.diag(np.concatenate([np.full(3, c.position_walk**2 * dt),
                                     np.full(3, c.orientation_walk**2 * dt + turn**2),
                                     np.full(3, c.gyro_bias_walk**2 * dt),
                                     [c.self_field_drift_walk**2 * dt]]))
-        axis = self.R[:, 2]
-        Q[0:3, 0:3] = dt * (c.lateral_walk**2 * np.eye(3)
-                            + (c.position_walk**2 - c.lateral_walk**2) * np.outer(axis, axis))
         self.P = F @ self.P @ F.T + Q
 
     def _model(self, p, R, d, p_E, m_E, sensors, accel_B):
