@@ -135,7 +135,8 @@ def _parser() -> argparse.ArgumentParser:
                     "--duration simulated seconds, stopping at the cecum) in parallel "
                     "processes, print a table per run and per navigator, and write runs.csv, "
                     "summary.csv, progress.png and segments.png. Navigators: autonomy-truth, "
-                    "autonomy-detected, teleop-guided, teleop-unguided, or a user's "
+                    "autonomy-detected, autonomy-sensors, teleop-guided, teleop-unguided, or "
+                    "a user's "
                     "'package.module:function' (the plug-in interface in "
                     "capsule_drake/navigation/benchmark.py).")
     bench.add_argument("--seeds", default="0-9",

@@ -315,23 +315,23 @@ def test_lumen_follower_pose_source_errors_are_one_line():
         _load("Navigation", "{duration: 1.0, epm: {driver: !LumenFollower {pose: gps}}}")
     assert "\n" not in str(error.value)
     with pytest.raises(ScenarioError, match=r"epm.driver \(LumenFollower\) pose sensors needs "
-                       "capsule.imu, capsule.ahrs and capsule.magn") as error:
+                       r"capsule.localizer \(with capsule.imu and capsule.magnetic_array\)"
+                       ) as error:
         _load("Navigation", "{duration: 1.0, epm: {driver: !LumenFollower {pose: sensors}}}")
     assert "\n" not in str(error.value)
 
 
 @pytest.mark.slow
 def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
-    """The pose from the AHRS and the magnetic localiser instead of the truth: the capsule
-    advances, and the estimate the follower acts on stays near the truth over 15 s."""
+    """The pose from the capsule's own localiser (Hall sensors, IMU, the EPM's pose; finite
+    magnets against its dipole model) instead of the truth: the capsule advances, and the
+    estimate the follower acts on stays near the truth over 15 s."""
     from capsule_drake.anatomy import load_colon
-    scenario, station, builder = _station("Navigation", (
+    scenario, station, builder = _station("NavigationSensors", (
         "{colon: {seed: 0}, duration: 15.0, capsule: {camera: {latency: 0.0},"
-        " imu: {}, ahrs: {}, magnetometer: {}},"
-        " epm: {driver: !LumenFollower {lumen: truth, pose: sensors}}}"))
+        " lumen_tracker: null}, epm: {driver: !LumenFollower {lumen: truth}}}"))
+    assert scenario.epm.driver.pose == "sensors"
     colon, _ = load_colon(scenario.colon)
-    # The localizer is inside the station: its estimate is read every 0.5 s, with the truth.
-    localizer = station.GetSubsystemByName("lumen_follower.localizer")
     diagram = builder.Build()
     simulator = Simulator(diagram)
     # Seeded as a run seeds it: Drake's default noise seeds count the random sources made
@@ -340,18 +340,15 @@ def test_closed_loop_on_the_sensors_pose_estimate_advances_the_capsule():
                              RandomGenerator(scenario.random_seed))
     context = simulator.get_context()
     x, est = [], []
-    for t in np.arange(0.0, scenario.duration + 1e-9, 0.5):
+    for t in np.arange(0.5, scenario.duration + 1e-9, 0.5):
         simulator.AdvanceTo(t)
         x.append(station.GetOutputPort("capsule.state").Eval(
             station.GetMyContextFromRoot(context)).copy())
-        est.append(localizer.GetOutputPort("capsule_pose").Eval(
-            localizer.GetMyContextFromRoot(context)).copy())
+        est.append(station.GetOutputPort("capsule.localizer.pose").Eval(
+            station.GetMyContextFromRoot(context)).copy())
     x, est = np.array(x).T, np.array(est).T
     s = colon.centerline.closest(x[4:7].T)[0]
     assert s[-1] - s[0] > 0.05, f"advanced only {100 * (s[-1] - s[0]):.1f} cm"
-    # Measured with random_seed 0: at most 6.1 mm over these 15 s. Over seeds 0-5 the
-    # largest error is 3.2-16.5 mm (2.3-20.7 with the servoed stage): the AHRS's heading
-    # drift, unobserved, grows it (30-80 mm after 40 s; README).
     error = np.linalg.norm(est[4:7] - x[4:7], axis=0)
     assert error.max() < 0.01, f"pose estimate off by {1000 * error.max():.1f} mm"
 

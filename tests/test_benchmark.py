@@ -87,10 +87,10 @@ def test_bad_navigators_get_one_line_errors():
     assert "\n" not in str(error.value)
 
 
-# The follower on the sensors' pose estimate: the noise of the IMU and the magnetometer
+# The follower on the sensors' pose estimate: the noise of the IMU and the Hall sensors
 # (drawn from the scenario's random_seed) moves the EPM and so the capsule.
-NOISY = ("{capsule: {camera: {fps: 2.0, latency: 0.0}, imu: {}, ahrs: {}, magnetometer: {}},"
-         " epm: {driver: !LumenFollower {pose: sensors}}, random_seed: %d}")
+NOISY = ("{capsule: {camera: {fps: 2.0, latency: 0.0}, imu: {}, magnetic_array: {},"
+         " localizer: {}}, epm: {driver: !LumenFollower {pose: sensors}}, random_seed: %d}")
 
 
 @pytest.mark.slow

@@ -189,6 +189,8 @@ ELSEWHERE = {
         "Navigation", "test_station.py::test_named_scenarios_simulate"),
     "epm.driver[LumenFollower].lumen": (  # lumen: detected
         "NavigationDetected", "test_station.py::test_named_scenarios_simulate"),
+    "epm.driver[LumenFollower].pose": (  # pose: sensors
+        "NavigationSensors", "test_station.py::test_named_scenarios_simulate"),
 }
 
 # The only selectors no simulated named scenario sets, each with its reason and the tests
@@ -208,10 +210,6 @@ EXCEPTIONS = {
     "epm.driver[Plugin].factory": (
         "as epm.driver[Plugin]: the factory names the test's plug-in",
         ("test_benchmark.py::test_a_user_navigator_runs_on_two_colons_and_gets_the_table",)),
-    "epm.driver[LumenFollower].pose": (
-        "held only by Navigation and NavigationDetected, which steer on the true pose; "
-        "pose: sensors is the benchmark's override",
-        ("test_benchmark.py::test_the_benchmark_honours_the_random_seed",)),
     "epm.driver[Teleop].operator": (
         "browser needs a Meshcat page, udp a device sending on a socket",
         ("test_teleop.py::test_teleop_from_the_browser_follows_the_sliders",

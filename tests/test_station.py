@@ -164,11 +164,12 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
 
 
 # OneOfEverything and OneOfEverythingElse set every option that selects behaviour
-# (tests/test_scenario.py); Navigation and NavigationDetected hold the lumen follower.
+# (tests/test_scenario.py); Navigation, NavigationDetected and NavigationSensors hold the
+# lumen follower (the last on the capsule's own pose estimate, with finite magnets).
 # Measured wall times (2 cores, colons cached): OneOfEverything ~2 s, OneOfEverythingElse
 # ~3 s (~11 s when it first imports the ex vivo colon), the others 1-4 s.
 @pytest.mark.parametrize("name", [
-    "Default", "WithSensors", "Navigation", "NavigationDetected",
+    "Default", "WithSensors", "Navigation", "NavigationDetected", "NavigationSensors",
     "OneOfEverything", "OneOfEverythingElse"])
 def test_named_scenarios_simulate(name):
     scenario = load_scenario(name=name)

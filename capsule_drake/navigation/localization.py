@@ -35,7 +35,7 @@ each sample alone has 3n + 3 equations for 6 unknowns and is well posed with the
 four sensors, but the filter carries what it knew through moments when it is not (a
 saturated sensor excluded, the field weak or vertical) and gives a covariance the follower
 can read; iterating its update gives the least-squares solution with the prior as one more
-term. The cost is one 9-state filter with 12-15 measurements, ~0.2-0.4 ms an update
+term. The cost is one 10-state filter with 15 measurements iterated twice, ~0.4-0.5 ms an update
 (benchmarks/bench_localization.py).
 """
 
@@ -60,8 +60,8 @@ class LocalizerConfig:
 
     # Update period (s): the Hall sensors' sample period.
     period: float = 0.01
-    # Iterations of the update (1: the plain EKF).
-    iterations: int = 3
+    # Iterations of the update (1: the plain EKF; a third changes nothing measurable).
+    iterations: int = 2
     # Standard deviation of a field reading's error (T, per axis): what the estimator
     # assumes of the sensors, from their datasheet (noise, offset drift, gain residual).
     field_noise: float = 100e-6
