@@ -110,7 +110,7 @@ def test_the_dipole_field_and_its_gradient_against_the_physics_and_finite_differ
 
 
 def test_the_array_reads_its_own_magnet_and_the_calibration_removes_it():
-    """The IPM's field at the sensors is ten times the EPM's; it is in every raw reading,
+    """The IPM's field at the sensors is several times the EPM's; it is in every raw reading,
     and the calibrated reading is the EPM's field within the calibration's residuals."""
     array = _array()
     self_field = array.self_field()
@@ -121,15 +121,15 @@ def test_the_array_reads_its_own_magnet_and_the_calibration_removes_it():
         [dipole_field([0.0, 0.0, IPM.moment()], p - X_BM.translation()) for p in far],
         rtol=0.03, atol=1e-6)
     magnitudes = np.linalg.norm(self_field, axis=1)
-    assert np.all((magnitudes > 0.1) & (magnitudes < 0.2)), magnitudes
+    assert np.all((magnitudes > 0.05) & (magnitudes < 0.2)), magnitudes
     rng = np.random.default_rng(1)
     errors = SensorErrors(array.config, rng.normal(size=SensorErrors.size(4)))
     p_WB, R_WB, p_E, m_hat = _follower_geometry(rng, 0.2, 0.0)
     B_epm = _epm_field(array, p_WB, R_WB, p_E, m_hat)
-    assert np.all(np.linalg.norm(B_epm, axis=1) < 0.3 * magnitudes)
+    assert np.all(np.linalg.norm(B_epm, axis=1) < 0.5 * magnitudes)
     raw = array.measure(B_epm, errors, rng.normal(size=(4, 3)))
     # The raw readings hold the self-field ...
-    assert np.all(np.linalg.norm(raw - B_epm, axis=1) > 0.09)
+    assert np.all(np.linalg.norm(raw - B_epm, axis=1) > 0.05)
     # ... and the calibrated ones the EPM's field: within the gain residual (0.3 %), the
     # self-field's drift since calibration (0.18 % of ~150 mT) and the noise.
     calibrated = raw - array.calibration(errors)

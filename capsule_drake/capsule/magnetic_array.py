@@ -8,8 +8,8 @@ axes, at p_BSi):
     raw_i = clip(Q(G_i (B_ipm,i (1 + d) + B_epm,i) + o_i + do_i + n_i), +-range)
 
 - B_ipm,i: the IPM's own field at the sensor (the exact field of its cylinder,
-  ``magnetics.cylinder_field``): 100-190 mT at 11-13 mm from an 11 mm N52 magnet, ten times
-  the EPM's 10-25 mT at the capsule. It is fixed in the capsule frame, so it is measured
+  ``magnetics.cylinder_field``): 60-150 mT at 11-15 mm from an 11 mm N52 magnet, ten times
+  the EPM's 5-25 mT at the capsule. It is fixed in the capsule frame, so it is measured
   once (calibration) and subtracted; d is its change since then (NdFeB loses 0.12 % of its
   remanence per kelvin: a capsule calibrated at room temperature and used at body
   temperature, after compensating with its temperature sensor, keeps a residual).
@@ -31,8 +31,8 @@ is what each sensor subtracts from then on: B_i = raw_i - c_i = G_i (B_epm,i + d
 (`saturated`): such a reading is not B_epm plus noise and is excluded, not trusted.
 
 Defaults: a TMAG5273A2-class sensor (Texas Instruments TMAG5273 datasheet, SLYS045, +-266 mT
-range) at four places around the IPM, two ahead of it and two behind (module constants
-below); U = engineering assumption, DS = datasheet.
+range) at four places around the IPM, two ahead of it and two behind (the config's
+defaults); U = engineering assumption, DS = datasheet.
 """
 
 import copy
@@ -64,12 +64,15 @@ class MagneticArrayConfig:
     # 20 kSPS per axis, DS; 100 Hz with 32x averaging is well inside that).
     sample_rate: float = 100.0
     # Sensor positions in the capsule body (m), one [x, y, z] each; the sensors' axes are
-    # the capsule's. Two ahead of the IPM (its centre is 3 mm behind the body origin, its
-    # faces at z = -8.6 and +2.6 mm) and two behind it, on the PCBs at either end, where
-    # the self-field is 120-170 mT. U.
+    # the capsule's. The IPM's centre is 3 mm behind the body origin, its faces at z = -8.6
+    # and +2.6 mm: two sensors ahead of it on the camera's board (z = 12 mm, 5 mm off the
+    # axis, either side), two behind it in the rear dome (z = -14.5 mm, 2.8 mm off the
+    # axis), so that the array spans the capsule's length (the baseline that separates a
+    # sideways shift from a turn, the estimate's weakest direction). The self-field there
+    # is 64 mT ahead and 150 mT behind. U.
     positions: list[list[float]] = dataclasses.field(default_factory=lambda: [
-        [0.004, 0.0, 0.009], [-0.004, 0.0, 0.009],
-        [0.0, 0.0028, -0.0145], [0.0, -0.0028, -0.0145]])
+        [0.0035, 0.0035, 0.012], [-0.0035, -0.0035, 0.012],
+        [0.002, -0.002, -0.0145], [-0.002, 0.002, -0.0145]])
     # Full-scale range per axis (T): +-266 mT, the TMAG5273A2's wide setting (DS).
     range: float = 0.266
     # ADC resolution (bits) over the range: 16-bit results with averaging (DS: 12-bit
