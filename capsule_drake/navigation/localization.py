@@ -85,8 +85,8 @@ class LocalizerConfig:
     # filter that takes every sample as independent would average as if they were noise:
     # with smaller walks its covariance claims more than it knows (its NEES rises above
     # the state's dimension; tests/test_localization.py).
-    position_walk: float = 0.01
-    orientation_walk: float = 0.01
+    position_walk: float = 0.015
+    orientation_walk: float = 0.015
     gyro_bias_walk: float = 1e-4
     # A gyroscope sample within this share of its range counts as saturated (a tumble):
     # the orientation's uncertainty then grows by saturated_turn (rad per update).
