@@ -24,10 +24,11 @@ from capsule_drake.schema import MAX_DEPTH, MAX_NODES
 # The named scenario of diagrams/default.yaml a key is set in, by its path's beginning: a
 # union member's fields need that member (and what it needs of the rest: a camera for the
 # teleoperated and autonomous drivers); the optional blocks (sensors, camera, tracker,
-# pseudo-force) are all present in WithSensors.
+# pseudo-force) are all present in WithSensors, the localisation's in NavigationSensors.
 BASES = (("epm.driver[Teleop]", "Teleop"), ("epm.driver[LumenFollower]", "Navigation"),
          ("epm.driver[HoldAbove]", "FarMagnet"), ("epm.mount[Arm]", "WithArm"),
-         ("", "WithSensors"))
+         ("capsule.magnetic_array", "NavigationSensors"),
+         ("capsule.localizer", "NavigationSensors"), ("", "WithSensors"))
 
 FLOATS = (math.nan, math.inf, -math.inf, 0.0, -1.0, 1e-9, 1e9)
 INTS = (-1, 0, 2 ** 32, 2 ** 62)
