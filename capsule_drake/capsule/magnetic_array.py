@@ -228,6 +228,7 @@ class MagneticSensorArray(LeafSystem):
         self._self_field = self_field(ipm, X_BM, self._positions)
         self._step = 2.0 * c.range / 2.0 ** c.resolution_bits if c.resolution_bits else 0.0
         self._rail = c.range * (1.0 - c.saturation_margin)
+        self._errors_cache = (None, None, None)   # (draw bytes, SensorErrors, calibration)
         self._body_poses_port = self.DeclareAbstractInputPort(
             "body_poses", AbstractValue.Make([RigidTransform()]))
         self._pose_ports = {name: self.DeclareVectorInputPort(f"{name}.pose", 6)
@@ -301,17 +302,25 @@ class MagneticSensorArray(LeafSystem):
         return (np.einsum("nij,nj->ni", errors.G, self._self_field) + errors.offset
                 + errors.calibration_noise)
 
+    def _errors(self, draw):
+        """The run's SensorErrors and calibration for its error draw: drawn once per run,
+        so built once and kept while the draw is the same (a pure function of it)."""
+        key = draw.tobytes()
+        if self._errors_cache[0] != key:
+            errors = SensorErrors(self._config, draw)
+            self._errors_cache = (key, errors, self.calibration(errors))
+        return self._errors_cache[1:]
+
     def _update(self, context, discrete_state):
         draw_state = discrete_state.get_mutable_vector(self._draw)
         if draw_state.GetAtIndex(SensorErrors.size(self._n)) < 0.5:
             draw = np.append(np.asarray(self._draw_port.Eval(context), dtype=float), 1.0)
             draw_state.SetFromVector(draw)
-        errors = SensorErrors(self._config, draw_state.value()[:-1])
+        errors, calibration = self._errors(draw_state.value()[:-1])
         B_epm = self.external_field(
             self._body_poses_port.Eval(context),
             {name: port.Eval(context) for name, port in self._pose_ports.items()})
         raw = self.measure(B_epm, errors, self._white_port.Eval(context))
-        calibration = self.calibration(errors)
         saturated = np.any(np.abs(raw) >= self._rail, axis=1).astype(float)
         discrete_state.get_mutable_vector(self._B).SetFromVector((raw - calibration).ravel())
         discrete_state.get_mutable_vector(self._saturated).SetFromVector(saturated)

@@ -122,7 +122,7 @@ def check_localizer_config(config: LocalizerConfig) -> None:
 
 def skew(v) -> np.ndarray:
     """[v]x: skew(v) @ w = v x w."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return _skews(np.reshape(v, (1, 3)))[0]
 
 
 def _skews(v) -> np.ndarray:
@@ -291,7 +291,8 @@ class PoseEstimate:
         if not sensors and accel_B is None:
             return 0
         p_E = epm_pose[:3]
-        m_E = self.epm_moment * epm_pose[3:] / np.linalg.norm(epm_pose[3:])
+        m_E = (self.epm_moment * epm_pose[3:] / np.linalg.norm(epm_pose[3:]) if sensors
+               else np.zeros(3))   # no field used: the accelerometer alone
         z = B[sensors].ravel()
         if accel_B is not None:
             z = np.concatenate([z, accel_B])
