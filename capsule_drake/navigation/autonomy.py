@@ -558,7 +558,8 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
                        name: str = "lumen_follower") -> LumenFollowerController:
     """`lumen_follower` and what it reads: the capsule's pose (the truth, or
     capsule.localizer's estimate), the lumen (`<name>.lumen_seen` from the truth, or the
-    tracker's); its command goes to the EPM's carrier and is exported as epm.command."""
+    tracker's); its command goes to the EPM's carrier and is exported as epm.command, its
+    heading and status as `<name>.heading` and `<name>.status`."""
     magnet = parts.epm.magnet
     follower = builder.AddNamedSystem(name, LumenFollowerController(
         config.control, parts.capsule.X_BC, parts.capsule.X_BM.translation(),
@@ -590,4 +591,5 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
     command = follower.GetOutputPort("epm_command")
     builder.Connect(command, parts.epm.mount.command_input(builder, parts))
     parts.export(command, "epm.command")
+    parts.export_outputs(follower, name, ("heading", "status"))
     return follower
