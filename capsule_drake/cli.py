@@ -21,9 +21,10 @@ import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-from capsule_drake.io.record import record
+from capsule_drake.io.mcap_log import add_mcap_logger, check_mcap_path, expected_mcap_bytes
+from capsule_drake.io.record import record, with_all_sensors
 from capsule_drake.io.outputs import RUN_OUTPUTS, OutputError, claim_folder, new_run_folder
-from capsule_drake.io.run import Interrupted, StepBar, WriteError, simulate
+from capsule_drake.io.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, segment_table, summary,
                                                 task_scenario, write_outputs)
@@ -62,6 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     _out_arguments(run, "runs/<scenario>-<date-time>")
     run.add_argument("--no-recording", action="store_true",
                      help="skip the Meshcat recording (a little faster)")
+    _mcap_argument(run)
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
     rec = verbs.add_parser(
@@ -72,6 +74,7 @@ def _parser() -> argparse.ArgumentParser:
                     "into a folder laid out like SimCol3D's (see README.txt written there).")
     _scenario_arguments(rec)
     _out_arguments(rec, "datasets/<scenario>-<date-time>", force=False)
+    _mcap_argument(rec)
     rec.add_argument("--quiet", action="store_true", help="no progress bar")
 
     tel = verbs.add_parser(
@@ -93,6 +96,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="Meshcat port (browser) or UDP port (udp; 0 = any free one)")
     _host_argument(tel, "Meshcat and the UDP bridge")
     _out_arguments(tel, "runs/teleop-<operator>-<date-time>")
+    _mcap_argument(tel)
     tel.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = verbs.add_parser(
@@ -213,6 +217,37 @@ def _host_argument(parser, what: str):
                         help=f"address {what} listen on (default {LOOPBACK}: this machine "
                              "only; 0.0.0.0 opens it to the network, which has no "
                              "authentication: only on a network you trust)")
+
+
+def _mcap_argument(parser):
+    parser.add_argument("--mcap", type=_path, metavar="FILE",
+                        help="also write the run as ROS 2 messages (camera, depth, IMU, "
+                             "magnetic field, tf, contact wrench, lumen) into an MCAP file, "
+                             "as it goes, for Foxglove or `ros2 bag` (README, \"ROS 2 and "
+                             "Foxglove: MCAP logs\")")
+
+
+def _mcap_path(args, scenario):
+    """--mcap's file, checked before the run (exit 2 on a bad path), or None."""
+    if args.mcap is None:
+        return None
+    return check_mcap_path(args.mcap, replace=getattr(args, "force", None),
+                           expected_bytes=expected_mcap_bytes(scenario))
+
+
+def _mcap_extend(path, scenario):
+    """simulate's `extend` that adds the MCAP logger, or None."""
+    if path is None:
+        return None
+    return lambda builder, station: add_mcap_logger(builder, station, scenario, path).close
+
+
+def _report_mcap(result):
+    diagram = result.diagram
+    if diagram is not None and diagram.HasSubsystemNamed("mcap_logger"):
+        log = diagram.GetSubsystemByName("mcap_logger").log
+        print(f"MCAP log: {log.messages} ROS 2 messages in {log.path} (open it in Foxglove, "
+              "or `ros2 bag info` it)")
 
 
 def _out_arguments(parser, default: str, force: bool = True):
@@ -372,12 +407,14 @@ def _load(args, *flags: str):
 
 def _record(args) -> int:
     scenario = _load(args)
+    mcap = _mcap_path(args, with_all_sensors(scenario))
     out_dir = _output_folder(args, "datasets", args.scenario or "Default")
-    result = record(scenario, out_dir, progress=not args.quiet)
+    result = record(scenario, out_dir, progress=not args.quiet, mcap=mcap)
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
     m = result.metrics
     print(f"recorded {frames} frames over {m.get('sim_time_s', 0.0):.2f} s into {out_dir}/ "
           f"(README.txt there describes the layout)")
+    _report_mcap(result)
     _report_stop(result)
     return _exit_code(result)
 
@@ -403,6 +440,7 @@ def _teleop(args) -> int:
     if live and scenario.simulator.target_realtime_rate == 0.0:
         # A person at the device: paced to the wall clock.
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
+    mcap = _mcap_path(args, scenario)
 
     out_dir = _output_folder(args, "runs", f"teleop-{teleop.operator}")
     meshcat = _meshcat(args.host or LOOPBACK, args.port if teleop.operator == "browser" else 0,
@@ -416,13 +454,15 @@ def _teleop(args) -> int:
         return None
 
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,
-                      live_meshcat=live, extend=announce)
+                      live_meshcat=live,
+                      extend=chain_extends(announce, _mcap_extend(mcap, scenario)))
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline in "
               f"{m['sim_time_s']:.1f} s (x{m['real_time_factor']:.2f} real time); peak "
               f"contact force {m['peak_contact_force_N']:.2f} N; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    _report_mcap(result)
     _report_stop(result)
     print(f"outputs in {out_dir}/ (metrics.json, recording.html)")
     return _exit_code(result)
@@ -501,6 +541,7 @@ def _eval_lumen(args) -> int:
 def _run(args) -> int:
     # A live page is paced to the wall clock.
     scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
+    mcap = _mcap_path(args, scenario)
 
     out_dir = _output_folder(args, "runs", args.scenario or "Default")
     meshcat = None
@@ -509,7 +550,8 @@ def _run(args) -> int:
     elif not args.no_recording:  # only for the recording
         meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
-                      progress=not args.quiet, live_meshcat=args.meshcat)
+                      progress=not args.quiet, live_meshcat=args.meshcat,
+                      extend=_mcap_extend(mcap, scenario))
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
@@ -520,6 +562,7 @@ def _run(args) -> int:
               f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    _report_mcap(result)
     _report_stop(result)
     print(f"outputs in {out_dir}/ (metrics.json"
           f"{', recording.html' if meshcat is not None else ''})")

@@ -7,7 +7,8 @@ import yaml
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
 from capsule_drake.io.dataset import DatasetWriter
-from capsule_drake.io.run import RunResult, simulate
+from capsule_drake.io.mcap_log import add_mcap_logger
+from capsule_drake.io.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.capsule.camera import CameraConfig, camera_tick
@@ -52,10 +53,12 @@ def _camera_yaml(camera, lens) -> str:
     return yaml.safe_dump(text, sort_keys=False)
 
 
-def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True) -> RunResult:
+def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
+           mcap: Path | str | None = None) -> RunResult:
     """Simulates `scenario` with a camera and writes a dataset to `out_dir` as it runs.
 
-    Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`).
+    Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`),
+    and with `mcap` an MCAP file of ROS 2 messages (io/mcap_log.py) as well.
     """
     scenario = with_all_sensors(scenario)
     out_dir = Path(out_dir)
@@ -104,4 +107,8 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True) ->
             builder.Connect(mux.get_output_port(), writer.GetInputPort(name))
         return writer.close
 
-    return simulate(scenario, out_dir=out_dir, progress=progress, extend=extend)
+    def extend_mcap(builder, station):
+        return add_mcap_logger(builder, station, scenario, mcap).close
+
+    return simulate(scenario, out_dir=out_dir, progress=progress,
+                    extend=chain_extends(extend, extend_mcap if mcap is not None else None))

@@ -301,6 +301,31 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     return result
 
 
+def chain_extends(*extends):
+    """One `extend` for `simulate` that runs each given one (None ones skipped) in turn; its
+    close hook closes every one's, in reverse order, each even if another failed (the
+    first failure is raised after)."""
+    extends = [e for e in extends if e is not None]
+    if not extends:
+        return None
+
+    def extend(builder, station):
+        closers = [close for close in (e(builder, station) for e in extends)
+                   if close is not None]
+
+        def close():
+            failure = None
+            for closer in reversed(closers):
+                try:
+                    closer()
+                except Exception as e:
+                    failure = failure or e
+            if failure is not None:
+                raise failure
+        return close
+    return extend
+
+
 def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
     """Creates `out` if need be, checks it can take the run's outputs, writes scenario.yaml
     (removed again if the station cannot be built: see `simulate`)."""

@@ -75,3 +75,31 @@ def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
         elif pair.id_A in capsule_geometries:
             total -= info.contact_force()
     return total
+
+
+def capsule_contact_wrench_W(results, capsule_geometries, p_WBo) -> tuple[np.ndarray, np.ndarray]:
+    """(torque, force) of the contact on the body of `capsule_geometries` about its point
+    p_WBo (N m, N; world frame): each hydroelastic contact's spatial force acts at its
+    surface's centroid, each point contact's force at its contact point."""
+    torque, force = np.zeros(3), np.zeros(3)
+    p_WBo = np.asarray(p_WBo, dtype=float)
+    for i in range(results.num_hydroelastic_contacts()):
+        info = results.hydroelastic_contact_info(i)
+        surface = info.contact_surface()
+        sign = (1.0 if surface.id_M() in capsule_geometries else
+                -1.0 if surface.id_N() in capsule_geometries else 0.0)
+        if sign:
+            F = info.F_Ac_W()  # on the body of geometry M, at the centroid
+            f = sign * F.translational()
+            force += f
+            torque += sign * F.rotational() + np.cross(surface.centroid() - p_WBo, f)
+    for i in range(results.num_point_pair_contacts()):
+        info = results.point_pair_contact_info(i)
+        pair = info.point_pair()
+        sign = (1.0 if pair.id_B in capsule_geometries else
+                -1.0 if pair.id_A in capsule_geometries else 0.0)
+        if sign:  # contact_force() acts on body B
+            f = sign * info.contact_force()
+            force += f
+            torque += np.cross(info.contact_point() - p_WBo, f)
+    return torque, force

@@ -1,0 +1,633 @@
+"""McapLogger: a run's signals as ROS 2 messages in an MCAP file, written as the run goes.
+
+`capsule-sim run|record|teleop --mcap FILE` adds one McapLogger beside the station. It
+writes, for whatever the scenario has (a topic whose source is switched off is absent):
+
+    topic                               type                                  rate, frame_id
+    /tf                                 tf2_msgs/msg/TFMessage                outputs.log_period:
+                                                                              world -> capsule, world -> epm
+    /tf_static                          tf2_msgs/msg/TFMessage                once: capsule -> its sensors
+    /capsule/contact/wrench             geometry_msgs/msg/WrenchStamped       outputs.log_period, capsule
+    /capsule/camera/image_raw           sensor_msgs/msg/Image (rgb8)          each frame, camera optical
+    /capsule/camera/camera_info         sensor_msgs/msg/CameraInfo            each frame
+    /capsule/camera/depth/image_raw     sensor_msgs/msg/Image (32FC1, m)      each frame (render_depth)
+    /capsule/camera/depth/camera_info   sensor_msgs/msg/CameraInfo            each frame (render_depth)
+    /capsule/lumen_truth/pixel          geometry_msgs/msg/PointStamped        each frame
+    /capsule/lumen_truth/point          geometry_msgs/msg/PointStamped        each frame, world
+    /capsule/lumen_truth/marker         visualization_msgs/msg/ImageMarker    each frame
+    /capsule/lumen_tracker/pixel        geometry_msgs/msg/PointStamped        each frame (tracker)
+    /capsule/lumen_tracker/marker       visualization_msgs/msg/ImageMarker    each frame (tracker)
+    /capsule/imu/data                   sensor_msgs/msg/Imu                   imu.sample_rate, capsule_imu
+    /capsule/magnetometer               sensor_msgs/msg/MagneticField (T)     its sample_rate
+    /capsule/magnetic_array/hall_<i>    sensor_msgs/msg/MagneticField (T)     its sample_rate, capsule_hall_<i>
+    /capsule/contact_sensor/wrench      geometry_msgs/msg/WrenchStamped       its sample_rate, capsule
+    /capsule/localizer/pose             geometry_msgs/msg/PoseWithCovarianceStamped   its period, world
+
+Frames (REP 103: right-handed, metres, radians): `world` is the simulator's W (z up, x to the
+patient's left, y to the head; the patient supine, table top at z = 0); `capsule` its body
+frame B (origin at the centre, +z along the axis toward the camera dome: the capsule's
+"forward" is z, not REP 103's x, so that the frame is the one of capsule.state and the
+model); `capsule_camera_optical_frame` the camera C (REP 103's optical convention: +z along
+the optical axis, +x right, +y down); `capsule_imu`, `capsule_magnetometer`, `capsule_hall_<i>`
+the sensor frames S of their configs; `epm` the external magnet E (centre, +z its moment).
+
+Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer),
+the time the value describes: a sensor's sample time, a frame's exposure, a pose's time. The
+MCAP log time is when the simulation produced the message (after a camera's latency, a
+detector's run); they differ only for frames delivered late and what is computed on them.
+
+Each event's messages are written with Ctrl-C and the termination signals held, so an
+interrupt lands between messages; `close()` (the run loop's close hook) then finishes the
+file (its last chunk, index and footer) however the run ended.
+"""
+
+import contextlib
+import math
+import os
+import signal
+import threading
+from pathlib import Path
+
+import numpy as np
+from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+# mcap_ros2's own Writer uses this to encode; it has no public encoder and registers its
+# channels without the QoS metadata rosbag2 replays from.
+from mcap_ros2._dynamic import serialize_dynamic
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import ContactResults
+from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
+
+from capsule_drake.capsule.imu import imu_channels
+from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
+from capsule_drake.epm.mount import EPM_BODY
+from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.io.outputs import OutputError
+from capsule_drake.io.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
+                                            quaternion_wxyz, schema_text, transform_stamped,
+                                            vector3)
+from capsule_drake.physics.contact_monitor import capsule_contact_wrench_W
+
+WORLD = "world"
+CAPSULE = "capsule"
+CAMERA = "capsule_camera_optical_frame"
+IMU = "capsule_imu"
+MAGNETOMETER = "capsule_magnetometer"
+EPM = "epm"
+
+# How long after a sample time the logger reads a sampled sensor (s): at the sample time
+# itself a publish event runs before the sensor's update and would see the previous sample.
+SAMPLE_READ_DELAY = 1e-6
+
+
+def hall_frame(i: int) -> str:
+    return f"capsule_hall_{i}"
+
+
+def _ns(t: float) -> int:
+    return int(round(t * NANOSECONDS))
+
+
+def _quaternion_of(R: RotationMatrix) -> np.ndarray:
+    q = R.ToQuaternion()
+    return np.array([q.w(), q.x(), q.y(), q.z()])
+
+
+def check_mcap_path(path, replace: bool = False, expected_bytes: float = 0.0) -> Path:
+    """The file `--mcap` names, checked before anything is simulated: its folder exists and
+    can be written, the path is not a folder, an existing file is refused unless `replace`,
+    and the disk has room for `expected_bytes`. Raises OutputError (one line)."""
+    text = str(path)
+    if not text.strip():
+        raise OutputError("--mcap: empty path (give a file, e.g. --mcap run.mcap)")
+    path = Path(path)
+    folder = path.parent
+    if path.is_dir():
+        raise OutputError(f"--mcap {path}: is a folder; give a file name, e.g. {path / 'run.mcap'}")
+    if not folder.is_dir():
+        raise OutputError(f"--mcap {path}: folder {folder} does not exist")
+    if path.exists() and not replace:
+        raise OutputError(f"--mcap {path}: file exists; choose another name"
+                          + (", or add --force to replace it" if replace is not None else ""))
+    if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise OutputError(f"--mcap {path}: cannot write there (permission denied)")
+    try:
+        free = os.statvfs(folder).f_bavail * os.statvfs(folder).f_frsize
+    except OSError:
+        free = math.inf
+    if free < expected_bytes:
+        raise OutputError(f"--mcap {path}: {free / 1e6:.0f} MB free, but the log will take up "
+                          f"to about {expected_bytes / 1e6:.0f} MB; free some space or write it "
+                          "elsewhere")
+    return path
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Ctrl-C and the termination signals wait until the block is done (main thread only):
+    an interrupt never lands inside the MCAP writer, halfway through a record."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK,
+                                      {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+class Ros2McapFile:
+    """An MCAP file of ROS 2 messages (profile ros2, schemas ros2msg, messages CDR) being
+    written: each type's schema and each topic's channel registered at its first message,
+    the channel with the QoS rosbag2 replays it with; messages are gathered into chunks
+    (`chunk_size` bytes, compressed) that are written as they fill.
+
+    The file is created at the first message; `close()` finishes it (idempotent).
+    """
+
+    def __init__(self, path, compression: str = "zstd", chunk_size: int = 1 << 20):
+        self.path = Path(path)
+        self._compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                             "none": CompressionType.NONE}[compression]
+        self._chunk_size = int(chunk_size)
+        self._stream = None
+        self._writer = None
+        self._schemas = {}    # type name -> (schema id, encoder)
+        self._channels = {}   # topic -> (channel id, encoder)
+        self.messages = 0
+        self.closed = False
+
+    def _open(self):
+        self._stream = open(self.path, "wb")
+        self._writer = Writer(self._stream, chunk_size=self._chunk_size,
+                              compression=self._compression)
+        self._writer.start(profile=Profile.ROS2, library="capsule_drake")
+        # rosbag2 reads the channels' QoS with the metadata format its "rosbag2" record
+        # names; an empty one means version 8 and before: integer policies (ros2_messages).
+        self._writer.add_metadata("rosbag2", {"serialized_metadata": ""})
+
+    def _channel(self, topic: str, type_name: str, latched: bool):
+        if self._writer is None:
+            self._open()
+        if type_name not in self._schemas:
+            text = schema_text(type_name)
+            schema_id = self._writer.register_schema(type_name, SchemaEncoding.ROS2,
+                                                     text.encode())
+            self._schemas[type_name] = (schema_id, serialize_dynamic(type_name, text)[type_name])
+        schema_id, encoder = self._schemas[type_name]
+        channel_id = self._writer.register_channel(
+            topic, MessageEncoding.CDR, schema_id,
+            {"offered_qos_profiles": offered_qos_profiles(latched, depth=1 if latched else 10)})
+        self._channels[topic] = (channel_id, encoder, type_name)
+        return self._channels[topic]
+
+    def write(self, topic: str, type_name: str, message: dict, log_time_ns: int,
+              latched: bool = False):
+        """Encodes `message` (a dict of the type's fields) and adds it to `topic`."""
+        if self.closed:
+            raise RuntimeError(f"{self.path}: the MCAP log is closed")
+        channel = self._channels.get(topic) or self._channel(topic, type_name, latched)
+        channel_id, encoder, known_type = channel
+        if known_type != type_name:
+            raise ValueError(f"topic {topic} carries {known_type}, not {type_name}")
+        self._writer.add_message(channel_id, log_time=log_time_ns, data=encoder(message),
+                                 publish_time=log_time_ns, sequence=self.messages)
+        self.messages += 1
+
+    def close(self):
+        """Writes the last chunk, the summary and the footer, and closes the file."""
+        if self.closed:
+            return
+        self.closed = True
+        if self._writer is not None:
+            try:
+                self._writer.finish()
+            finally:
+                self._stream.close()
+
+
+# --- What is logged: one stream per source, each read by its own periodic event ------------
+
+class _Stream:
+    """A source of messages: the station outputs it reads (name -> vector size, or a model
+    value for an abstract port), when (every `period` s from `offset`), and `write`."""
+
+    inputs: dict = {}
+    period: float = 0.01
+    offset: float = 0.0
+
+    def write(self, log: Ros2McapFile, t: float, values: dict) -> None:
+        raise NotImplementedError
+
+
+class _PosesStream(_Stream):
+    """/tf (world -> capsule, world -> epm) and the capsule's contact wrench, at the run's
+    log period and times (those of logs.npz). The EPM's frame: its body's pose when the
+    plant has it (arm, servoed stage), else the kinematic stage's axes (yaw about z, then
+    pitch about y; +z its moment) from epm.pose."""
+
+    def __init__(self, period, capsule_geometries, epm_body_index=None, num_bodies=0):
+        self.period = period
+        self._geometries = set(capsule_geometries)
+        self._epm_index = epm_body_index
+        self.inputs = {"capsule.state": 13, "epm.pose": 6,
+                       "contact_results": AbstractValue.Make(ContactResults())}
+        if epm_body_index is not None:
+            self.inputs["body_poses"] = AbstractValue.Make([RigidTransform()] * num_bodies)
+
+    def epm_pose(self, values) -> tuple[np.ndarray, np.ndarray]:
+        if self._epm_index is not None:
+            X_WE = values["body_poses"][self._epm_index]
+            return X_WE.translation(), _quaternion_of(X_WE.rotation())
+        pose = np.asarray(values["epm.pose"])
+        _, _, _, yaw, pitch = stage_joint_positions(pose[:3], pose[3:])
+        R = RotationMatrix.MakeZRotation(yaw).multiply(RotationMatrix.MakeYRotation(pitch))
+        return pose[:3], _quaternion_of(R)
+
+    def write(self, log, t, values):
+        ns = _ns(t)
+        state = np.asarray(values["capsule.state"])
+        q_WB = state[:4] / np.linalg.norm(state[:4])
+        p_WE, q_WE = self.epm_pose(values)
+        log.write("/tf", "tf2_msgs/msg/TFMessage", {"transforms": [
+            transform_stamped(ns, WORLD, CAPSULE, state[4:7], q_WB),
+            transform_stamped(ns, WORLD, EPM, p_WE, q_WE)]}, ns)
+        R_WB = rotation_from_quaternion(q_WB)
+        torque_W, force_W = capsule_contact_wrench_W(values["contact_results"], self._geometries,
+                                                     state[4:7])
+        log.write("/capsule/contact/wrench", "geometry_msgs/msg/WrenchStamped", {
+            "header": header(ns, CAPSULE),
+            "wrench": {"force": vector3(R_WB.T @ force_W),
+                       "torque": vector3(R_WB.T @ torque_W)}}, ns)
+
+
+def _diagonal(variance: float) -> list[float]:
+    return [float(variance), 0.0, 0.0, 0.0, float(variance), 0.0, 0.0, 0.0, float(variance)]
+
+
+class _ImuStream(_Stream):
+    """sensor_msgs/Imu in the IMU's frame: its samples, their white-noise variance per
+    sample as covariance, and the AHRS's orientation of that frame in world when there is
+    an AHRS (orientation_covariance all 0: not estimated), else orientation_covariance[0] =
+    -1 (the message's "no orientation")."""
+
+    def __init__(self, config, with_ahrs: bool):
+        self.period = 1.0 / config.sample_rate
+        self.offset = SAMPLE_READ_DELAY
+        self._R_BS = config.X_BS().rotation()
+        accel, gyro = imu_channels(config)
+        self._accel_cov = _diagonal(accel.white_sigma ** 2)
+        self._gyro_cov = _diagonal(gyro.white_sigma ** 2)
+        self.inputs = {"capsule.imu.accel": 3, "capsule.imu.gyro": 3}
+        if with_ahrs:
+            self.inputs["capsule.ahrs.q_WB"] = 4
+
+    def write(self, log, t, values):
+        stamp = _ns(t - self.offset)
+        if "capsule.ahrs.q_WB" in values:
+            q_WB = np.asarray(values["capsule.ahrs.q_WB"])
+            R_WS = RotationMatrix(rotation_from_quaternion(q_WB)).multiply(self._R_BS)
+            orientation, orientation_cov = quaternion_wxyz(_quaternion_of(R_WS)), [0.0] * 9
+        else:
+            orientation, orientation_cov = quaternion_wxyz([1.0, 0.0, 0.0, 0.0]), [-1.0] + [0.0] * 8
+        log.write("/capsule/imu/data", "sensor_msgs/msg/Imu", {
+            "header": header(stamp, IMU),
+            "orientation": orientation, "orientation_covariance": orientation_cov,
+            "angular_velocity": vector3(values["capsule.imu.gyro"]),
+            "angular_velocity_covariance": self._gyro_cov,
+            "linear_acceleration": vector3(values["capsule.imu.accel"]),
+            "linear_acceleration_covariance": self._accel_cov}, _ns(t))
+
+
+class _FieldStream(_Stream):
+    """sensor_msgs/MagneticField (T) of 3-axis field sensors, one topic and frame each, with
+    their white-noise variance per sample as covariance."""
+
+    def __init__(self, port: str, topics_frames, sample_rate: float, noise_sigma: float):
+        self.period = 1.0 / sample_rate
+        self.offset = SAMPLE_READ_DELAY
+        self._port = port
+        self._topics_frames = list(topics_frames)
+        self._cov = _diagonal(noise_sigma ** 2)
+        self.inputs = {port: 3 * len(self._topics_frames)}
+
+    def write(self, log, t, values):
+        stamp = _ns(t - self.offset)
+        B = np.asarray(values[self._port]).reshape(-1, 3)
+        for (topic, frame), field in zip(self._topics_frames, B):
+            log.write(topic, "sensor_msgs/msg/MagneticField", {
+                "header": header(stamp, frame), "magnetic_field": vector3(field),
+                "magnetic_field_covariance": self._cov}, _ns(t))
+
+
+class _ContactSensorStream(_Stream):
+    """The contact sensor's reading, a force in the capsule frame (no torque)."""
+
+    def __init__(self, config):
+        self.period = 1.0 / config.sample_rate
+        self.offset = SAMPLE_READ_DELAY
+        self.inputs = {"capsule.contact_sensor.F_B": 3}
+
+    def write(self, log, t, values):
+        log.write("/capsule/contact_sensor/wrench", "geometry_msgs/msg/WrenchStamped", {
+            "header": header(_ns(t - self.offset), CAPSULE),
+            "wrench": {"force": vector3(values["capsule.contact_sensor.F_B"]),
+                       "torque": vector3([0.0, 0.0, 0.0])}}, _ns(t))
+
+
+class _PoseEstimateStream(_Stream):
+    """The localiser's estimate of the capsule's pose in world with its covariance, turned
+    from the estimator's [position, rotation vector on the body side] to ROS's [position,
+    rotation about the world's fixed axes]: dtheta_W = R_WB dtheta_B."""
+
+    def __init__(self, config):
+        self.period = config.period
+        self.offset = 0.5 * config.period + SAMPLE_READ_DELAY  # it updates half a period late
+        self.inputs = {"capsule.localizer.pose": 7, "capsule.localizer.covariance": 36}
+
+    def write(self, log, t, values):
+        pose = np.asarray(values["capsule.localizer.pose"])
+        q_WB = pose[:4] / np.linalg.norm(pose[:4])
+        T = np.eye(6)
+        T[3:, 3:] = rotation_from_quaternion(q_WB)
+        covariance = T @ np.asarray(values["capsule.localizer.covariance"]).reshape(6, 6) @ T.T
+        log.write("/capsule/localizer/pose", "geometry_msgs/msg/PoseWithCovarianceStamped", {
+            "header": header(_ns(t - self.offset), WORLD),
+            "pose": {"pose": {"position": vector3(pose[4:7]),
+                              "orientation": quaternion_wxyz(q_WB)},
+                     "covariance": [float(c) for c in covariance.ravel()]}}, _ns(t))
+
+
+def camera_info(lens, stamp_ns: int) -> dict:
+    """sensor_msgs/CameraInfo of a capsule lens (perception/lens.py). The fisheye models
+    (equidistant, kannala_brandt) are OpenCV's fisheye model, which ROS names "equidistant"
+    (sensor_msgs/distortion_models.hpp; image_geometry undistorts it with cv::fisheye) with
+    D = [k1, k2, k3, k4] (all 0 for the ideal equidistant lens); the pinhole lens is
+    "plumb_bob", D = [k1, k2, p1, p2, k3]. K and P hold fx, fy, cx, cy: the pixel convention
+    (the first pixel's centre at (0, 0)) is ROS's and OpenCV's. A monocular camera: R = I,
+    P = [K | 0]."""
+    config = lens.config
+    if lens.is_fisheye:
+        model = "equidistant"
+        d = [0.0] * 4 if lens.model == "equidistant" else [float(k) for k in config.kb_coefficients]
+    else:
+        model, d = "plumb_bob", [float(k) for k in config.radtan_coefficients]
+    fx, fy, cx, cy = lens.fx, lens.fy, lens.cx, lens.cy
+    return {"header": header(stamp_ns, CAMERA), "height": lens.height, "width": lens.width,
+            "distortion_model": model, "d": d,
+            "k": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+            "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            "p": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+            "binning_x": 0, "binning_y": 0,
+            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
+
+
+def depth_for_ros(range_m: np.ndarray, ray_z: np.ndarray) -> np.ndarray:
+    """A REP 118 depth image (float32, metres along the optical axis) from the camera's
+    range image (metres along each pixel's ray; 0 nearer than `near`, +inf beyond `far` and
+    outside the lens's field) and each pixel's unit-ray z component. Following REP 117:
+    -inf where tissue is too near to measure, +inf where nothing is within range, NaN where
+    the pixel sees nothing (outside the image circle, or a ray at or behind 90 degrees)."""
+    depth = (range_m * ray_z).astype(np.float32)
+    depth[range_m <= 0.0] = -np.inf
+    depth[np.isinf(range_m)] = np.inf
+    depth[~(ray_z > 0.0)] = np.nan
+    return depth
+
+
+def _image_marker(stamp_ns: int, ns: str, pixel, visible: bool, radius: float, rgb) -> dict:
+    color = {"r": float(rgb[0]), "g": float(rgb[1]), "b": float(rgb[2]), "a": 1.0}
+    return {"header": header(stamp_ns, CAMERA), "ns": ns, "id": 0, "type": 0,  # CIRCLE
+            "action": 0 if visible else 1,  # ADD, REMOVE
+            "position": {"x": float(pixel[0]) if visible else 0.0,
+                         "y": float(pixel[1]) if visible else 0.0, "z": 0.0},
+            "scale": float(radius), "outline_color": color, "filled": 0,
+            "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0},
+            "lifetime": {"sec": 0, "nanosec": 0}, "points": [], "outline_colors": []}
+
+
+class _CameraStream(_Stream):
+    """Each new camera frame (frame_info's count changed), read just after the camera (and
+    the tracker, which runs `latency` + 1 us after the tick) delivered it:
+
+    - the colour image (rgb8) and, when rendered, the depth (32FC1, `depth_for_ros`), each
+      with a CameraInfo, stamped with the frame's exposure time;
+    - the lumen truth: its pixel (PointStamped: x = u, y = v in pixels, z = 1 visible or 0;
+      NaN pixel when behind the lens) and its 3-D target point in world, stamped with the
+      frame's delivery (the truth is computed from the capsule's pose then, at most one
+      plant step later: with no latency, the exposure), and an ImageMarker (green circle)
+      stamped as the image;
+    - with a tracker, its detection on that frame: pixel (x = u, y = v, NaN when not found;
+      z = its confidence in [0, 1]) and an ImageMarker (orange circle), stamped as the image
+      so a viewer overlays it; a frame without a detection gets a REMOVE marker.
+    """
+
+    def __init__(self, lens, tick: float, latency: float, render_depth: bool,
+                 with_tracker: bool):
+        self.period = tick
+        self.offset = latency + 2.0 * SAMPLE_READ_DELAY
+        self._lens = lens
+        rays, _ = lens.pixel_rays()
+        self._ray_z = rays[..., 2]
+        self._depth = render_depth
+        self._tracker = with_tracker
+        self._marker_radius = 0.04 * min(lens.width, lens.height)
+        W, H = lens.width, lens.height
+        self.inputs = {"capsule.camera.frame_info": 4,
+                       "capsule.camera.rgb_image": AbstractValue.Make(ImageRgba8U(W, H)),
+                       "capsule.lumen.lumen_pixel": 2, "capsule.lumen.lumen_visible": 1,
+                       "capsule.lumen.lumen_point_W": 4}
+        if render_depth:
+            self.inputs["capsule.camera.depth_image"] = AbstractValue.Make(ImageDepth32F(W, H))
+        if with_tracker:
+            self.inputs.update({"capsule.lumen_tracker.lumen_pixel": 2,
+                                "capsule.lumen_tracker.lumen_confidence": 1,
+                                "capsule.lumen_tracker.lumen_visible": 1})
+        self._last_count = None
+        self.frames = 0
+
+    def write(self, log, t, values):
+        exposure, count = float(values["capsule.camera.frame_info"][0]), \
+            float(values["capsule.camera.frame_info"][1])
+        if count == self._last_count or count < 1:
+            return
+        self._last_count = count
+        now, stamp = _ns(t), _ns(exposure)
+        rgb = np.ascontiguousarray(values["capsule.camera.rgb_image"].data[:, :, :3])
+        H, W = rgb.shape[:2]
+        info = camera_info(self._lens, stamp)
+        log.write("/capsule/camera/image_raw", "sensor_msgs/msg/Image", {
+            "header": header(stamp, CAMERA), "height": H, "width": W, "encoding": "rgb8",
+            "is_bigendian": 0, "step": 3 * W, "data": rgb.tobytes()}, now)
+        log.write("/capsule/camera/camera_info", "sensor_msgs/msg/CameraInfo", info, now)
+        if self._depth:
+            depth = depth_for_ros(values["capsule.camera.depth_image"].data[:, :, 0],
+                                  self._ray_z)
+            log.write("/capsule/camera/depth/image_raw", "sensor_msgs/msg/Image", {
+                "header": header(stamp, CAMERA), "height": H, "width": W,
+                "encoding": "32FC1", "is_bigendian": 0, "step": 4 * W,
+                "data": depth.astype("<f4").tobytes()}, now)
+            log.write("/capsule/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", info,
+                      now)
+        pixel = np.asarray(values["capsule.lumen.lumen_pixel"], dtype=float)
+        visible = float(values["capsule.lumen.lumen_visible"][0]) > 0.5
+        point = np.asarray(values["capsule.lumen.lumen_point_W"])[:3]
+        stamp_truth = _ns(t - 2.0 * SAMPLE_READ_DELAY)  # the delivery: the pose it is of
+        log.write("/capsule/lumen_truth/pixel", "geometry_msgs/msg/PointStamped", {
+            "header": header(stamp_truth, CAMERA),
+            "point": {"x": pixel[0], "y": pixel[1], "z": 1.0 if visible else 0.0}}, now)
+        log.write("/capsule/lumen_truth/point", "geometry_msgs/msg/PointStamped", {
+            "header": header(stamp_truth, WORLD), "point": vector3(point)}, now)
+        log.write("/capsule/lumen_truth/marker", "visualization_msgs/msg/ImageMarker",
+                  _image_marker(stamp, "lumen_truth", pixel, visible, self._marker_radius,
+                                (0.2, 1.0, 0.2)), now)
+        if self._tracker:
+            found = float(values["capsule.lumen_tracker.lumen_visible"][0]) > 0.5
+            detected = np.asarray(values["capsule.lumen_tracker.lumen_pixel"], dtype=float)
+            confidence = float(values["capsule.lumen_tracker.lumen_confidence"][0])
+            log.write("/capsule/lumen_tracker/pixel", "geometry_msgs/msg/PointStamped", {
+                "header": header(stamp, CAMERA),
+                "point": {"x": detected[0] if found else math.nan,
+                          "y": detected[1] if found else math.nan, "z": confidence}}, now)
+            log.write("/capsule/lumen_tracker/marker", "visualization_msgs/msg/ImageMarker",
+                      _image_marker(stamp, "lumen_tracker", detected, found,
+                                    self._marker_radius, (1.0, 0.6, 0.1)), now)
+        self.frames += 1
+
+
+class McapLogger(LeafSystem):
+    """Writes the station's signals as ROS 2 messages into an MCAP file as the simulation
+    runs (module docstring: topics, frames, times).
+
+    .. pydrake_system::
+
+        name: McapLogger
+        input_ports:
+        - <station output> (one per output a stream reads, named as it)
+
+    Each stream reads its inputs in a periodic publish event of its own; the static
+    transforms (/tf_static) are written with the first message.
+
+    Args:
+        log: the Ros2McapFile to write (closed by `close()`).
+        streams: the _Stream objects of what the scenario has.
+        static_transforms: (parent, child, X_PC) written once on /tf_static.
+    """
+
+    def __init__(self, log: Ros2McapFile, streams, static_transforms=()):
+        super().__init__()
+        self._log = log
+        self._streams = list(streams)
+        self._static = list(static_transforms)
+        self._started = False
+        self._ports = {}
+        for stream in self._streams:
+            for name, model in stream.inputs.items():
+                if name in self._ports:
+                    continue
+                if isinstance(model, int):
+                    self._ports[name] = self.DeclareVectorInputPort(name, model)
+                else:
+                    self._ports[name] = self.DeclareAbstractInputPort(name, model)
+            self.DeclarePeriodicPublishEvent(
+                stream.period, stream.offset,
+                lambda context, stream=stream: self._on_event(context, stream))
+
+    @property
+    def log(self) -> Ros2McapFile:
+        return self._log
+
+    def stream_inputs(self) -> list[str]:
+        """The station outputs the logger reads (its input ports' names)."""
+        return list(self._ports)
+
+    def _on_event(self, context, stream):
+        values = {name: self._ports[name].Eval(context) for name in stream.inputs}
+        t = context.get_time()
+        with _signals_held():
+            if not self._started:
+                self._started = True
+                self._log.write("/tf_static", "tf2_msgs/msg/TFMessage", {"transforms": [
+                    transform_stamped(0, parent, child, X.translation(),
+                                      _quaternion_of(X.rotation()))
+                    for parent, child, X in self._static]}, 0, latched=True)
+            stream.write(self._log, t, values)
+        return EventStatus.Succeeded()
+
+    def close(self):
+        """Finishes the file (the run loop's close hook)."""
+        with _signals_held():
+            self._log.close()
+
+
+def expected_mcap_bytes(scenario) -> float:
+    """About how large the log of `scenario` grows, before compression (bytes): its
+    frames (colour 3 and depth 4 bytes a pixel) at the camera's fastest rate, and ~400
+    bytes per sensor message."""
+    capsule, seconds = scenario.capsule, scenario.duration
+    total = 600.0 / scenario.outputs.log_period * seconds
+    camera = capsule.camera
+    if camera is not None:
+        fps = camera.fps_max if camera.fps_mode == "adaptive" else camera.fps
+        pixels = camera.lens.width * camera.lens.height
+        total += fps * seconds * (pixels * (7 if camera.render_depth else 3) + 2000)
+    for sensor, messages in ((capsule.imu, 1), (capsule.magnetometer, 1),
+                             (capsule.contact_sensor, 1)):
+        if sensor is not None:
+            total += 400.0 * messages * sensor.sample_rate * seconds
+    if capsule.magnetic_array is not None:
+        array = capsule.magnetic_array
+        total += 400.0 * len(array.positions) * array.sample_rate * seconds
+    if capsule.localizer is not None:
+        total += 700.0 / capsule.localizer.period * seconds
+    return total
+
+
+def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd") -> McapLogger:
+    """Adds an McapLogger for `scenario` beside a built `station` (in `builder`), writing
+    `path`, with a stream for each source the station has; connects it. Call `close()` on
+    the result when the run ends (it is what `simulate`'s extend returns)."""
+    capsule = scenario.capsule
+    outputs = {station.get_output_port(i).get_name() for i in range(station.num_output_ports())}
+    plant = station.GetSubsystemByName("plant")
+    body = plant.GetBodyByName(CAPSULE_BODY)
+    epm_index = (int(plant.GetBodyByName(EPM_BODY).index()) if plant.HasBodyNamed(EPM_BODY)
+                 else None)
+    streams = [_PosesStream(scenario.outputs.log_period,
+                            plant.GetCollisionGeometriesForBody(body), epm_index,
+                            plant.num_bodies())]
+    static = []
+    if "capsule.camera.rgb_image" in outputs:
+        camera = station.GetSubsystemByName("capsule.camera")
+        static.append((CAPSULE, CAMERA, plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()))
+        streams.append(_CameraStream(camera.lens, camera.tick(), camera.latency(),
+                                     camera.config.render_depth,
+                                     "capsule.lumen_tracker.lumen_pixel" in outputs))
+    if "capsule.imu.accel" in outputs:
+        static.append((CAPSULE, IMU, capsule.imu.X_BS()))
+        streams.append(_ImuStream(capsule.imu, "capsule.ahrs.q_WB" in outputs))
+    if "capsule.magnetometer.B_S" in outputs:
+        config = capsule.magnetometer
+        static.append((CAPSULE, MAGNETOMETER, config.X_BS()))
+        streams.append(_FieldStream("capsule.magnetometer.B_S",
+                                    [("/capsule/magnetometer", MAGNETOMETER)],
+                                    config.sample_rate, config.channel().white_sigma))
+    if "capsule.magnetic_array.B" in outputs:
+        array = capsule.magnetic_array
+        n = len(array.positions)
+        static += [(CAPSULE, hall_frame(i), array.X_BS(i)) for i in range(n)]
+        streams.append(_FieldStream("capsule.magnetic_array.B",
+                                    [(f"/capsule/magnetic_array/hall_{i}", hall_frame(i))
+                                     for i in range(n)], array.sample_rate, array.noise_rms))
+    if "capsule.contact_sensor.F_B" in outputs:
+        streams.append(_ContactSensorStream(capsule.contact_sensor))
+    if "capsule.localizer.pose" in outputs:
+        streams.append(_PoseEstimateStream(capsule.localizer))
+    logger = builder.AddNamedSystem("mcap_logger", McapLogger(
+        Ros2McapFile(path, compression), streams, static))
+    for name in logger.stream_inputs():
+        builder.Connect(station.GetOutputPort(name), logger.GetInputPort(name))
+    return logger
