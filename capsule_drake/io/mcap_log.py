@@ -385,16 +385,17 @@ def camera_info(lens, stamp_ns: int) -> dict:
             "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
 
 
-def depth_for_ros(range_m: np.ndarray, ray_z: np.ndarray) -> np.ndarray:
+def depth_for_ros(range_m: np.ndarray, ray_z: np.ndarray, in_field: np.ndarray) -> np.ndarray:
     """A REP 118 depth image (float32, metres along the optical axis) from the camera's
     range image (metres along each pixel's ray; 0 nearer than `near`, +inf beyond `far` and
-    outside the lens's field) and each pixel's unit-ray z component. Following REP 117:
-    -inf where tissue is too near to measure, +inf where nothing is within range, NaN where
-    the pixel sees nothing (outside the image circle, or a ray at or behind 90 degrees)."""
+    outside the lens's field), each pixel's unit-ray z component and the lens's field mask.
+    Following REP 117: -inf where tissue is too near to measure, +inf where nothing is within
+    range, NaN where the pixel sees nothing (outside the image circle, or a ray at or beyond
+    90 degrees from the axis, where a z-depth says nothing)."""
     depth = (range_m * ray_z).astype(np.float32)
     depth[range_m <= 0.0] = -np.inf
     depth[np.isinf(range_m)] = np.inf
-    depth[~(ray_z > 0.0)] = np.nan
+    depth[~(in_field & (ray_z > 0.0))] = np.nan
     return depth
 
 
@@ -430,7 +431,7 @@ class _CameraStream(_Stream):
         self.period = tick
         self.offset = latency + 2.0 * SAMPLE_READ_DELAY
         self._lens = lens
-        rays, _ = lens.pixel_rays()
+        rays, self._in_field = lens.pixel_rays()
         self._ray_z = rays[..., 2]
         self._depth = render_depth
         self._tracker = with_tracker
@@ -465,7 +466,7 @@ class _CameraStream(_Stream):
         log.write("/capsule/camera/camera_info", "sensor_msgs/msg/CameraInfo", info, now)
         if self._depth:
             depth = depth_for_ros(values["capsule.camera.depth_image"].data[:, :, 0],
-                                  self._ray_z)
+                                  self._ray_z, self._in_field)
             log.write("/capsule/camera/depth/image_raw", "sensor_msgs/msg/Image", {
                 "header": header(stamp, CAMERA), "height": H, "width": W,
                 "encoding": "32FC1", "is_bigendian": 0, "step": 4 * W,

@@ -1,0 +1,322 @@
+"""MCAP logs of ROS 2 messages (io/mcap_log.py, io/ros2_messages.py), read back with the
+`mcap` library and the `mcap_ros2` decoder, and checked against independent routes: the
+message definitions against the `rosbags` package's copy of ROS 2's, the payloads against
+its CDR decoder, the images against the dataset's PNGs of the same run, the poses against
+logs.npz, the camera model against OpenCV's fisheye projection, the IMU's frame against
+gravity and the Hall sensors' against the EPM's dipole field."""
+
+import collections
+import csv
+
+import cv2
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import EventStatus, LeafSystem
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from capsule_drake.cli import main as cli_main
+from capsule_drake.io.dataset import read_depth_png
+from capsule_drake.io.mcap_log import add_mcap_logger, check_mcap_path
+from capsule_drake.io.outputs import OutputError
+from capsule_drake.io.ros2_messages import DEFINITIONS, schema_text
+from capsule_drake.io.run import chain_extends, simulate
+from capsule_drake.perception.lens import Lens
+from capsule_drake.physics.magnetics import dipole_field
+from capsule_drake.scenario import load_scenario
+
+HUMBLE = get_typestore(Stores.ROS2_HUMBLE)
+
+
+def read_mcap(path):
+    """(summary, {topic: [(log_time ns, decoded message, raw CDR bytes, type name)]})."""
+    messages = collections.defaultdict(list)
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        header = reader.get_header()
+        for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            messages[channel.topic].append((message.log_time, decoded, message.data, schema.name))
+    return header, summary, messages
+
+
+def seconds(stamp) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def transforms(messages, child):
+    """{stamp (s): (p, q wxyz)} of a child frame on /tf."""
+    found = {}
+    for _, tf, _, _ in messages["/tf"]:
+        for t in tf.transforms:
+            if t.child_frame_id == child:
+                r, p = t.transform.rotation, t.transform.translation
+                found[round(seconds(t.header.stamp), 6)] = (np.array([p.x, p.y, p.z]),
+                                                             np.array([r.w, r.x, r.y, r.z]))
+    return found
+
+
+def static_transform(messages, child) -> RigidTransform:
+    (_, tf, _, _), = messages["/tf_static"]
+    t, = [t for t in tf.transforms if t.child_frame_id == child]
+    r, p = t.transform.rotation, t.transform.translation
+    return RigidTransform(Quaternion(r.w, r.x, r.y, r.z), [p.x, p.y, p.z])
+
+
+def pose(p, q) -> RigidTransform:
+    return RigidTransform(Quaternion(q / np.linalg.norm(q)), p)
+
+
+def test_definitions_are_ros2s():
+    # The field lists written here against the rosbags package's copy of ROS 2 Humble's
+    # (generated from the interface packages): names, types, array sizes and constants.
+    for name in DEFINITIONS:
+        assert get_types_from_msg(DEFINITIONS[name], name)[name] == HUMBLE.fielddefs[name], name
+    # Each schema names the types it uses, each once after the 80-'=' delimiter, as rosbags
+    # concatenates them (its own implementation of the format).
+    for name in DEFINITIONS:
+        theirs = HUMBLE.generate_msgdef(name, ros_version=2)[0]
+        delimiter = "=" * 80 + "\nMSG: "
+        assert ([part.split("\n")[0] for part in schema_text(name).split(delimiter)[1:]]
+                == [part.split("\n")[0] for part in theirs.split(delimiter)[1:]]), name
+
+
+def test_a_bad_mcap_path_is_one_line_and_status_2(tmp_path, capsys):
+    missing = tmp_path / "no_such_folder" / "run.mcap"
+    assert cli_main(["run", "--duration", "0.1", "--mcap", str(missing), "--quiet",
+                     "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "does not exist" in err, err
+    assert not (tmp_path / "out").exists()  # refused before anything was made or run
+    existing = tmp_path / "old.mcap"
+    existing.write_bytes(b"x")
+    assert cli_main(["record", "--duration", "0.1", "--mcap", str(existing), "--quiet",
+                     "--out", str(tmp_path / "data")]) == 2
+    assert "exists" in capsys.readouterr().err and existing.read_bytes() == b"x"
+    with pytest.raises(OutputError, match="is a folder"):
+        check_mcap_path(tmp_path)
+    with pytest.raises(OutputError, match="MB free"):
+        check_mcap_path(tmp_path / "big.mcap", expected_bytes=1e18)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """`record --scenario WithSensors --mcap` for 1 s: the dataset and the MCAP of one run,
+    with the IMU turned on the board (so its frame differs from the capsule's)."""
+    folder = tmp_path_factory.mktemp("mcap")
+    out, path = folder / "dataset", folder / "run.mcap"
+    code = cli_main(["record", "--scenario", "WithSensors", "--duration", "1.0", "--quiet",
+                     "--scenario-text", "{capsule: {imu: {rpy_BS_deg: [0.0, 0.0, 90.0]}}}",
+                     "--out", str(out), "--mcap", str(path)])
+    assert code == 0
+    return out, read_mcap(path)
+
+
+@pytest.mark.slow
+def test_channels_have_ros2_schemas(recorded):
+    _, (header, summary, messages) = recorded
+    assert header.profile == "ros2"
+    types = {}
+    for channel in summary.channels.values():
+        schema = summary.schemas[channel.schema_id]
+        assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+        assert "offered_qos_profiles" in channel.metadata
+        types[channel.topic] = schema.name
+    assert types["/capsule/camera/image_raw"] == "sensor_msgs/msg/Image"
+    assert types["/capsule/camera/camera_info"] == "sensor_msgs/msg/CameraInfo"
+    assert types["/capsule/camera/depth/image_raw"] == "sensor_msgs/msg/Image"
+    assert types["/capsule/imu/data"] == "sensor_msgs/msg/Imu"
+    assert types["/capsule/magnetometer"] == "sensor_msgs/msg/MagneticField"
+    assert types["/tf"] == types["/tf_static"] == "tf2_msgs/msg/TFMessage"
+    assert types["/capsule/contact/wrench"] == "geometry_msgs/msg/WrenchStamped"
+    assert types["/capsule/lumen_tracker/pixel"] == "geometry_msgs/msg/PointStamped"
+    # Every payload is what ROS 2's definitions make of it: decoded by an independent CDR
+    # implementation (rosbags, with its copy of the Humble interfaces) and encoded again, it
+    # gives back the same bytes.
+    for topic, items in messages.items():
+        for _, _, raw, name in (items[0], items[-1]):
+            assert bytes(HUMBLE.serialize_cdr(HUMBLE.deserialize_cdr(raw, name), name)) == raw, topic
+
+
+@pytest.mark.slow
+def test_messages_have_the_right_sizes_and_times(recorded):
+    _, (_, _, messages) = recorded
+    for topic, items in messages.items():
+        log_times = [t for t, _, _, _ in items]
+        assert np.all(np.diff(log_times) > 0), topic  # one message per topic per event
+        stamps = [seconds(m.header.stamp) if hasattr(m, "header") else
+                  seconds(m.transforms[0].header.stamp) for _, m, _, _ in items]
+        assert np.all(np.diff(stamps) > 0), topic
+        assert all(s * 1e9 <= t + 1 for s, (t, _, _, _) in zip(stamps, items)), topic
+    images = [m for _, m, _, _ in messages["/capsule/camera/image_raw"]]
+    assert len(images) == 10  # 10 frames/s, the one at 1 s not yet taken
+    for image in images:
+        assert (image.encoding, image.width, image.height, image.step) == ("rgb8", 256, 256, 768)
+        assert len(image.data) == 256 * 768
+    depth = messages["/capsule/camera/depth/image_raw"][0][1]
+    assert (depth.encoding, depth.step, len(depth.data)) == ("32FC1", 1024, 256 * 1024)
+    imu = [m for _, m, _, _ in messages["/capsule/imu/data"]]
+    assert len(imu) == 100 and imu[0].header.frame_id == "capsule_imu"
+    assert imu[0].orientation_covariance[0] == 0.0  # the AHRS gives the orientation
+    field = messages["/capsule/magnetometer"][0][1]
+    assert field.header.frame_id == "capsule_magnetometer"
+    assert len(messages["/tf"]) == 101  # every 10 ms from 0 to 1 s, as logs.npz
+
+
+@pytest.mark.slow
+def test_images_are_the_datasets_frames(recorded):
+    out, (_, _, messages) = recorded
+    with open(out / "frames.csv") as f:
+        frames = {round(float(row["time_s"]), 6): int(row["index"]) for row in csv.DictReader(f)}
+    images = messages["/capsule/camera/image_raw"]
+    depths = messages["/capsule/camera/depth/image_raw"]
+    info = messages["/capsule/camera/camera_info"][0][1]
+    lens = Lens(load_scenario(name="WithSensors").capsule.camera.lens)
+    rays = lens.unproject(lens.pixel_grid()).reshape(256, 256, 3)
+    assert len(frames) == len(images)
+    for (_, image, _, _), (_, depth, _, _) in zip(images, depths):
+        index = frames[round(seconds(image.header.stamp), 6)]
+        png = cv2.cvtColor(cv2.imread(str(out / "Frames" / f"FrameBuffer_{index:04d}.png")),
+                           cv2.COLOR_BGR2RGB)
+        rgb = np.frombuffer(bytes(image.data), np.uint8).reshape(256, 256, 3)
+        np.testing.assert_array_equal(rgb, png)  # the same pixels
+        assert rgb.std() > 10.0  # and not blank
+        # Depth: z along the optical axis (REP 118) = the dataset's range x the ray's z.
+        z = np.frombuffer(bytes(depth.data), "<f4").reshape(256, 256)
+        range_png = read_depth_png(out / "Frames" / f"Depth_{index:04d}.png")
+        seen = np.isfinite(z) & (range_png < 0.19)
+        assert seen.mean() > 0.5
+        np.testing.assert_allclose(z[seen], range_png[seen] * rays[..., 2][seen], atol=1e-5)
+        assert np.all(np.isnan(z[~lens.in_field(rays.reshape(-1, 3)).reshape(256, 256)]))
+    assert info.distortion_model == "equidistant" and list(info.d) == [0.0] * 4
+    assert info.k[0] == pytest.approx(lens.fx) and info.k[2] == pytest.approx(lens.cx)
+
+
+@pytest.mark.slow
+def test_tf_is_the_logged_state(recorded):
+    out, (_, _, messages) = recorded
+    logs = np.load(out / "logs.npz")
+    capsule, epm = transforms(messages, "capsule"), transforms(messages, "epm")
+    assert len(capsule) == len(logs["times"])
+    for k in range(0, len(logs["times"]), 7):
+        p, q = capsule[round(float(logs["times"][k]), 6)]
+        state = logs["capsule_state"][:, k]
+        np.testing.assert_allclose(p, state[4:7], atol=1e-12)
+        q_log = state[:4] / np.linalg.norm(state[:4])
+        assert abs(abs(q @ q_log) - 1.0) < 1e-12  # the same rotation (q and -q)
+        p_E, q_E = epm[round(float(logs["times"][k]), 6)]
+        np.testing.assert_allclose(p_E, logs["epm_pose"][:3, k], atol=1e-12)
+        # The EPM frame's +z is its moment.
+        np.testing.assert_allclose(pose(p_E, q_E).rotation().col(2), logs["epm_pose"][3:, k],
+                                   atol=1e-9)
+
+
+@pytest.mark.slow
+def test_camera_model_projects_the_lumen_truth(recorded):
+    # The lumen truth's world point, carried into the camera by /tf and /tf_static and
+    # projected by OpenCV's fisheye model with the CameraInfo's K and D, lands on the truth's
+    # pixel (computed by the simulator's own lens model). The truth is of the pose one plant
+    # step (2 ms) after the tf sample: within a pixel.
+    _, (_, _, messages) = recorded
+    X_BC = static_transform(messages, "capsule_camera_optical_frame")
+    capsule = transforms(messages, "capsule")
+    info = messages["/capsule/camera/camera_info"][-1][1]
+    K, D = np.array(info.k).reshape(3, 3), np.array(info.d)
+    checked = 0
+    for (_, pixel, _, _), (_, point, _, _) in zip(messages["/capsule/lumen_truth/pixel"],
+                                                   messages["/capsule/lumen_truth/point"]):
+        t = round(seconds(pixel.header.stamp), 6)
+        if pixel.point.z != 1.0 or t < 0.5 or t not in capsule:
+            continue  # not visible, or while the capsule still settles
+        X_WC = pose(*capsule[t]).multiply(X_BC)
+        p_C = X_WC.inverse().multiply([point.point.x, point.point.y, point.point.z])
+        uv, _ = cv2.fisheye.projectPoints(p_C.reshape(1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+        assert np.linalg.norm(uv.ravel() - [pixel.point.x, pixel.point.y]) < 1.0
+        checked += 1
+    assert checked >= 3
+
+
+@pytest.mark.slow
+def test_imu_frame_sees_gravity_up(recorded):
+    # At rest the accelerometer reads the reaction to gravity, world +z: its samples taken
+    # to world through the capsule's /tf and the IMU's /tf_static (turned 90 degrees on the
+    # board) average to (0, 0, g) over the run's last 0.3 s; the AHRS's orientation of the
+    # IMU frame agrees with the same chain.
+    _, (_, _, messages) = recorded
+    X_BS = static_transform(messages, "capsule_imu")
+    assert abs(abs(X_BS.rotation().ToQuaternion().z()) - np.sqrt(0.5)) < 1e-12
+    capsule = transforms(messages, "capsule")
+    world, angles = [], []
+    for _, imu, _, _ in messages["/capsule/imu/data"]:
+        t = round(seconds(imu.header.stamp), 6)
+        if t < 0.7 or t not in capsule:
+            continue
+        R_WS = pose(*capsule[t]).multiply(X_BS).rotation()
+        a = imu.linear_acceleration
+        world.append(R_WS.matrix() @ [a.x, a.y, a.z])
+        o = imu.orientation
+        R_est = Quaternion(o.w, o.x, o.y, o.z).rotation()
+        up_est, up = R_est.T @ [0.0, 0.0, 1.0], R_WS.matrix().T @ [0.0, 0.0, 1.0]
+        angles.append((np.degrees(np.arccos(np.clip(up_est @ up, -1.0, 1.0))),
+                       np.degrees(np.arccos(np.clip(
+                           (np.trace(R_est.T @ R_WS.matrix()) - 1.0) / 2.0, -1.0, 1.0)))))
+    np.testing.assert_allclose(np.mean(world, axis=0), [0.0, 0.0, 9.81], atol=0.5)
+    # The AHRS lost some 9 degrees integrating the gyro clipped at its 250 deg/s range while
+    # the capsule first snapped onto the wall; its tilt recovers over seconds (kp = 1 rad/s),
+    # its heading never. A frame composed wrongly would be off by the board's 90 degrees.
+    tilt, total = np.max(angles, axis=0)
+    print(f"AHRS vs tf: tilt {tilt:.2f} deg, whole rotation {total:.2f} deg")
+    assert tilt < 10.0 and total < 20.0
+
+
+def test_interrupted_run_leaves_a_finished_file_without_camera_topics(tmp_path):
+    # Default with an IMU and the Hall array (no camera), Ctrl-C at 0.3 s inside the
+    # simulation: the run's close hook finishes the file, which reads back whole, with the
+    # IMU and Hall topics, the tf and no camera topic.
+    scenario = load_scenario(name="Default", override=[
+        "{duration: 1.0, capsule: {imu: {}, magnetic_array: {}, localizer: {}}}"])
+    path = tmp_path / "interrupted.mcap"
+
+    class CtrlC(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclarePeriodicPublishEvent(0.3, 0.3, self._press)
+
+        def _press(self, context):
+            raise KeyboardInterrupt
+
+    def interrupt(builder, station):
+        builder.AddSystem(CtrlC())
+
+    result = simulate(scenario, progress=False, extend=chain_extends(
+        lambda builder, station: add_mcap_logger(builder, station, scenario, path).close,
+        interrupt))
+    assert result.status == "interrupted"
+    header, summary, messages = read_mcap(path)
+    assert summary is not None and summary.statistics.message_count > 0  # the footer's index
+    assert not any("camera" in topic or "lumen" in topic for topic in messages)
+    assert len(messages["/capsule/imu/data"]) >= 29
+    imu = messages["/capsule/imu/data"][0][1]
+    assert imu.orientation_covariance[0] == -1.0  # no AHRS: no orientation
+    last = max(t for items in messages.values() for t, _, _, _ in items)
+    assert 0.29e9 <= last <= 0.3e9 + 1e6
+    # The Hall sensors' frames: each reading, taken to world by /tf and /tf_static, is the
+    # EPM's dipole field at the sensor (within the array's calibration residuals and noise).
+    capsule, epm = transforms(messages, "capsule"), transforms(messages, "epm")
+    moment = scenario.epm.magnet.moment()
+    for i in range(4):
+        X_BS = static_transform(messages, f"capsule_hall_{i}")
+        for _, field, _, _ in messages[f"/capsule/magnetic_array/hall_{i}"][-5:]:
+            t = round(seconds(field.header.stamp), 6)
+            X_WS = pose(*capsule[t]).multiply(X_BS)
+            X_WE = pose(*epm[t])
+            expected = dipole_field(moment * X_WE.rotation().col(2),
+                                    X_WS.translation() - X_WE.translation())
+            B = field.magnetic_field
+            measured = X_WS.rotation().matrix() @ [B.x, B.y, B.z]
+            assert np.linalg.norm(measured - expected) < 0.02 * np.linalg.norm(expected) + 2e-4
+    estimate = messages["/capsule/localizer/pose"][-1][1]
+    assert estimate.header.frame_id == "world" and len(estimate.pose.covariance) == 36
