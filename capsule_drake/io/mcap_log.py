@@ -111,10 +111,18 @@ def check_mcap_path(path, replace: bool = False, expected_bytes: float = 0.0) ->
     if path.exists() and not replace:
         raise OutputError(f"--mcap {path}: file exists; choose another name"
                           + (", or add --force to replace it" if replace is not None else ""))
-    if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise OutputError(f"--mcap {path}: cannot write there (permission denied)")
+    probe = folder / f".{path.name}.write-check"
     try:
-        free = os.statvfs(folder).f_bavail * os.statvfs(folder).f_frsize
+        probe.write_bytes(b"capsule-sim")
+        probe.unlink()
+        if path.exists():
+            with open(path, "ab"):
+                pass
+    except OSError as e:
+        raise OutputError(f"--mcap {path}: cannot write there ({e.strerror or e})") from None
+    try:
+        stat = os.statvfs(folder)
+        free = stat.f_bavail * stat.f_frsize
     except OSError:
         free = math.inf
     if free < expected_bytes:
