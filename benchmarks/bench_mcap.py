@@ -12,7 +12,8 @@ Prints:
     of the run; steadier than the wall clock on a shared machine);
   - the file's size per simulated second.
 
-Run: python benchmarks/bench_mcap.py [--seconds 3] [--repeats 3] [--compression zstd]
+Run: python benchmarks/bench_mcap.py [--seconds 3] [--repeats 5] [--compression zstd]
+         [--scenario-text YAML]   (e.g. '{capsule: {camera: {render_depth: false}}}')
 """
 
 import argparse
@@ -80,8 +81,11 @@ def main():
     parser.add_argument("--seconds", type=float, default=3.0, help="simulated seconds a run")
     parser.add_argument("--repeats", type=int, default=5, help="runs with and without")
     parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    parser.add_argument("--scenario-text", default="", metavar="YAML",
+                        help="YAML layered on WithSensors")
     args = parser.parse_args()
-    scenario = load_scenario(name="WithSensors", override=[f"{{duration: {args.seconds}}}"])
+    scenario = load_scenario(name="WithSensors", override=[f"{{duration: {args.seconds}}}",
+                                                           args.scenario_text or None])
     folder = Path(tempfile.mkdtemp(prefix="bench_mcap_"))
     path = folder / "run.mcap"
 

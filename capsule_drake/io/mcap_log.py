@@ -12,10 +12,10 @@ writes, for whatever the scenario has (a topic whose source is switched off is a
     /capsule/camera/camera_info         sensor_msgs/msg/CameraInfo            each frame
     /capsule/camera/depth/image_raw     sensor_msgs/msg/Image (32FC1, m)      each frame (render_depth)
     /capsule/camera/depth/camera_info   sensor_msgs/msg/CameraInfo            each frame (render_depth)
-    /capsule/lumen_truth/pixel          geometry_msgs/msg/PointStamped        each frame
+    /capsule/lumen_truth/pixel          geometry_msgs/msg/PointStamped        each frame, capsule_camera_image
     /capsule/lumen_truth/point          geometry_msgs/msg/PointStamped        each frame, world
     /capsule/lumen_truth/marker         visualization_msgs/msg/ImageMarker    each frame
-    /capsule/lumen_tracker/pixel        geometry_msgs/msg/PointStamped        each frame (tracker)
+    /capsule/lumen_tracker/pixel        geometry_msgs/msg/PointStamped        each frame, capsule_camera_image
     /capsule/lumen_tracker/marker       visualization_msgs/msg/ImageMarker    each frame (tracker)
     /capsule/imu/data                   sensor_msgs/msg/Imu                   imu.sample_rate, capsule_imu
     /capsule/magnetometer               sensor_msgs/msg/MagneticField (T)     its sample_rate
@@ -29,7 +29,8 @@ frame B (origin at the centre, +z along the axis toward the camera dome: the cap
 "forward" is z, not REP 103's x, so that the frame is the one of capsule.state and the
 model); `capsule_camera_optical_frame` the camera C (REP 103's optical convention: +z along
 the optical axis, +x right, +y down); `capsule_imu`, `capsule_magnetometer`, `capsule_hall_<i>`
-the sensor frames S of their configs; `epm` the external magnet E (centre, +z its moment).
+the sensor frames S of their configs; `epm` the external magnet E (centre, +z its moment);
+`capsule_camera_image` (not a tf frame) the image's pixel coordinates, for the lumen's pixels.
 
 Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer),
 the time the value describes: a sensor's sample time, a frame's exposure, a pose's time. The
@@ -73,6 +74,10 @@ from capsule_drake.physics.contact_monitor import capsule_contact_wrench_W
 WORLD = "world"
 CAPSULE = "capsule"
 CAMERA = "capsule_camera_optical_frame"
+# The frame_id of the lumen's pixel topics: not a tf frame (x, y are pixels, not metres, so
+# that a 3-D viewer places nothing), the camera's image (u right, v down, OpenCV's pixel
+# convention: the first pixel's centre at (0, 0)).
+PIXELS = "capsule_camera_image"
 IMU = "capsule_imu"
 MAGNETOMETER = "capsule_magnetometer"
 EPM = "epm"
@@ -486,7 +491,7 @@ class _CameraStream(_Stream):
         point = np.asarray(values["capsule.lumen.lumen_point_W"])[:3]
         stamp_truth = _ns(t - 2.0 * SAMPLE_READ_DELAY)  # the delivery: the pose it is of
         log.write("/capsule/lumen_truth/pixel", "geometry_msgs/msg/PointStamped", {
-            "header": header(stamp_truth, CAMERA),
+            "header": header(stamp_truth, PIXELS),
             "point": {"x": pixel[0], "y": pixel[1], "z": 1.0 if visible else 0.0}}, now)
         log.write("/capsule/lumen_truth/point", "geometry_msgs/msg/PointStamped", {
             "header": header(stamp_truth, WORLD), "point": vector3(point)}, now)
@@ -498,7 +503,7 @@ class _CameraStream(_Stream):
             detected = np.asarray(values["capsule.lumen_tracker.lumen_pixel"], dtype=float)
             confidence = float(values["capsule.lumen_tracker.lumen_confidence"][0])
             log.write("/capsule/lumen_tracker/pixel", "geometry_msgs/msg/PointStamped", {
-                "header": header(stamp, CAMERA),
+                "header": header(stamp, PIXELS),
                 "point": {"x": detected[0] if found else math.nan,
                           "y": detected[1] if found else math.nan, "z": confidence}}, now)
             log.write("/capsule/lumen_tracker/marker", "visualization_msgs/msg/ImageMarker",
