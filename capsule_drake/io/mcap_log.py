@@ -3,25 +3,24 @@
 `capsule-sim run|record|teleop --mcap FILE` adds one McapLogger beside the station. It
 writes, for whatever the scenario has (a topic whose source is switched off is absent):
 
-    topic                               type                                  rate, frame_id
-    /tf                                 tf2_msgs/msg/TFMessage                outputs.log_period:
-                                                                              world -> capsule, world -> epm
-    /tf_static                          tf2_msgs/msg/TFMessage                once: capsule -> its sensors
-    /capsule/contact/wrench             geometry_msgs/msg/WrenchStamped       outputs.log_period, capsule
-    /capsule/camera/image_raw           sensor_msgs/msg/Image (rgb8)          each frame, camera optical
-    /capsule/camera/camera_info         sensor_msgs/msg/CameraInfo            each frame
-    /capsule/camera/depth/image_raw     sensor_msgs/msg/Image (32FC1, m)      each frame (render_depth)
-    /capsule/camera/depth/camera_info   sensor_msgs/msg/CameraInfo            each frame (render_depth)
-    /capsule/lumen_truth/pixel          geometry_msgs/msg/PointStamped        each frame, capsule_camera_image
-    /capsule/lumen_truth/point          geometry_msgs/msg/PointStamped        each frame, world
-    /capsule/lumen_truth/marker         visualization_msgs/msg/ImageMarker    each frame
-    /capsule/lumen_tracker/pixel        geometry_msgs/msg/PointStamped        each frame, capsule_camera_image
-    /capsule/lumen_tracker/marker       visualization_msgs/msg/ImageMarker    each frame (tracker)
-    /capsule/imu/data                   sensor_msgs/msg/Imu                   imu.sample_rate, capsule_imu
-    /capsule/magnetometer               sensor_msgs/msg/MagneticField (T)     its sample_rate
-    /capsule/magnetic_array/hall_<i>    sensor_msgs/msg/MagneticField (T)     its sample_rate, capsule_hall_<i>
-    /capsule/contact_sensor/wrench      geometry_msgs/msg/WrenchStamped       its sample_rate, capsule
-    /capsule/localizer/pose             geometry_msgs/msg/PoseWithCovarianceStamped   its period, world
+    topic                              type (package/msg/...)       when; frame_id
+    /tf                                tf2_msgs TFMessage           log_period; world -> capsule,epm
+    /tf_static                         tf2_msgs TFMessage           once; capsule -> camera, sensors
+    /capsule/contact/wrench            geometry_msgs WrenchStamped  log_period; capsule
+    /capsule/camera/image_raw          sensor_msgs Image, rgb8      each frame; camera optical
+    /capsule/camera/camera_info        sensor_msgs CameraInfo       each frame
+    /capsule/camera/depth/image_raw    sensor_msgs Image, 32FC1 m   each frame (render_depth)
+    /capsule/camera/depth/camera_info  sensor_msgs CameraInfo       each frame (render_depth)
+    /capsule/lumen_truth/pixel         geometry_msgs PointStamped   each frame; capsule_camera_image
+    /capsule/lumen_truth/point         geometry_msgs PointStamped   each frame; world
+    /capsule/lumen_truth/marker        visualization_msgs ImageMarker   each frame
+    /capsule/lumen_tracker/pixel       geometry_msgs PointStamped   each frame; capsule_camera_image
+    /capsule/lumen_tracker/marker      visualization_msgs ImageMarker   each frame
+    /capsule/imu/data                  sensor_msgs Imu              its rate; capsule_imu
+    /capsule/magnetometer              sensor_msgs MagneticField T  its rate; capsule_magnetometer
+    /capsule/magnetic_array/hall_<i>   sensor_msgs MagneticField T  its rate; capsule_hall_<i>
+    /capsule/contact_sensor/wrench     geometry_msgs WrenchStamped  its rate; capsule
+    /capsule/localizer/pose            geometry_msgs PoseWithCovarianceStamped   its period; world
 
 Frames (REP 103: right-handed, metres, radians): `world` is the simulator's W (z up, x to the
 patient's left, y to the head; the patient supine, table top at z = 0); `capsule` its body
@@ -100,10 +99,11 @@ def _quaternion_of(R: RotationMatrix) -> np.ndarray:
     return np.array([q.w(), q.x(), q.y(), q.z()])
 
 
-def check_mcap_path(path, replace: bool = False, expected_bytes: float = 0.0) -> Path:
+def check_mcap_path(path, replace: bool | None = False, expected_bytes: float = 0.0) -> Path:
     """The file `--mcap` names, checked before anything is simulated: its folder exists and
-    can be written, the path is not a folder, an existing file is refused unless `replace`,
-    and the disk has room for `expected_bytes`. Raises OutputError (one line)."""
+    can be written, the path is not a folder, an existing file is refused unless `replace`
+    (None: the command has no --force to offer), and the disk has room for `expected_bytes`.
+    Raises OutputError (one line)."""
     text = str(path)
     if not text.strip():
         raise OutputError("--mcap: empty path (give a file, e.g. --mcap run.mcap)")
@@ -169,7 +169,7 @@ class Ros2McapFile:
         self._stream = None
         self._writer = None
         self._schemas = {}    # type name -> (schema id, encoder)
-        self._channels = {}   # topic -> (channel id, encoder)
+        self._channels = {}   # topic -> (channel id, encoder, type name)
         self.messages = 0
         self.closed = False
 
