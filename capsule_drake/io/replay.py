@@ -232,14 +232,21 @@ _PANEL_SCRIPT = r"""
     }
     return found;
   }
+  // A plot: its range on the left (from 0, or below it), time along the bottom, the
+  // series, and the replay's time as a cursor.
   function drawPlot(q, t) {
     const g = q.canvas.getContext("2d"), w = q.canvas.width, h = q.canvas.height;
-    const x = function (s) { return 4 + (w - 8) * s / q.end; };
-    const y = function (v) { return h - 12 - (h - 20) * (v - q.lo) / (q.hi - q.lo); };
+    const left = 38, right = w - 6, top = 8, bottom = h - 16;
+    const x = function (s) { return left + (right - left) * Math.min(s, q.end) / q.end; };
+    const y = function (v) { return bottom - (bottom - top) * (v - q.lo) / (q.hi - q.lo); };
     g.fillStyle = "#15171b"; g.fillRect(0, 0, w, h);
-    g.fillStyle = "#9a9a9a"; g.font = "10px sans-serif";
-    g.fillText(q.hi.toPrecision(3), 4, 10); g.fillText(q.lo.toPrecision(3), 4, h - 2);
-    g.fillText(q.end.toFixed(1) + " s", w - 40, h - 2);
+    g.fillStyle = "#9a9a9a"; g.font = "10px sans-serif"; g.textAlign = "right";
+    g.fillText(q.hi.toPrecision(3), left - 4, top + 6);
+    g.fillText(q.lo.toPrecision(3), left - 4, bottom + 3);
+    g.fillText(q.end.toFixed(1) + " s", right, h - 3);
+    g.textAlign = "left"; g.fillText("0 s", left, h - 3);
+    g.strokeStyle = "#3a3d44"; g.lineWidth = 1;
+    g.strokeRect(left + 0.5, top + 0.5, right - left, bottom - top);
     g.strokeStyle = "#ffd21a"; g.lineWidth = 1.5; g.beginPath();
     let pen = false;
     for (let i = 0; i < q.p.t.length; i++) {
@@ -249,30 +256,20 @@ _PANEL_SCRIPT = r"""
     }
     g.stroke();
     g.strokeStyle = "#3cff5a"; g.lineWidth = 1; g.beginPath();
-    g.moveTo(x(Math.min(t, q.end)), 0); g.lineTo(x(Math.min(t, q.end)), h); g.stroke();
+    g.moveTo(x(t), top); g.lineTo(x(t), bottom); g.stroke();
     const i = lastAtOrBefore(q.p.t, t);
     const now = i >= 0 && q.p.y[i] !== null ? q.p.y[i].toPrecision(3) + " " + q.p.unit : "-";
     q.title.textContent = q.p.label + ": " + now;
   }
-  let shown = null;
   function update(t) {
     if (img) {
       const i = lastAtOrBefore(data.frames.t, t);
-      if (i !== shown) {
-        shown = i;
+      if (img.dataset.frame !== String(i)) {
         img.dataset.frame = String(i);
-        if (i >= 0) {
-          img.src = data.frames.src[i];
-          caption.textContent = "frame exposed at t = " + data.frames.t[i].toFixed(2) +
-              " s (replay at " + t.toFixed(2) + " s)";
-        } else {
-          img.removeAttribute("src");
-          caption.textContent = "no frame yet";
-        }
-      } else if (i >= 0) {
-        caption.textContent = "frame exposed at t = " + data.frames.t[i].toFixed(2) +
-            " s (replay at " + t.toFixed(2) + " s)";
+        if (i >= 0) { img.src = data.frames.src[i]; } else { img.removeAttribute("src"); }
       }
+      caption.textContent = i >= 0 ? "frame exposed at t = " + data.frames.t[i].toFixed(2) +
+          " s (replay at " + t.toFixed(2) + " s)" : "no frame yet";
     }
     plots.forEach(function (q) { drawPlot(q, t); });
   }

@@ -21,13 +21,14 @@ from capsule_drake.io.replay import STREAM_SYSTEM, CameraStream
 MARKER_SYSTEM = "capsule_marker"
 # The colon's opacity in Meshcat (its mesh's own material times this): the capsule and its
 # marker show through its walls, its folds still read.
-COLON_OPACITY = 0.5
+COLON_OPACITY = 0.6
 COLON_PATH = "/drake/visualizer/colon_mucosa"
 # The capsule's marker: a translucent sphere around it, drawn over everything (a locator,
 # ~20 px across in the default view of the abdomen), moved in steps of MARKER_STEP (fewer
 # keyframes in a recording). Its trail: an opaque tube along the path of its centre, a
-# point every TRAIL_STEP of travel, drawn in pieces once a piece spans TRAIL_PIECE_TIME
-# (a piece appears in a replay when it is drawn: the trail lags the marker by about that).
+# point every TRAIL_STEP of travel, drawn in pieces once a piece spans TRAIL_PIECE_TIME or
+# holds more than TRAIL_PIECE_POINTS steps (a piece appears in a replay when it is drawn:
+# the trail lags the marker by at most a second, or 2.4 cm when it moves fast).
 MARKER_PATH = "/capsule_marker"
 MARKER_RADIUS = 0.015
 MARKER_RGBA = Rgba(0.1, 1.0, 0.25, 0.4)
@@ -37,6 +38,7 @@ TRAIL_RADIUS = 0.0018
 TRAIL_RGBA = Rgba(1.0, 0.82, 0.05, 1.0)
 TRAIL_STEP = 0.003
 TRAIL_PIECE_TIME = 1.0
+TRAIL_PIECE_POINTS = 8
 
 
 def add_meshcat(builder, parts, period: float):
@@ -155,7 +157,8 @@ class CapsuleMarker(LeafSystem):
             self._colon_styled = True
         if not self._piece or np.linalg.norm(p - self._piece[-1][1]) >= TRAIL_STEP:
             self._piece.append((t, p))
-        if len(self._piece) >= 2 and t - self._piece[0][0] >= TRAIL_PIECE_TIME:
+        if len(self._piece) >= 2 and (t - self._piece[0][0] >= TRAIL_PIECE_TIME
+                                      or len(self._piece) > TRAIL_PIECE_POINTS):
             self._publish_piece(t)
         return EventStatus.Succeeded()
 
