@@ -24,8 +24,8 @@ from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import ImageRgba8U
 
 from capsule_drake.io.headless import HeadlessPage, chromium_executable
-from capsule_drake.io.replay import (STREAM_SYSTEM, CameraStream, decimate, encode_frame,
-                                     replay_page)
+from capsule_drake.io.replay import (PANEL_WIDTH, STREAM_SYSTEM, CameraStream, decimate,
+                                     encode_frame, replay_page)
 from capsule_drake.io.run import simulate
 from capsule_drake.io.visualization import tube_mesh
 from capsule_drake.scenario import load_scenario
@@ -56,12 +56,16 @@ def test_the_page_carries_the_frames_and_plots_and_keeps_meshcat_whole():
     assert data["plots"][0]["y"] == [0.1, None]  # no NaN in JSON
     assert page.count('id="replay-camera"') == 1
     # Meshcat's page is all there, in order: removing what was added gives it back.
-    added = re.compile(r"<style>\s*body #meshcat-pane.*?</style>\n|\n<div id=\"replay-panel\">"
-                       r".*?</script>\n(?=</body>)", re.S)
+    added = re.compile(r"<style>\n  (#replay-panel|body #meshcat-pane).*?</style>\n|"
+                       r"\n<div id=\"replay-panel\".*?</script>\n(?=</body>)", re.S)
     assert added.sub("", page) == meshcat_html
-    # No camera: no camera section, the plots still; nothing to add, or a page that is not
-    # Meshcat's: the page as it was.
-    assert 'id="replay-camera"' not in replay_page(meshcat_html, [], plots)
+    assert f"margin-left: {PANEL_WIDTH}px" in page   # the scene beside the panel
+    # No camera: no camera section and the scene full width, the plots still over it;
+    # nothing to add, or a page that is not Meshcat's: the page as it was.
+    plots_only = replay_page(meshcat_html, [], plots)
+    assert 'id="replay-camera"' not in plots_only and f"margin-left: {PANEL_WIDTH}px" not in plots_only
+    assert added.sub("", plots_only) == meshcat_html
+    assert _replay_data(plots_only)["plots"] == data["plots"]
     assert replay_page(meshcat_html, [], []) == meshcat_html
     assert replay_page("<html><body></body></html>", frames, plots) == \
         "<html><body></body></html>"
@@ -150,14 +154,13 @@ def _changed(a: np.ndarray, b: np.ndarray, threshold: int = 25) -> np.ndarray:
 
 
 # Shows the replay at one instant: paused, seeked, the panel's time set (as the replay's
-# time slider does), then drawn; resolves after two display frames.
-SEEK = """new Promise(function (done) {
-  const a = viewer.animator; a.pause(); a.seek(%f); a.display_progress(%f);
-  viewer.set_dirty();
-  requestAnimationFrame(function () { requestAnimationFrame(function () { done(true); }); });
-})"""
-HIDE = ('viewer.set_property(%s, "visible", false); viewer.set_dirty(); '
-        'new Promise(function (done) { requestAnimationFrame(function () { done(true); }); })')
+# time slider does); then, as after a property is set, drawn: the promise resolves after two
+# display frames.
+DRAWN = ("viewer.set_dirty(); new Promise(function (done) { requestAnimationFrame("
+         "function () { requestAnimationFrame(function () { done(true); }); }); })")
+SEEK = ("(function (t) { const a = viewer.animator; a.pause(); a.seek(t); "
+        "a.display_progress(t); })(%f); " + DRAWN)
+SET = "viewer.set_property(%s, %s, %s); " + DRAWN
 # Where a world point (Drake's frame) is drawn on the page: Meshcat's scene turns z up.
 PROJECT = """(function (p) {
   const v = new MeshCat.THREE.Vector3(p[0], p[1], p[2]);
@@ -190,34 +193,35 @@ def test_the_replay_shows_the_capsule_and_the_camera_stream_at_the_replays_time(
                              'viewer.scene_tree.find(["Axes"]).object.visible]') == [False,
                                                                                     False]
         trail = 'Object.values(viewer.scene_tree.find(["capsule_trail"]).children)'
-        page.evaluate(SEEK % (0.0, 0.0))
+        page.evaluate(SEEK % 0.0)
         trail_at_start = page.evaluate(f"{trail}.map(function (n) {{ return n.object.visible; }})")
         end = page.evaluate("viewer.animator.duration")
-        page.evaluate(SEEK % (end, end))
+        page.evaluate(SEEK % end)
         trail_at_end = page.evaluate(f"{trail}.map(function (n) {{ return n.object.visible; }})")
-        page.evaluate(SEEK % (instant, instant))
+        page.evaluate(SEEK % instant)
         x, y = page.evaluate(PROJECT % json.dumps(list(map(float, p_WB))))
         shown_frame = page.evaluate('Number(document.getElementById("replay-camera")'
                                     '.dataset.frame)')
         box = page.evaluate('(function () { const r = document.getElementById('
                             '"replay-camera").getBoundingClientRect(); '
                             'return [r.left, r.top, r.width, r.height]; })()')
+        # The first once the page is still (textures decode after the scene is built).
         shots = {"as written": page.settled_screenshot(quiet=0.6, interval=0.2)}
-        page.evaluate(SEEK % (0.35, 0.35))
+        page.evaluate(SEEK % 0.35)
         earlier_frame = page.evaluate('Number(document.getElementById("replay-camera")'
                                       '.dataset.frame)')
-        page.evaluate(SEEK % (instant, instant))
-        page.evaluate(HIDE % '["capsule_marker"]')
-        page.evaluate(HIDE % '["capsule_trail"]')
-        shots["no marker"] = page.settled_screenshot(quiet=0.6, interval=0.2)
-        page.evaluate(HIDE % '["drake", "visualizer", "capsule"]')
-        shots["no capsule"] = page.settled_screenshot(quiet=0.6, interval=0.2)
-        page.evaluate('viewer.set_property(["drake", "visualizer", "capsule"], "visible", '
-                      'true); viewer.set_property(["drake", "visualizer", "colon_mucosa"], '
-                      '"modulated_opacity", 1.0); viewer.set_dirty(); 1')
-        shots["opaque colon"] = page.settled_screenshot(quiet=0.6, interval=0.2)
-        page.evaluate(HIDE % '["drake", "visualizer", "capsule"]')
-        shots["opaque colon, no capsule"] = page.settled_screenshot(quiet=0.6, interval=0.2)
+        page.evaluate(SEEK % instant)
+        page.evaluate(SET % ('["capsule_marker"]', '"visible"', "false"))
+        page.evaluate(SET % ('["capsule_trail"]', '"visible"', "false"))
+        shots["no marker"] = page.screenshot()
+        page.evaluate(SET % ('["drake", "visualizer", "capsule"]', '"visible"', "false"))
+        shots["no capsule"] = page.screenshot()
+        page.evaluate(SET % ('["drake", "visualizer", "capsule"]', '"visible"', "true"))
+        page.evaluate(SET % ('["drake", "visualizer", "colon_mucosa"]',
+                             '"modulated_opacity"', "1.0"))
+        shots["opaque colon"] = page.screenshot()
+        page.evaluate(SET % ('["drake", "visualizer", "capsule"]', '"visible"', "false"))
+        shots["opaque colon, no capsule"] = page.screenshot()
     finally:
         page.close()
     for name, image in shots.items():

@@ -23,13 +23,14 @@ from pydrake.systems.sensors import ImageRgba8U
 
 STREAM_SYSTEM = "replay.camera_stream"
 # The embedded stream: frames per simulated second at most, longest side (px), JPEG quality,
-# and the bytes of JPEG at which it thins (base64 adds a third in the page). Measured on the
-# WithSensors scenario's frames: ~5.5 kB a frame, so ~1.6 MB of page a simulated minute at
-# 5 frames/s, and a run longer than ~10 minutes is thinned.
+# and the bytes of JPEG at which it thins (base64 adds a third in the page). Measured on a
+# 60 s WithSensors run: 3.8 kB a frame (5 kB in the page), 1.5 MB of page a simulated
+# minute at 5 frames/s; the stream is at most 8 MB of page, at 5 frames/s for the first
+# ~5 simulated minutes of a run, at 2.5 up to ~10, and so on.
 STREAM_FPS = 5.0
 STREAM_SIDE = 160
 STREAM_QUALITY = 70
-STREAM_BUDGET = 12e6
+STREAM_BUDGET = 6e6
 # Points kept of each plotted series.
 PLOT_POINTS = 600
 PANEL_WIDTH = 340
@@ -176,31 +177,41 @@ def replay_page(meshcat_html: str, frames=(), plots=()) -> str:
     }
     # Inside a <script> element only "</" can end it early.
     payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    # With camera frames, a panel beside the scene; without, the plots in a box over the
+    # scene's top left corner (empty in Meshcat's default view), the scene full width.
     camera = ("""
   <div class="replay-title">capsule camera</div>
   <img id="replay-camera" alt="capsule camera frame">
   <div id="replay-camera-caption" class="replay-caption"></div>""" if frames else "")
     panel = f"""
-<div id="replay-panel">{camera}
+<div id="replay-panel" class="{'replay-side' if frames else 'replay-box'}">{camera}
   <div id="replay-plots"></div>
 </div>
 <script type="application/json" id="replay-data">{payload}</script>
 <script>{_PANEL_SCRIPT}</script>
 """
-    return (meshcat_html[:head] + _PANEL_STYLE + meshcat_html[head:body] + panel
+    style = _PANEL_STYLE + (_SIDE_STYLE if frames else "")
+    return (meshcat_html[:head] + style + meshcat_html[head:body] + panel
             + meshcat_html[body:])
 
 
 _PANEL_STYLE = f"""<style>
-  body #meshcat-pane {{ margin-left: {PANEL_WIDTH}px !important;
-    width: calc(100vw - {PANEL_WIDTH}px) !important; }}
-  #replay-panel {{ position: fixed; left: 0; top: 0; bottom: 0; width: {PANEL_WIDTH}px;
-    box-sizing: border-box; padding: 10px; overflow-y: auto; background: #202329;
-    color: #e8e8e8; font: 12px sans-serif; }}
+  #replay-panel {{ position: fixed; left: 0; top: 0; width: {PANEL_WIDTH}px;
+    box-sizing: border-box; padding: 10px; overflow-y: auto; color: #e8e8e8;
+    font: 12px sans-serif; }}
+  #replay-panel.replay-side {{ bottom: 0; background: #202329; }}
+  #replay-panel.replay-box {{ max-height: 100vh; background: rgba(32, 35, 41, 0.85);
+    border-bottom-right-radius: 6px; }}
   #replay-camera {{ display: block; width: 100%; image-rendering: auto; background: #000; }}
   .replay-title {{ font-weight: bold; margin: 6px 0 4px; }}
   .replay-caption {{ margin: 3px 0 8px; color: #b8b8b8; }}
   #replay-plots canvas {{ display: block; width: 100%; margin-bottom: 2px; }}
+</style>
+"""
+# The scene beside the side panel (in <head>, so the viewer is sized to it when made).
+_SIDE_STYLE = f"""<style>
+  body #meshcat-pane {{ margin-left: {PANEL_WIDTH}px !important;
+    width: calc(100vw - {PANEL_WIDTH}px) !important; }}
 </style>
 """
 
