@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/meshcat_figures.py [--out docs] [--only replay,arm,...]
 
-- replay.png: recording.html of a short WithSensors run from the sigmoid (the capsule
+- replay.png: recording.html of 20 s of the WithSensors drag (the capsule
   camera's frames and the run's plots beside the replay), at its end;
 - arm_meshcat.png: recording.html of a short WithArm run, at its end;
 - ex_vivo_meshcat.png: recording.html of a short ExVivoSegment run, at its end;
@@ -28,7 +28,7 @@ from capsule_drake.station import make_station
 
 # name -> (scenario, override, simulated seconds): the figures drawn from a run's replay.
 REPLAYS = {
-    "replay": ("WithSensors", "{capsule: {start_s: 0.30}}", 6.0),
+    "replay": ("WithSensors", None, 20.0),
     "arm_meshcat": ("WithArm", None, 3.0),
     "ex_vivo_meshcat": ("ExVivoSegment", None, 3.0),
 }

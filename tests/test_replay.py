@@ -60,10 +60,14 @@ def test_the_page_carries_the_frames_and_plots_and_keeps_meshcat_whole():
                        r"\n<div id=\"replay-panel\".*?</script>\n(?=</body>)", re.S)
     assert added.sub("", page) == meshcat_html
     assert f"margin-left: {PANEL_WIDTH}px" in page   # the scene beside the panel
+    # What was added names nothing to fetch: its images are data URIs.
+    extra = "".join(m.group(0) for m in added.finditer(page))
+    assert not re.search(r"https?:|url\(|src=\"(?!data:)|import ", extra)
     # No camera: no camera section and the scene full width, the plots still over it;
     # nothing to add, or a page that is not Meshcat's: the page as it was.
     plots_only = replay_page(meshcat_html, [], plots)
-    assert 'id="replay-camera"' not in plots_only and f"margin-left: {PANEL_WIDTH}px" not in plots_only
+    assert 'id="replay-camera"' not in plots_only
+    assert f"margin-left: {PANEL_WIDTH}px" not in plots_only
     assert added.sub("", plots_only) == meshcat_html
     assert _replay_data(plots_only)["plots"] == data["plots"]
     assert replay_page(meshcat_html, [], []) == meshcat_html
