@@ -143,7 +143,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         out_dir: if given, a folder (created if need be) that is checked for room, then
             gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
             see io/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
-            recording.html and (after an error) error.txt with the traceback.
+            recording.html (the replay page: `replay_html`) and (after an error) error.txt
+            with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
