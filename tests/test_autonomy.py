@@ -248,6 +248,68 @@ def test_a_lumen_behind_the_way_it_came_is_not_followed():
     assert heading @ R_WB.matrix()[:, 2] > 0.7
 
 
+def _walk(follower, simulator, context, points, seconds_per_point=0.2):
+    """Moves the capsule (looking along world +x) through `points`, one every
+    seconds_per_point of simulated time."""
+    for point in points:
+        follower.GetInputPort("capsule_pose").FixValue(context, _pose(p=point))
+        simulator.AdvanceTo(context.get_time() + seconds_per_point)
+
+
+def _straight(start, direction, length, step=0.002):
+    return [np.asarray(start) + s * np.asarray(direction) for s in np.arange(step, length, step)]
+
+
+def test_sliding_back_along_the_trail_keeps_the_way_forward():
+    """The capsule advances 10 cm along +x, then slides 6 cm back along a line 3 cm to the
+    side of its trail (the other side of a wide lumen): it is retracing, so it drops no
+    crumbs and a lumen seen back along -x (the way it came) is not followed; ahead again,
+    the trail goes on."""
+    follower, simulator, context = _follower()
+    _walk(follower, simulator, context, _straight(P_WB, [1.0, 0.0, 0.0], 0.10))
+    state = context.get_discrete_state(0).value()
+    crumbs_after_advance = int(state[10])
+    assert crumbs_after_advance >= 3 + 8  # three at the start, one every 1-1.2 cm since
+    spacing = 0.10 / (crumbs_after_advance - 3)
+    turned = np.array([0.0, 0.03, 0.0])
+    _walk(follower, simulator, context,
+          _straight(P_WB + [0.10, 0.0, 0.0] + turned, [-1.0, 0.0, 0.0], 0.06))
+    state = context.get_discrete_state(0).value()
+    assert state[10] == crumbs_after_advance  # none while sliding back
+    # At the crumb about 4 cm from the start (the third crumb is at the start).
+    assert abs(state[11] - (2 + 0.04 / spacing)) <= 1.0
+    np.testing.assert_allclose(state[32:35], [1.0, 0.0, 0.0], atol=0.05)  # the way forward
+    # The lumen seen straight behind the camera, i.e. along world -x: the way out.
+    follower.GetInputPort("lumen_ray").FixValue(context, [0.0, 0.0, -1.0])
+    simulator.AdvanceTo(context.get_time() + 3.0)
+    _, heading, status = _outputs(follower, context)
+    assert status[3] > 2.0  # not seen
+    assert heading[0] > 0.7
+    # Forward again past the newest crumb: new ground, new crumbs.
+    _walk(follower, simulator, context,
+          _straight(P_WB + [0.04, 0.0, 0.0], [1.0, 0.0, 0.0], 0.10))
+    state = context.get_discrete_state(0).value()
+    assert state[10] > crumbs_after_advance + 2 and state[11] == state[10] - 1
+
+
+def test_the_trails_other_limb_beyond_a_wall_is_not_where_the_capsule_is():
+    """A hairpin: 20 cm along +x, a half turn of 1.5 cm radius, then back along -x 3 cm from
+    the first limb. The capsule is on new ground all the way (crumbs keep coming, the way
+    forward points along -x), although the first limb's crumbs lie within 3 cm."""
+    follower, simulator, context = _follower()
+    _walk(follower, simulator, context, _straight(P_WB, [1.0, 0.0, 0.0], 0.20))
+    centre = P_WB + [0.20, 0.015, 0.0]
+    turn = [centre + 0.015 * np.array([np.sin(a), -np.cos(a), 0.0])
+            for a in np.linspace(0.0, np.pi, 25)[1:]]
+    _walk(follower, simulator, context, turn)
+    before = int(context.get_discrete_state(0).value()[10])
+    _walk(follower, simulator, context,
+          _straight(P_WB + [0.20, 0.03, 0.0], [-1.0, 0.0, 0.0], 0.15))
+    state = context.get_discrete_state(0).value()
+    assert state[10] >= before + 13 and state[11] == state[10] - 1
+    np.testing.assert_allclose(state[32:35], [-1.0, 0.0, 0.0], atol=0.05)
+
+
 def test_non_finite_pose_holds_the_command():
     follower, simulator, context = _follower()
     simulator.AdvanceTo(1.0)

@@ -23,6 +23,7 @@ from pydrake.systems.framework import DiagramBuilder
 from capsule_drake.capsule.camera import (CameraConfig, LensRenderer,
                                           add_camera_renderer, capsule_camera_for_frame,
                                           check_camera_config)
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.perception import LensConfig
 from capsule_drake.perception.views import camera_scene
@@ -166,9 +167,10 @@ def test_lumen_is_dark_with_the_camera_light(colon_scene, lens):
 
 
 def _moving_capsule_diagram(config, speed, static_scene=None):
-    """A weightless capsule gliding along its axis at `speed` in front of a plate. With
-    `static_scene` (True / False), the capsule's own shell is invisible to cameras and the
-    diagram holds two cameras, the given one last, the other first."""
+    """A weightless capsule gliding along its axis at `speed` in front of a plate. Its own
+    shell is invisible to cameras (the lens sits inside it, as in the station). With
+    `static_scene` (True / False), the diagram holds two cameras, the given one last, the
+    other first."""
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
     configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
@@ -187,11 +189,10 @@ def _moving_capsule_diagram(config, speed, static_scene=None):
         builder.Connect(scene_graph.get_query_output_port(),
                         camera.get_query_object_input_port())
         cameras.append(camera)
-    if static_scene is not None:
-        source = plant.get_source_id()
-        for geometry_id in plant.GetVisualGeometriesForBody(plant.GetBodyByName("capsule")):
-            if scene_graph.model_inspector().GetPerceptionProperties(geometry_id):
-                scene_graph.RemoveRole(source, geometry_id, Role.kPerception)
+    source = plant.get_source_id()
+    for geometry_id in plant.GetVisualGeometriesForBody(plant.GetBodyByName("capsule")):
+        if scene_graph.model_inspector().GetPerceptionProperties(geometry_id):
+            scene_graph.RemoveRole(source, geometry_id, Role.kPerception)
     camera = cameras[-1]
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
@@ -274,11 +275,11 @@ def test_camera_system_outputs_after_initialisation():
     camera_context = camera.GetMyContextFromRoot(context)
     depth = camera.get_depth_image_output_port().Eval(camera_context).data[..., 0]
     rays, in_field = camera.lens.pixel_rays()
-    # The plate's near face is at z = 0.055 m; the camera at the dome apex, z = 0.01575 m.
+    # The plate's near face is at z = 0.055 m; the camera in the dome (models/capsule.sdf).
     # Within 75 degrees of the axis the plate is nearer than `far` (0.2 m of range); beyond
     # ~80 degrees it is farther, and reads +inf (a margin: at grazing incidence the pixels
     # next to the cut take their nearest rendered sample, whose range differs by ~5 %).
-    z_plate = 0.055 - 0.01575
+    z_plate = 0.055 - capsule_model().X_BC.translation()[2]
     within = in_field & (rays[..., 2] > math.cos(math.radians(75.0)))
     z = depth[within] * rays[within][:, 2]
     assert np.isfinite(z).all()

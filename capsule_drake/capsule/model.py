@@ -5,7 +5,9 @@ Frames (one letter each, everywhere: code, ports, SDF comments, README):
     W  world: x to the patient's left, y to the head, z anterior (up; the patient lies
        supine on the table, whose top is z = 0)
     B  the capsule body: origin at its geometric centre, +z along its axis toward the dome
-    C  the capsule camera: at the dome's apex, Drake's camera convention (+z forward along
+    C  the capsule camera: its lens inside the front dome, 3.25 mm behind the apex (so tissue
+       on the dome stays beyond the renderer's near plane), Drake's camera convention
+       (+z forward along
        the optical axis, +x right, +y down in the image)
     M  the capsule's internal permanent magnet (IPM): its centre, magnetised along +z
     S  a sensor on the capsule's board (IMU, magnetometer), its pose X_BS in its config

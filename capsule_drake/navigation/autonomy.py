@@ -39,11 +39,17 @@ The control law, every `period`:
   where the lumen was in view, from which it drove into the same bend again: 5 of 10
   colons held in the sigmoid's hairpins.)
 - Sense of direction: the controller drops breadcrumbs along the capsule's path (its own
-  memory of the poses it was given). A lumen direction that heads into crumbs older than
-  the one the capsule is at is the way out (the capsule has turned back, or the truth's
-  "ahead" flipped with the camera): ignored, and the search turns toward the way forward
-  (along the crumbs from older to newer around the capsule). This holds in the sigmoid's
-  hairpins, where the way forward does point back across the abdomen.
+  memory of the poses it was given), on new ground only. It follows where along its trail
+  the capsule is from update to update (the nearest crumb within `trail_reach` of trail of
+  where it was, not the nearest anywhere: in the sigmoid's hairpins the trail's other limb
+  lies just beyond the wall). A capsule that slides or backs off along the way it came is
+  retracing: it drops no crumbs (which would turn its sense of direction round) and the way
+  forward stays along the trail toward its newest crumb. A lumen direction that heads into
+  crumbs older than the one the capsule is at, or, while retracing, against the way
+  forward, is the way out (the capsule has turned back, or the truth's "ahead" flipped with
+  the camera): ignored, and the search turns toward the way forward (along the crumbs from
+  older to newer around the capsule). This holds in the sigmoid's hairpins, where the way
+  forward does point back across the abdomen.
 
 A non-finite capsule pose holds the command; a non-finite lumen ray counts as not seen.
 """
@@ -134,13 +140,18 @@ class LumenFollowerConfig:
     max_crumbs: int = 400
     look_ahead: float = 0.03
     crumb_radius: float = 0.015
+    # Where along its trail the capsule is: the crumb nearest it among those within
+    # trail_reach (m, of trail) of the one it was at; farther than trail_radius (m, about a
+    # lumen's width) from all of them, it is on new ground.
+    trail_reach: float = 0.05
+    trail_radius: float = 0.05
 
 
 def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     for name in ("period", "speed_time", "heading_time", "wiggle_period", "search_period",
                  "max_epm_speed", "target_speed", "crumb_spacing", "look_ahead",
-                 "crumb_radius"):
+                 "crumb_radius", "trail_reach", "trail_radius"):
         if not getattr(config, name) > 0.0:
             raise ValueError(f"lumen follower {name} must be > 0, got {getattr(config, name)}")
     for name in ("force_gain", "brake_rate", "height_margin",
@@ -176,7 +187,8 @@ _CMD = slice(0, 6)      # the EPM command [p_WE, m_hat_W]
 _H = slice(6, 9)        # heading (world, unit)
 _F = 9                  # drive force f (N)
 _NCRUMB = 10            # number of breadcrumbs
-# 11, 12: unused
+_K = 11                 # index of the crumb the capsule is at
+# 12: unused
 _V = 13                 # filtered speed along the heading (m/s)
 _PREV = slice(14, 17)   # capsule position at the previous update
 _MODE = 17
@@ -280,6 +292,34 @@ class LumenFollowerController(LeafSystem):
             m = field_aligning_moment_direction(u / np.linalg.norm(u), heading)
         return np.concatenate([p, m])
 
+    def _place_on_trail(self, x, crumbs, p):
+        """Where along its trail the capsule at p is: (number of crumbs, index of its
+        crumb), updated in x. The crumb is the nearest among those within trail_reach of
+        trail of the last one. A capsule at the newest crumb, or farther than trail_radius
+        from those, that has moved crumb_spacing from the newest, within 72 deg of the
+        trail's last direction (on, round a bend as tight as the colon's; not back, nor
+        across the lumen: a slip), is on new ground and drops a crumb (the oldest goes when
+        the trail is full)."""
+        c = self._config
+        n, k = int(x[_NCRUMB]), int(x[_K])
+        reach = int(np.ceil(c.trail_reach / c.crumb_spacing))
+        lo, hi = max(0, k - reach), min(n, k + reach + 1)
+        distance = np.linalg.norm(crumbs[lo:hi] - p, axis=1)
+        j = int(np.argmin(distance))
+        k = lo + j if distance[j] <= c.trail_radius else n - 1
+        step = p - crumbs[n - 1]
+        last = crumbs[n - 1] - crumbs[n - 2]
+        onward = step @ last > 0.3 * np.linalg.norm(step) * np.linalg.norm(last)
+        if k == n - 1 and onward and np.linalg.norm(step) > c.crumb_spacing:
+            if n == len(crumbs):
+                crumbs[:-1] = crumbs[1:].copy()
+                n -= 1
+            crumbs[n] = p
+            n += 1
+            k = n - 1
+        x[_NCRUMB], x[_K] = n, k
+        return n, k
+
     def _calc_status(self, context, output):
         x = context.get_discrete_state(self._state).value()
         output.SetFromVector([x[_MODE], x[_F], x[_V], x[_LOST_T]])
@@ -310,6 +350,7 @@ class LumenFollowerController(LeafSystem):
         crumbs = x[_CRUMBS:].reshape(-1, 3)
         crumbs[:3] = [p - 2.0 * spacing * z_W, p - spacing * z_W, p]
         x[_NCRUMB] = 3.0
+        x[_K] = 2.0
         x[_PREV] = p
         x[_WAY] = z_W
         x[_SIDE] = 1.0
@@ -331,18 +372,11 @@ class LumenFollowerController(LeafSystem):
         z_W = R_WC[:, 2]
         p_WM = p + R_WB @ self._p_BM
 
-        # Sense of direction: breadcrumbs, the crumb nearest the capsule, the way forward.
+        # Sense of direction: breadcrumbs, the crumb the capsule is at, the way forward.
         crumbs = x[_CRUMBS:].reshape(-1, 3)
-        n = int(x[_NCRUMB])
-        if np.linalg.norm(p - crumbs[n - 1]) > c.crumb_spacing:
-            if n == len(crumbs):
-                crumbs[:-1] = crumbs[1:].copy()
-                n -= 1
-            crumbs[n] = p
-            n += 1
-            x[_NCRUMB] = n
+        n, k = self._place_on_trail(x, crumbs, p)
         trail = crumbs[:n]
-        k = int(np.argmin(np.linalg.norm(trail - p, axis=1)))
+        retracing = k < n - 3
         ahead = trail[min(k + 2, n - 1)] if k + 2 <= n - 1 else p
         w = ahead - trail[max(k - 2, 0)]
         if np.linalg.norm(w) > 0.5 * c.crumb_spacing:
@@ -352,6 +386,8 @@ class LumenFollowerController(LeafSystem):
 
         def backward(direction):
             """Whether `direction` heads into where the capsule came from."""
+            if retracing and direction @ way < 0.0:
+                return True
             if len(older) == 0:
                 return False
             q = p + c.look_ahead * direction
