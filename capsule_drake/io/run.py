@@ -25,6 +25,8 @@ from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
 from capsule_drake.io.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, write_atomic)
+from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
+from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.scenario import Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
@@ -141,7 +143,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         out_dir: if given, a folder (created if need be) that is checked for room, then
             gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
             see io/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
-            recording.html and (after an error) error.txt with the traceback.
+            recording.html (the replay page: `replay_html`) and (after an error) error.txt
+            with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
@@ -294,10 +297,12 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         if stopped_at:
             result.metrics["stopped_at"] = stopped_at
         if meshcat is not None:
+            if station.HasSubsystemNamed(MARKER_SYSTEM):  # the trail up to the end
+                station.GetSubsystemByName(MARKER_SYSTEM).flush(context.get_time())
             meshcat.StopRecording()
             meshcat.PublishRecording()
         if out is not None:
-            _write_outputs(result, spool, meshcat, error)
+            _write_outputs(result, spool, meshcat, error, colon)
     return result
 
 
@@ -341,7 +346,7 @@ def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
         raise OutputError(f"{out}: cannot write scenario.yaml ({e.strerror or e})") from None
 
 
-def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | None):
+def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | None, colon):
     """The run's outputs, each written whole or not at all; WriteError names the first
     that could not be written (what is on disk already stays)."""
     out = result.out_dir
@@ -351,8 +356,8 @@ def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | Non
     if error is not None:
         steps.append(("error.txt", lambda: write_atomic(out / "error.txt", error)))
     if meshcat is not None:
-        steps.append(("recording.html", lambda: write_atomic(out / "recording.html",
-                                                             meshcat.StaticHtml())))
+        steps.append(("recording.html", lambda: write_atomic(
+            out / "recording.html", replay_html(result, meshcat, colon))))
     for name, write in steps:
         try:
             write()
@@ -360,6 +365,17 @@ def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | Non
             kept = ("; the logs written during the run are in logs.parts/"
                     if (out / "logs.parts").is_dir() else "")
             raise WriteError(f"{out}: could not write {name} ({e.strerror or e}){kept}") from None
+
+
+def replay_html(result: RunResult, meshcat, colon) -> str:
+    """recording.html: Meshcat's replay of the run with, beside it, the capsule camera's
+    frames (when the station has a camera) and the run's progress and contact load
+    (io/replay.py)."""
+    station = result.station
+    frames = (station.GetSubsystemByName(STREAM_SYSTEM).frames()
+              if station is not None and station.HasSubsystemNamed(STREAM_SYSTEM) else [])
+    plots = run_plots(colon, result.times, result.capsule_state, result.contact_load)
+    return replay_page(meshcat.StaticHtml(), frames, plots)
 
 
 @contextlib.contextmanager
