@@ -28,16 +28,21 @@ flushed as the simulation goes, so an interrupted run keeps what it recorded.
 
 Timing. Drake publishes at a time t before the discrete updates at t, so a sensor read at its
 own sample time would show the previous sample (and, at t = 0, its zero initial state). A
-stream is therefore read just after its sensor's update (`Stream.after_update`) and stamped
-with the sample's time; a stream with a warm-up (the AHRS's first estimate) starts at its
-first real sample (`Stream.first_sample`). The ground truth (the plant's state) is read at
-the sample time itself. The plant steps in an unrestricted update, before the sensors'
-discrete updates at the same time, so a sensor's sample at t measures the state at t + the
-plant's time step: its rows are stamped with that time (`Stream.stamp_delay`). A frame's pose is the pose the camera drew it from (its frame_pose
+stream is therefore read just after its sensor's update (`Stream.after_update`); a stream
+with a warm-up (the AHRS's first estimate) starts at its first real sample
+(`Stream.first_sample`). A frame's pose is the pose the camera drew it from (its frame_pose
 output), and its lumen truth is computed from that pose and the frame's own depth.
+
+Every row is stamped with the time of the plant state it shows (`state_time`). A discrete
+plant holds its state x_{n+1} over (t_n, t_{n+1}] and, with sampled output ports, steps in an
+unrestricted update, which Drake runs before the discrete updates at the same time: a
+sensor's sample at its tick t measures the state one plant step later, and a camera tick
+that floating-point rounding puts just after a plant step (3 x 0.1 > 150 x 0.002) shows the
+state of the next step. The ground truth, read at its own ticks, shows the state there.
 """
 
 import dataclasses
+import math
 from pathlib import Path
 
 import cv2
@@ -68,9 +73,8 @@ class Stream:
     sample time (a sampled sensor's state output), else at the sample time itself (the
     plant's state). first_sample: sample time of the first real sample (s); earlier rows are
     not written. order: indices into the input vector for the columns (e.g. to put a w, x, y,
-    z quaternion in x, y, z, w order); None keeps the input's order. stamp_delay: added to the
-    sample time in the row's time stamp (s): how much later than its sample time the state a
-    sensor measured is (a sensor updated after the plant's step measures the state after it).
+    z quaternion in x, y, z, w order); None keeps the input's order. stamp_shift: added to the
+    time stamp (s), for an estimate of a later state than the one its inputs measured.
     """
 
     name: str
@@ -79,11 +83,32 @@ class Stream:
     after_update: bool = True
     first_sample: float = 0.0
     order: tuple | None = None
-    stamp_delay: float = 0.0
+    stamp_shift: float = 0.0
 
     @property
     def size(self) -> int:
         return len(self.columns) if self.order is None else max(self.order) + 1
+
+
+def state_time(t: float, plant_step: float, after_plant_update: bool) -> float:
+    """The time of the plant state that a reading at time t sees (module docstring).
+
+    plant_step: the discrete plant's time step (s), 0 for a continuous plant (then t).
+    after_plant_update: whether the reading comes after the plant's update at t when t is
+    on the plant's grid (a discrete update after the plant's unrestricted step); else it
+    sees the state held up to t. The grid times are computed as Drake does, k x step.
+    """
+    if plant_step <= 0.0:
+        return t
+    k = math.floor(t / plant_step)
+    while k * plant_step > t:
+        k -= 1
+    while (k + 1) * plant_step <= t:
+        k += 1
+    # Now k x step <= t < (k + 1) x step.
+    if k * plant_step == t and not after_plant_update:
+        return t
+    return (k + 1) * plant_step
 
 
 def encode_depth(depth_m: np.ndarray, mask: np.ndarray, full_scale: float) -> np.ndarray:
@@ -148,12 +173,17 @@ class DatasetWriter(LeafSystem):
         lumen_truth: optional `lumen_truth(X_WC, depth) -> (pixel (2,), visible, point_W (3,),
             s)`, the lumen ground truth of a frame; without it lumen_truth.csv is not written.
         texts: {file name: text} written at once (README.md, camera.yaml, sensors.yaml).
+        plant_step: the discrete plant's time step (s; 0: continuous), for `state_time`.
+        plant_step_first: whether the plant steps before the sensors' discrete updates at the
+            same time (an unrestricted update: Drake's default with sampled output ports).
     """
 
     def __init__(self, out_dir, frame_check_period: float, frame_check_offset: float = 0.0,
                  streams=(), mask=None, depth_full_scale: float = 0.2, lumen_truth=None,
-                 texts=None):
+                 texts=None, plant_step: float = 0.0, plant_step_first: bool = True):
         super().__init__()
+        self._plant_step = float(plant_step)
+        self._plant_step_first = bool(plant_step_first)
         self._out = Path(out_dir)
         (self._out / "Frames").mkdir(parents=True, exist_ok=True)
         for name, text in (texts or {}).items():
@@ -204,17 +234,18 @@ class DatasetWriter(LeafSystem):
         f.flush()
 
     def _on_stream(self, context, stream: Stream, port, delay: float):
-        # The sample's own time, on the stream's grid (not the reading's, READ_DELAY later).
+        # The sample's tick, on the stream's grid (Drake's k x period), not the reading's.
         k = round((context.get_time() - delay) / stream.period)
-        t = k * stream.period
-        if t < stream.first_sample - 0.5 * stream.period:
+        tick = k * stream.period
+        if tick < stream.first_sample - 0.5 * stream.period:
             return EventStatus.DidNothing()
         values = np.asarray(port.Eval(context), dtype=float)
         if stream.order is not None:
             values = values[list(stream.order)]
         values = values + 0.0  # no "-0" in the file
-        self._write(stream.name, ",".join([f"{t + stream.stamp_delay:.6f}",
-                                           *(f"{v:.9g}" for v in values)]))
+        t = state_time(tick, self._plant_step,
+                       stream.after_update and self._plant_step_first) + stream.stamp_shift
+        self._write(stream.name, ",".join([f"{t:.6f}", *(f"{v:.9g}" for v in values)]))
         return EventStatus.Succeeded()
 
     def _on_frame_check(self, context):
@@ -222,6 +253,9 @@ class DatasetWriter(LeafSystem):
         if not np.isfinite(frame_time) or frame_time < 0 or frame_time == self._last_frame_time:
             return EventStatus.DidNothing()
         self._last_frame_time = frame_time
+        # The camera draws in an unrestricted update, alongside the plant's step at the same
+        # time: it shows the state held up to its tick.
+        frame_time = state_time(frame_time, self._plant_step, after_plant_update=False)
         index = self._frames_written
         rgb = self._rgb.Eval(context).data[:, :, :3]
         cv2.imwrite(str(self._out / "Frames" / f"FrameBuffer_{index:04d}.png"),

@@ -39,7 +39,8 @@ class DatasetDescription:
     random_seed: int = 0
     duration: float = 0.0
     depth_full_scale: float = 0.2
-    # How much later than its tick a sensor's sample measures the state (s): Stream.stamp_delay.
+    # How much later than its tick a sensor's sample measures the state (s): the plant's
+    # step when it steps before the sensors (io/dataset.py, state_time); 0 otherwise.
     sensor_lag: float = 0.0
 
 
@@ -273,9 +274,11 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         "its sample was taken." + (
             f" The sensors tick every sample period from t = 0 and each sample measures the "
             f"state one simulator step ({1000 * d.sensor_lag:g} ms) after its tick, so their "
-            f"rows are stamped {d.sensor_lag:g}, {d.sensor_lag:g} + period, ...; the frames "
-            f"and the ground truth are on the ticks themselves (interpolate the ground truth "
-            f"to compare it with a sensor)." if d.sensor_lag > 0 else ""),
+            f"rows are stamped {d.sensor_lag:g}, {d.sensor_lag:g} + period, ...; the ground "
+            f"truth is on its ticks (interpolate it to compare it with a sensor). A frame is "
+            f"stamped with its tick, or one step later where rounding put the tick just past "
+            f"the simulator's step (e.g. the frame at 0.3 s shows the state at 0.302 s)."
+            if d.sensor_lag > 0 else ""),
         "- **Pixels**: (u, v) = (column, row); the centre of the top-left pixel is (0, 0).",
         "",
         "## Files",

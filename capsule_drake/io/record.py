@@ -71,10 +71,10 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                    "ground_truth": scenario.outputs.log_period}
         # A discrete plant with sampled output ports steps in an unrestricted update, which
         # Drake runs before the discrete updates at the same time: a sensor's sample at t
-        # then measures the state one plant step later (a continuous plant, or one that steps
-        # in a discrete update alongside the sensors: the state at t).
-        sensor_lag = (plant.time_step() if plant.time_step() > 0
-                      and plant.GetUniquePeriodicDiscreteUpdateAttribute() is None else 0.0)
+        # then measures the state one plant step later (io/dataset.py, state_time).
+        plant_step = plant.time_step()
+        plant_step_first = plant.GetUniquePeriodicDiscreteUpdateAttribute() is None
+        sensor_lag = plant_step if plant_step > 0 and plant_step_first else 0.0
         streams, sources = [], []
         outputs = {station.get_output_port(i).get_name()
                    for i in range(station.num_output_ports())}
@@ -87,8 +87,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                 # update there. The AHRS's first estimate is of the attitude one IMU period
                 # in (it steps the first IMU sample forward).
                 after_update=name != "ground_truth",
-                first_sample=imu_period if name == "ahrs" else 0.0, order=order,
-                stamp_delay=0.0 if name == "ground_truth" else sensor_lag))
+                first_sample=imu_period if name == "ahrs" else 0.0, order=order))
             sources.append((name, parts))
         description = DatasetDescription(
             lens=camera.lens, camera=camera_config, X_BC=X_BC, streams=streams,
@@ -102,6 +101,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
             out_dir, frame_check_period=tick, frame_check_offset=camera_config.latency,
             streams=streams, mask=camera.lens.pixel_rays()[1],
             depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
+            plant_step=plant_step, plant_step_first=plant_step_first,
             texts={"README.md": dataset_readme(description),
                    "camera.yaml": camera_yaml(description),
                    "sensors.yaml": sensors_yaml(description)}))
