@@ -32,7 +32,7 @@ from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
                                                  condition_frames, condition_table, evaluate,
-                                                 meets, mixed_sheet)
+                                                 finite_or_none, meets, mixed_sheet)
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
@@ -577,7 +577,7 @@ def _eval_lumen(args) -> int:
                 safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
                 cv2.imwrite(str(out_dir / f"{safe}_{renderer}_{lens}_sheet.png"),
                             cv2.cvtColor(mixed_sheet(frames, detector), cv2.COLOR_RGB2BGR))
-    (out_dir / "results.json").write_text(json.dumps(results, indent=2))
+    (out_dir / "results.json").write_text(json.dumps(finite_or_none(results), indent=2))
     (out_dir / "tables.md").write_text("\n\n".join(tables) + "\n")
     failing = [f"{name} {path} {condition}" for name, paths in results.items()
                for path, summaries in paths.items() for condition, summary in summaries.items()

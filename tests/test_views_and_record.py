@@ -1,6 +1,5 @@
 """Rendered views along the colon, the lumen cue they carry, and `record`'s output folder."""
 
-
 import numpy as np
 import pytest
 
