@@ -170,7 +170,9 @@ def _parser() -> argparse.ArgumentParser:
                        help="an existing Dask scheduler (with --engine dask; default: a "
                             "local cluster of --workers processes)")
     _out_arguments(bench, "runs/benchmark-<date-time>")
-    bench.add_argument("--quiet", action="store_true", help="no progress line")
+    bench.add_argument("--quiet", action="store_true",
+                       help="no progress (otherwise each run's simulated time and where the "
+                            "capsule is, on stderr, as the runs go)")
 
     imp = verbs.add_parser(
         "import-colon", help="a user's colon mesh: check, repair, extract its centreline",
