@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import contextlib
+import importlib.util
 import logging
 import os
 import signal
@@ -173,6 +174,18 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--quiet", action="store_true",
                        help="no progress (otherwise each run's simulated time and where the "
                             "capsule is, on stderr, as the runs go)")
+
+    nb = verbs.add_parser(
+        "notebooks", help="open the example notebooks (notebooks/) in JupyterLab",
+        description="Start JupyterLab on the repository's notebooks/ folder, with this "
+                    "Python (and so this installation of capsule_drake) as the kernel. Needs "
+                    "the notebooks extra: ./capsule-sim notebooks installs it into .venv the "
+                    "first time; elsewhere pip install -e '.[notebooks]'.")
+    nb.add_argument("--port", type=_port, default=8888,
+                    help="JupyterLab's port (default 8888; 0 = any free one)")
+    _host_argument(nb, "JupyterLab")
+    nb.add_argument("--no-browser", action="store_true",
+                    help="do not open a browser (the address to open is printed)")
 
     imp = verbs.add_parser(
         "import-colon", help="a user's colon mesh: check, repair, extract its centreline",
@@ -658,6 +671,29 @@ def _import_colon(args) -> int:
     return 0
 
 
+NOTEBOOKS_DIR = Path(__file__).resolve().parents[1] / "notebooks"
+
+
+def _notebooks(args) -> int:
+    """Replaces this process with JupyterLab on notebooks/ (it returns only on an error)."""
+    if importlib.util.find_spec("jupyterlab") is None:
+        raise ScenarioError("JupyterLab is not installed: ./capsule-sim notebooks installs it "
+                            "into .venv; elsewhere run pip install -e '.[notebooks]' in the "
+                            "repository")
+    if not NOTEBOOKS_DIR.is_dir():
+        raise ScenarioError(f"no notebooks folder at {NOTEBOOKS_DIR} (the notebooks come with "
+                            "the repository: install it with pip install -e)")
+    command = [sys.executable, "-m", "jupyterlab", f"--ServerApp.root_dir={NOTEBOOKS_DIR}",
+               f"--ServerApp.ip={args.host or LOOPBACK}", f"--ServerApp.port={args.port}"]
+    if args.no_browser:
+        command.append("--no-browser")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        command.append("--allow-root")  # a container's user (JupyterLab refuses root else)
+    sys.stdout.flush()
+    os.execv(sys.executable, command)
+    return 0
+
+
 def _raise_interrupted(signal_number, frame):
     raise Interrupted(signal_number)
 
@@ -685,6 +721,8 @@ def main(argv=None) -> int:
             return _benchmark(args)
         if args.verb == "import-colon":
             return _import_colon(args)
+        if args.verb == "notebooks":
+            return _notebooks(args)
     except (ScenarioError, WriteError) as e:  # WriteError: after the run, outputs on disk
         _remove_unused_folders()
         print(f"capsule-sim: error: {e}", file=sys.stderr)
