@@ -193,8 +193,12 @@ def _load_example(d: DatasetDescription) -> str:
             "K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])",
             f"D = np.array([{_fmt(values)}])  # {names}",
             "pixels = np.column_stack([u, v]).astype(np.float64).reshape(-1, 1, 2)",
-            "xy = cv2.undistortPointsIter(pixels, K, D, None, None, "
-            "(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)).reshape(-1, 2)",
+            "criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)",
+            'if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4',
+            "    xy = cv2.undistortPointsIter(pixels, K, D, None, None, criteria)",
+            "else:  # OpenCV 5",
+            "    xy = cv2.undistortPoints(pixels, K, D, None, None, None, criteria)",
+            "xy = xy.reshape(-1, 2)  # x / z, y / z of each pixel's ray",
             "rays_C = np.column_stack([xy, np.ones(len(xy))])",
             "rays_C /= np.linalg.norm(rays_C, axis=1, keepdims=True)",
         ]
@@ -411,8 +415,9 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
             "`time_s, x_m, y_m, z_m, qx, qy, qz, qw, wx_rad_s, wy_rad_s, wz_rad_s, vx_m_s, "
             "vy_m_s, vz_m_s`: the capsule body's pose in W (p_WB, q_WB) and its angular "
             "velocity w_WB and the velocity of its origin v_WB, both expressed in W. The "
-            "camera's pose is X_WC = X_WB T_body_camera (camera.yaml); at a frame's time it "
-            "equals the frame's row of SavedPosition / SavedRotationQuaternion.",
+            "camera's pose is X_WC = X_WB T_body_camera (camera.yaml); at a frame's time "
+            "(interpolate between rows where it falls between two) it is the frame's row of "
+            "SavedPosition / SavedRotationQuaternion.",
         ]
     out += [
         "",
