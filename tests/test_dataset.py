@@ -3,7 +3,6 @@ streams from their first real sample)."""
 
 import cv2
 import numpy as np
-import pytest
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
