@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import contextlib
+import importlib.util
 import logging
 import os
 import signal
@@ -21,9 +22,11 @@ import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
+from capsule_drake.io.dataset_docs import SPLIT_RULE, split_counts, split_of_seed, splits_readme
 from capsule_drake.io.mcap_log import add_mcap_logger, check_mcap_path, expected_mcap_bytes
 from capsule_drake.io.record import record, with_all_sensors
-from capsule_drake.io.outputs import RUN_OUTPUTS, OutputError, claim_folder, new_run_folder
+from capsule_drake.io.outputs import (RUN_OUTPUTS, OutputError, claim_folder, new_run_folder,
+                                      write_atomic)
 from capsule_drake.io.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, segment_table, summary,
@@ -31,7 +34,7 @@ from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
                                                  condition_frames, condition_table, evaluate,
-                                                 meets, mixed_sheet)
+                                                 finite_or_none, meets, mixed_sheet)
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
@@ -70,11 +73,22 @@ def _parser() -> argparse.ArgumentParser:
         "record", help="simulate a scenario with the capsule camera and write a dataset",
         description="Simulate a scenario with the capsule's camera (the scenario's, or the "
                     "default 172-degree fisheye) and sensors, writing RGB and 16-bit depth "
-                    "frames, camera poses, IMU, AHRS, magnetometer and lumen ground truth "
-                    "into a folder laid out like SimCol3D's (see README.txt written there).")
+                    "frames, a field-of-view mask, camera poses, IMU, AHRS, magnetometer and "
+                    "lumen ground truth into a folder laid out like SimCol3D's (README.md "
+                    "written there describes every file). With --seeds, one such folder per "
+                    "colon seed (seed_XXXX/) and splits.csv assigning each seed to train, val "
+                    "or test.")
     _scenario_arguments(rec)
     _out_arguments(rec, "datasets/<scenario>-<date-time>", force=False)
     _mcap_argument(rec)
+    rec.add_argument("--seeds", metavar="SEEDS",
+                     help="record one dataset per colon seed: '0-99', '0,3,7' or '5' (each "
+                          "seed also seeds the sensors' noise unless --scenario-text sets "
+                          "random_seed)")
+    rec.add_argument("--split", metavar="TRAIN,VAL,TEST", default=None,
+                     help="with --seeds: the expected shares of train, val and test seeds "
+                          "(default 0.7,0.15,0.15); a seed's split is a fixed function of "
+                          "the seed and these shares (README.md at the top of --out)")
     rec.add_argument("--quiet", action="store_true", help="no progress bar")
 
     tel = verbs.add_parser(
@@ -161,7 +175,21 @@ def _parser() -> argparse.ArgumentParser:
                        help="an existing Dask scheduler (with --engine dask; default: a "
                             "local cluster of --workers processes)")
     _out_arguments(bench, "runs/benchmark-<date-time>")
-    bench.add_argument("--quiet", action="store_true", help="no progress line")
+    bench.add_argument("--quiet", action="store_true",
+                       help="no progress (otherwise each run's simulated time and where the "
+                            "capsule is, on stderr, as the runs go)")
+
+    nb = verbs.add_parser(
+        "notebooks", help="open the example notebooks (notebooks/) in JupyterLab",
+        description="Start JupyterLab on the repository's notebooks/ folder, with this "
+                    "Python (and so this installation of capsule_drake) as the kernel. Needs "
+                    "the notebooks extra: ./capsule-sim notebooks installs it into .venv the "
+                    "first time; elsewhere pip install -e '.[notebooks]'.")
+    nb.add_argument("--port", type=_port, default=8888,
+                    help="JupyterLab's port (default 8888; 0 = any free one)")
+    _host_argument(nb, "JupyterLab")
+    nb.add_argument("--no-browser", action="store_true",
+                    help="do not open a browser (the address to open is printed)")
 
     imp = verbs.add_parser(
         "import-colon", help="a user's colon mesh: check, repair, extract its centreline",
@@ -325,20 +353,23 @@ def _report_stop(result) -> None:
 MAX_SEEDS = 10_000  # a benchmark of more runs than this is a typing mistake
 
 
-def _seeds(text: str) -> list[int]:
+def _seeds(text: str, flag: str = "--seeds") -> list[int]:
     ranges = []
     try:
         for part in text.split(","):
             first, _, last = part.strip().partition("-")
             ranges.append((int(first), int(last) if last else int(first)))
     except ValueError:
-        raise ScenarioError(f"--seeds {text!r}: expected e.g. '0-9', '0,3,7' or '5'") from None
+        raise ScenarioError(f"{flag} {text!r}: expected e.g. '0-9', '0,3,7' or '5'") from None
     if not all(0 <= first <= last < 2**32 for first, last in ranges):
-        raise ScenarioError(f"--seeds {text!r}: expected seeds in [0, 2^32), each range from "
+        raise ScenarioError(f"{flag} {text!r}: expected seeds in [0, 2^32), each range from "
                             "low to high")
     if sum(last - first + 1 for first, last in ranges) > MAX_SEEDS:
-        raise ScenarioError(f"--seeds {text!r}: at most {MAX_SEEDS:,} seeds")
-    return [seed for first, last in ranges for seed in range(first, last + 1)]
+        raise ScenarioError(f"{flag} {text!r}: at most {MAX_SEEDS:,} seeds")
+    seeds = [seed for first, last in ranges for seed in range(first, last + 1)]
+    if len(set(seeds)) != len(seeds):
+        raise ScenarioError(f"{flag} {text!r}: a seed is given twice")
+    return seeds
 
 
 def _benchmark(args) -> int:
@@ -406,17 +437,91 @@ def _load(args, *flags: str):
 
 
 def _record(args) -> int:
+    if args.seeds is not None:
+        return _record_seeds(args)
+    if args.split is not None:
+        raise ScenarioError("--split: only with --seeds (it splits the seeds recorded)")
     scenario = _load(args)
     mcap = _mcap_path(args, with_all_sensors(scenario))
     out_dir = _output_folder(args, "datasets", args.scenario or "Default")
-    result = record(scenario, out_dir, progress=not args.quiet, mcap=mcap)
+    result = record(scenario, out_dir, progress=not args.quiet, mcap=mcap,
+                    scenario_name=args.scenario or "Default")
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
     m = result.metrics
     print(f"recorded {frames} frames over {m.get('sim_time_s', 0.0):.2f} s into {out_dir}/ "
-          f"(README.txt there describes the layout)")
+          f"(README.md there describes every file)")
     _report_mcap(result)
     _report_stop(result)
     return _exit_code(result)
+
+
+def _split_fractions(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if (len(values) != 3 or not all(np.isfinite(v) and 0.0 <= v <= 1.0 for v in values)
+            or abs(sum(values) - 1.0) > 1e-6):
+        raise ScenarioError(f"--split {text!r}: expected three shares TRAIN,VAL,TEST in "
+                            "[0, 1] that add up to 1, e.g. 0.7,0.15,0.15")
+    return values
+
+
+def _record_seeds(args) -> int:
+    """One dataset per colon seed into --out/seed_XXXX/, with splits.csv and README.md."""
+    seeds = _seeds(args.seeds, "--seeds")
+    fractions = _split_fractions(args.split or "0.7,0.15,0.15")
+    name = args.scenario or "Default"
+    # Each seed is its own patient and its own noise; the user's --scenario-text comes after,
+    # so it may fix random_seed (or anything else), but not the colon seed.
+    def scenario_of(seed):
+        scenario = load_scenario(args.scenario_file, args.scenario, [
+            _flags(colon={"seed": seed}, random_seed=seed), args.scenario_text,
+            *([_flags(duration=args.duration)] if args.duration is not None else [])])
+        if getattr(scenario.colon, "seed", seed) != seed:
+            raise ScenarioError("--seeds: --scenario-text sets colon.seed, which --seeds sets "
+                                "for each recording")
+        return scenario
+
+    scenario_of(seeds[0])  # a bad scenario: one line before anything is written
+    out_dir = _output_folder(args, "datasets", f"{name}-seeds")
+    width = max(4, len(str(max(seeds))))
+    folders = {seed: f"seed_{seed:0{width}d}" for seed in seeds}
+    splits = {seed: split_of_seed(seed, fractions) for seed in seeds}
+
+    def write_splits(recorded):
+        rows = ["seed,split,folder"] + [f"{seed},{splits[seed]},{folders[seed]}"
+                                        for seed in recorded]
+        write_atomic(out_dir / "splits.csv", "\n".join(rows) + "\n")
+        counts = split_counts(recorded, fractions)
+        write_atomic(out_dir / "README.md", splits_readme(SPLIT_RULE, fractions, counts))
+        return counts
+
+    counts = write_splits(seeds)  # the plan, in case the batch is cut short
+    print(f"recording {len(seeds)} colon seeds into {out_dir}/: "
+          + ", ".join(f"{split} {n}" for split, n in counts.items()), file=sys.stderr)
+    recorded, failed = [], []
+    for k, seed in enumerate(seeds):
+        print(f"seed {seed} ({k + 1}/{len(seeds)}, {splits[seed]}) -> {folders[seed]}/",
+              file=sys.stderr)
+        try:
+            result = record(scenario_of(seed), out_dir / folders[seed],
+                            progress=not args.quiet, scenario_name=name)
+        except ScenarioError as e:  # e.g. a colon seed with no course: the others go on
+            print(f"seed {seed}: error: {e}", file=sys.stderr)
+            failed.append(seed)
+            continue
+        _report_stop(result)
+        if result.status == "interrupted":
+            write_splits(recorded)
+            return _exit_code(result)
+        (recorded if result.status in ("completed", "goal") else failed).append(seed)
+    counts = write_splits(recorded)
+    print(f"recorded {len(recorded)} of {len(seeds)} seeds into {out_dir}/ ("
+          + ", ".join(f"{split} {n}" for split, n in counts.items())
+          + "; splits.csv and README.md there)"
+          + (f"; failed: {', '.join(map(str, failed))}" if failed else ""))
+    return 1 if failed else 0
 
 
 def _teleop(args) -> int:
@@ -527,7 +632,7 @@ def _eval_lumen(args) -> int:
                 safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
                 cv2.imwrite(str(out_dir / f"{safe}_{renderer}_{lens}_sheet.png"),
                             cv2.cvtColor(mixed_sheet(frames, detector), cv2.COLOR_RGB2BGR))
-    (out_dir / "results.json").write_text(json.dumps(results, indent=2))
+    (out_dir / "results.json").write_text(json.dumps(finite_or_none(results), indent=2))
     (out_dir / "tables.md").write_text("\n\n".join(tables) + "\n")
     failing = [f"{name} {path} {condition}" for name, paths in results.items()
                for path, summaries in paths.items() for condition, summary in summaries.items()
@@ -609,6 +714,29 @@ def _import_colon(args) -> int:
     return 0
 
 
+NOTEBOOKS_DIR = Path(__file__).resolve().parents[1] / "notebooks"
+
+
+def _notebooks(args) -> int:
+    """Replaces this process with JupyterLab on notebooks/ (it returns only on an error)."""
+    if importlib.util.find_spec("jupyterlab") is None:
+        raise ScenarioError("JupyterLab is not installed: ./capsule-sim notebooks installs it "
+                            "into .venv; elsewhere run pip install -e '.[notebooks]' in the "
+                            "repository")
+    if not NOTEBOOKS_DIR.is_dir():
+        raise ScenarioError(f"no notebooks folder at {NOTEBOOKS_DIR} (the notebooks come with "
+                            "the repository: install it with pip install -e)")
+    command = [sys.executable, "-m", "jupyterlab", f"--ServerApp.root_dir={NOTEBOOKS_DIR}",
+               f"--ServerApp.ip={args.host or LOOPBACK}", f"--ServerApp.port={args.port}"]
+    if args.no_browser:
+        command.append("--no-browser")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        command.append("--allow-root")  # a container's user (JupyterLab refuses root else)
+    sys.stdout.flush()
+    os.execv(sys.executable, command)
+    return 0
+
+
 def _raise_interrupted(signal_number, frame):
     raise Interrupted(signal_number)
 
@@ -636,6 +764,8 @@ def main(argv=None) -> int:
             return _benchmark(args)
         if args.verb == "import-colon":
             return _import_colon(args)
+        if args.verb == "notebooks":
+            return _notebooks(args)
     except (ScenarioError, WriteError) as e:  # WriteError: after the run, outputs on disk
         _remove_unused_folders()
         print(f"capsule-sim: error: {e}", file=sys.stderr)

@@ -1,14 +1,17 @@
 """The navigation benchmark: a user's navigator through the plug-in interface on two colons
-(locally and on a two-worker Dask cluster, the same table), and its one-line errors."""
+(locally and on a two-worker Dask cluster, the same table, each run's progress shown as it
+goes), how a run ended (the time limit or a stall), and its one-line errors."""
 
 import csv
+import io
+import re
 
 import numpy as np
 import pytest
 
 from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, run_task, summary, task_scenario,
-                                                write_outputs)
+                                                where_it_ended, write_outputs)
 
 # Short runs without the camera worker: a few simulated seconds each.
 TEXT = "{capsule: {camera: {fps: 2.0, latency: 0.0}}}"
@@ -25,9 +28,43 @@ def finished_rows(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def local_results(finished_rows):
-    return run_suite(_tasks(), workers=2, engine="local", progress=False,
-                     on_result=RowWriter(finished_rows))
+def progress_lines():
+    return io.StringIO()
+
+
+@pytest.fixture(scope="module")
+def local_results(finished_rows, progress_lines):
+    # With its progress shown (a log, not a terminal: plain lines), every report printed.
+    return run_suite(_tasks(), workers=2, engine="local", progress=True,
+                     on_result=RowWriter(finished_rows), stream=progress_lines,
+                     line_period=0.0)
+
+
+def _progress_by_run(text):
+    """{(navigator, seed): [(simulated time or None for building, "done" or line)]}."""
+    runs = {}
+    for line in text.splitlines():
+        found = re.match(r"\[\s*\d+ s\] (?:done \d+/\d+: )?(\S+) seed (\d+): (.*)", line)
+        if found:
+            runs.setdefault((found[1], int(found[2])), []).append((line, found[3]))
+    return runs
+
+
+@pytest.mark.slow
+def test_progress_shows_each_run_as_it_goes(local_results, progress_lines):
+    text = progress_lines.getvalue()
+    assert text.splitlines()[0].endswith("2 runs on 2 local worker processes; each reports "
+                                         "once its process has started Python and Drake")
+    for (navigator, seed), lines in _progress_by_run(text).items():
+        said = [what for _, what in lines]
+        assert said[0] == "building the station"
+        # Reports of simulated time and place before the run's end line.
+        running = [re.match(r"\s*([\d.]+) / 3 s simulated, (\w+) at (\d+) cm", what)
+                   for what in said[1:-1]]
+        assert running and all(running), said
+        assert any(float(m[1]) < 3.0 for m in running) and {m[2] for m in running} == {"rectum"}
+        assert said[-1].startswith("ended: time limit (rectum, at ")
+        assert "done" in lines[-1][0]
 
 
 @pytest.mark.slow
@@ -48,7 +85,8 @@ def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, t
         # The EPM crept 3 cm: its path is that (plus the floor's rise), not zero.
         assert 0.029 < row["epm_path_m"] < 0.06
         assert 0.0 < row["coverage"] < 0.2  # the camera saw some of the rectum's wall
-        assert row["stuck_in"] == "rectum"
+        # Still moving when the 3 s ran out: the time limit ended it, not a stall.
+        assert re.fullmatch(r"time limit \(rectum, at \d+ cm\)", row["stuck_in"])
         assert np.isfinite(row["centring_error_deg"])
     paths = write_outputs(local_results, tmp_path)
     with open(paths["runs"]) as f:
@@ -65,7 +103,13 @@ def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, t
 
 @pytest.mark.slow
 def test_the_same_seeds_give_the_same_table_on_a_dask_cluster(local_results):
-    results = run_suite(_tasks(), workers=2, engine="dask", progress=False)
+    lines = io.StringIO()
+    results = run_suite(_tasks(), workers=2, engine="dask", progress=True, stream=lines,
+                        line_period=0.0)
+    # The runs' progress comes through the scheduler's events, as from the local pool.
+    runs = _progress_by_run(lines.getvalue())
+    assert sorted(runs) == [("plugins.navigators:creep", 0), ("plugins.navigators:creep", 1)]
+    assert all(any("s simulated" in what for _, what in said) for said in runs.values())
     for a, b in zip(local_results, results):
         a = {k: v for k, v in a["row"].items() if k != "wall_time_s"}
         b = {k: v for k, v in b["row"].items() if k != "wall_time_s"}
@@ -131,6 +175,27 @@ def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_pat
         assert main(["benchmark", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_a_run_cut_off_by_time_says_so_and_a_stall_names_its_segment():
+    times = np.arange(0.0, 600.0, 0.1)
+    # Still advancing at the end: the time limit ended it.
+    advancing = 0.05 + 0.001 * times
+    assert where_it_ended(times, advancing, "descending", cut_by_time=True) == \
+        "time limit (descending, at 65 cm)"
+    # At its furthest point (within 1 cm) since 100 s: a stall, long before the limit.
+    stalled = np.minimum(0.05 + 0.006 * times, 0.65) - 0.003 * np.sin(times) ** 2
+    assert where_it_ended(times, stalled, "descending", cut_by_time=True) == "descending"
+    # Moving back and forth within 1 cm of its furthest point until the end: a stall too.
+    assert where_it_ended(times, 0.3 + 0.004 * np.sin(times), "sigmoid",
+                          cut_by_time=True) == "sigmoid"
+    # The window is 30 s: a run that got within 1 cm of its furthest point 29 s before the
+    # end was still advancing; 31 s before, it had stalled.
+    late = np.where(times < 571.0, 0.05 + 0.001 * times, 0.65)
+    assert where_it_ended(times, late, "descending", cut_by_time=True).startswith("time limit")
+    late = np.where(times < 569.0, 0.05 + 0.001 * times, 0.65)
+    assert where_it_ended(times, late, "descending", cut_by_time=True) == "descending"
+    assert where_it_ended(times, advancing, "descending", cut_by_time=False) == "descending"
 
 
 class _Log:

@@ -131,6 +131,11 @@ def offset_detector(rgb, field_mask):
                           np.zeros(rgb.shape[:2], dtype=np.uint8))
 
 
+def blind_detector(rgb, field_mask):
+    """A user's detector that never finds the lumen: its errors are undefined."""
+    return LumenDetection.nothing(rgb.shape)
+
+
 def broken_detector(rgb, field_mask):
     raise RuntimeError("user bug")
 
@@ -215,13 +220,21 @@ def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, ca
                  "--renderer", "raycast", "--lens", "fisheye",
                  "--conditions", "nominal,noise,light_all",
                  "--detector", "core", "--detector", "test_lumen:offset_detector",
-                 "--out", str(out)])
+                 "--detector", "test_lumen:blind_detector", "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
     assert "core on raycast, fisheye" in printed and "test_lumen:offset_detector" in printed
-    assert "nan" not in printed
+    # A detector that never detects has no error to score: "n/a" and why, never "nan".
+    assert "nan" not in printed.lower().replace("n/a", "")
+    assert "n/a in nominal: errors: the lumen was in view in" in printed
     import json
-    results = json.loads((out / "results.json").read_text())
+
+    def refuse(constant):
+        raise AssertionError(f"results.json holds {constant}, which strict JSON refuses")
+
+    results = json.loads((out / "results.json").read_text(), parse_constant=refuse)
+    assert results["test_lumen:blind_detector"]["raycast_fisheye"]["nominal"][
+        "median_error"] is None
     assert set(results["core"]["raycast_fisheye"]) == {"nominal", "noise", "light_all"}
     assert results["core"]["raycast_fisheye"]["noise"]["frames"] == 6
     assert (out / "core_raycast_fisheye_sheet.png").stat().st_size > 10_000

@@ -1,9 +1,11 @@
-"""Every notebook runs top to bottom (short mode), in a fresh interpreter."""
+"""Every notebook runs top to bottom (short mode), in a fresh interpreter, leaving no\ntemporary files; `capsule-sim notebooks` opens them in JupyterLab."""
 
 import json
 import os
+import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -25,7 +27,37 @@ def test_notebook_runs(path, tmp_path):
             assert not cell["outputs"], f"{path.name}: commit notebooks with outputs cleared"
     script = tmp_path / (path.stem + ".py")
     script.write_text(notebook_source(path))
-    env = dict(os.environ, CAPSULE_NOTEBOOK_SHORT="1", MPLBACKEND="Agg")
+    # A temporary folder of its own: what a notebook leaves there, it leaves on a user's disk.
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    env = dict(os.environ, CAPSULE_NOTEBOOK_SHORT="1", MPLBACKEND="Agg", TMPDIR=str(scratch))
     proc = subprocess.run([sys.executable, str(script)], cwd=path.parent, env=env,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    left = sorted(p.name for p in scratch.iterdir())
+    assert not left, f"{path.name} left {left} in the temporary folder"
+
+
+def test_the_notebooks_verb_opens_jupyterlab_on_the_notebooks(monkeypatch):
+    from capsule_drake import cli
+    started = []
+    monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: object())
+    monkeypatch.setattr(cli.os, "execv", lambda path, argv: started.append(argv))
+    assert cli.main(["notebooks", "--no-browser", "--port", "8890"]) == 0
+    argv, = started
+    assert argv[:3] == [sys.executable, "-m", "jupyterlab"]
+    assert f"--ServerApp.root_dir={NOTEBOOKS[0].parent}" in argv
+    assert {"--ServerApp.ip=127.0.0.1", "--ServerApp.port=8890", "--no-browser"} <= set(argv)
+
+
+def test_without_jupyterlab_the_notebooks_verb_says_how_to_install_it(monkeypatch, capsys):
+    from capsule_drake import cli
+    monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(cli.os, "execv", lambda *a: pytest.fail("nothing to start"))
+    assert cli.main(["notebooks"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install -e '.[notebooks]'" in err, err
+    # ... which the project declares: JupyterLab and a kernel.
+    with open(NOTEBOOKS[0].parents[1] / "pyproject.toml", "rb") as f:
+        extra = tomllib.load(f)["project"]["optional-dependencies"]["notebooks"]
+    assert {re.split(r"[<>=\[ ]", r)[0] for r in extra} >= {"jupyterlab", "ipykernel"}

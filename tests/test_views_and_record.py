@@ -1,13 +1,10 @@
-"""Rendered views along the colon, the lumen cue they carry, and a recorded dataset."""
-
-import json
+"""Rendered views along the colon, the lumen cue they carry, and `record`'s output folder."""
 
 import numpy as np
 import pytest
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.cli import main as cli_main
-from capsule_drake.io.dataset import read_depth_png
 from capsule_drake.perception.views import darkest_spot, views_along_colon
 from capsule_drake.scenario import load_scenario
 
@@ -43,23 +40,7 @@ def test_depth_is_deepest_at_the_lumen(views):
             np.percentile(seen, 75)
 
 
-def test_record_writes_a_dataset(tmp_path):
-    out = tmp_path / "dataset"
-    code = cli_main(["record", "--duration", "0.55", "--out", str(out), "--quiet"])
-    assert code == 0
-    frames = sorted((out / "Frames").glob("FrameBuffer_*.png"))
-    depths = sorted((out / "Frames").glob("Depth_*.png"))
-    assert len(frames) == len(depths) == 6  # 10 fps from t = 0
-    assert len(np.loadtxt(out / "SavedPosition.txt")) == 6
-    lumen = np.loadtxt(out / "lumen_truth.csv", delimiter=",", skiprows=1)
-    assert lumen.shape == (6, 9) and lumen[:, 4].all()
-    imu = np.loadtxt(out / "imu.csv", delimiter=",", skiprows=1)
-    assert imu.shape[1] == 13 and len(imu) >= 50  # 100 Hz
-    assert (out / "magnetometer.csv").exists() and (out / "ahrs.csv").exists()
-    depth = read_depth_png(depths[0])
-    assert 0.0 < np.median(depth) < 0.2
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["stopped_early"] is None
+# What a recorded dataset holds is tested in test_dataset_folder.py.
 
 
 def test_record_refuses_a_non_empty_folder(tmp_path, capsys):

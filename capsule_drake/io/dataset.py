@@ -1,26 +1,48 @@
 """DatasetWriter: frames, poses and sensor streams to a folder while the simulation runs.
 
 The layout follows SimCol3D's (Rau et al., 2023: `Frames_<seq>/FrameBuffer_XXXX.png`,
-`Depth_XXXX.png`, `SavedPosition_<seq>.txt`, `SavedRotationQuaternion_<seq>.txt`) with
-the sensor streams added, so tools written for it need only the frame convention below:
+`Depth_XXXX.png`, `SavedPosition_<seq>.txt`, `SavedRotationQuaternion_<seq>.txt`, one folder
+per sequence here, without the `_<seq>` suffixes) with the sensor streams added:
 
     <out>/
-      README.txt                    this layout, units and conventions
-      camera.yaml                   lens model and intrinsics, image size, depth encoding
+      README.md                     the folder described for a user (written by `dataset_readme`)
+      camera.yaml                   lens model and intrinsics, mounting in the capsule, depth encoding
+      sensors.yaml                  IMU and magnetometer: mounting, rate, range, noise
+      mask.png                      8-bit: 255 inside the lens's image circle, 0 outside
       Frames/FrameBuffer_0000.png   colour (8-bit RGB)
-      Frames/Depth_0000.png         depth, 16-bit: metres = value / 65535 * depth_full_scale
+      Frames/Depth_0000.png         depth, 16-bit (DEPTH_* below)
       SavedPosition.txt             per frame: tx ty tz, camera centre in world (m)
       SavedRotationQuaternion.txt   per frame: qx qy qz qw, camera-to-world rotation
-      frames.csv                    per frame: index, time (s)
-      lumen_truth.csv               per frame: index, time, u, v (px), visible, x, y, z (m), s (m)
-      <stream>.csv                  one per sensor stream (IMU, magnetometer, AHRS, ...)
+      frames.csv                    per frame: index, exposure time (s)
+      lumen_truth.csv               per frame: where the lumen is in the image
+      <stream>.csv                  one per sensor stream (imu, ahrs, magnetometer, ground_truth)
+
+One quaternion order in every file: x, y, z, w (scalar last), as SimCol3D's
+SavedRotationQuaternion, ROS messages and SciPy's `Rotation.from_quat`; a CSV's columns are
+named qx, qy, qz, qw, and every other column's name ends with its unit.
 
 World frame: z up (anterior), x to the patient's left, y to the head, table top at z = 0
 (right-handed; SimCol3D's Unity frame is left-handed). Camera frame: +z along the optical
 axis, +x right and +y down in the image (OpenCV/Drake convention). Every file is written and
 flushed as the simulation goes, so an interrupted run keeps what it recorded.
+
+Timing. Drake publishes at a time t before the discrete updates at t, so a sensor read at its
+own sample time would show the previous sample (and, at t = 0, its zero initial state). A
+stream is therefore read just after its sensor's update (`Stream.after_update`); a stream
+with a warm-up (the AHRS's first estimate) starts at its first real sample
+(`Stream.first_sample`). A frame's pose is the pose the camera drew it from (its frame_pose
+output), and its lumen truth is computed from that pose and the frame's own depth.
+
+Every row is stamped with the time of the plant state it shows (`state_time`). A discrete
+plant holds its state x_{n+1} over (t_n, t_{n+1}] and, with sampled output ports, steps in an
+unrestricted update, which Drake runs before the discrete updates at the same time: a
+sensor's sample at its tick t measures the state one plant step later, and a camera tick
+that floating-point rounding puts just after a plant step (3 x 0.1 > 150 x 0.002) shows the
+state of the next step. The ground truth, read at its own ticks, shows the state there.
 """
 
+import dataclasses
+import math
 from pathlib import Path
 
 import cv2
@@ -30,14 +52,95 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
-from capsule_drake.capsule.model import rotation_from_quaternion
+# How long after a sample time the writer reads (s): just after the sensors' updates at that
+# time (Drake publishes before updating at the same time).
+READ_DELAY = 1e-6
 
-README = __doc__
+# The 16-bit depth encoding: 0 = no measurement (outside the lens's image circle, or tissue
+# nearer than the camera's near clip), DEPTH_BEYOND = nothing within the full scale,
+# 1..DEPTH_BEYOND - 1 = range (m) = value / DEPTH_SCALE * full scale.
+DEPTH_NONE = 0
+DEPTH_BEYOND = 65535
+DEPTH_SCALE = 65535.0
 
-# How long after a camera tick the writer looks for the new frame (s). The discrete plant's
-# state then is the one after its update at the tick: the pose written is at most one plant
-# step (1 ms) newer than the image.
-FRAME_CHECK_DELAY = 1e-6
+
+@dataclasses.dataclass(frozen=True)
+class Stream:
+    """A sensor stream written as `<name>.csv`: one row per sample.
+
+    name: file name without .csv. columns: column names after time_s (units in the names).
+    period: sample period (s). after_update: read just after the sensor's update at each
+    sample time (a sampled sensor's state output), else at the sample time itself (the
+    plant's state). first_sample: sample time of the first real sample (s); earlier rows are
+    not written. order: indices into the input vector for the columns (e.g. to put a w, x, y,
+    z quaternion in x, y, z, w order); None keeps the input's order. stamp_shift: added to the
+    time stamp (s), for an estimate of a later state than the one its inputs measured.
+    """
+
+    name: str
+    columns: tuple
+    period: float
+    after_update: bool = True
+    first_sample: float = 0.0
+    order: tuple | None = None
+    stamp_shift: float = 0.0
+
+    @property
+    def size(self) -> int:
+        return len(self.columns) if self.order is None else max(self.order) + 1
+
+
+def state_time(t: float, plant_step: float, after_plant_update: bool) -> float:
+    """The time of the plant state that a reading at time t sees (module docstring).
+
+    plant_step: the discrete plant's time step (s), 0 for a continuous plant (then t).
+    after_plant_update: whether the reading comes after the plant's update at t when t is
+    on the plant's grid (a discrete update after the plant's unrestricted step); else it
+    sees the state held up to t. The grid times are computed as Drake does, k x step.
+    """
+    if plant_step <= 0.0:
+        return t
+    k = math.floor(t / plant_step)
+    while k * plant_step > t:
+        k -= 1
+    while (k + 1) * plant_step <= t:
+        k += 1
+    # Now k x step <= t < (k + 1) x step.
+    if k * plant_step == t and not after_plant_update:
+        return t
+    return (k + 1) * plant_step
+
+
+def encode_depth(depth_m: np.ndarray, mask: np.ndarray, full_scale: float) -> np.ndarray:
+    """The 16-bit depth PNG's values of a range image (m; +inf beyond the camera's far clip,
+    0 nearer than its near clip, NaN where nothing was measured). See DEPTH_*."""
+    depth = np.asarray(depth_m, dtype=np.float64)
+    measured = mask & np.isfinite(depth) & (depth > 0.0)
+    beyond = mask & np.isposinf(depth)
+    encoded = np.full(depth.shape, DEPTH_NONE, dtype=np.uint16)
+    value = np.round(np.where(measured, depth, 0.0) / full_scale * DEPTH_SCALE)
+    encoded[measured] = np.clip(value[measured], 1, DEPTH_BEYOND - 1).astype(np.uint16)
+    encoded[beyond] = DEPTH_BEYOND
+    return encoded
+
+
+def read_depth_png(path, full_scale: float = 0.2) -> np.ndarray:
+    """Range (m) from a dataset's 16-bit depth PNG: NaN where there is no measurement
+    (outside the lens's image circle, or nearer than the near clip), +inf where nothing is
+    within `full_scale`."""
+    value = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if value is None:
+        raise ValueError(f"{path}: not a readable PNG")
+    depth = value.astype(np.float64) / DEPTH_SCALE * full_scale
+    depth[value == DEPTH_NONE] = np.nan
+    depth[value == DEPTH_BEYOND] = np.inf
+    return depth
+
+
+def quaternion_xyzw(R: RotationMatrix) -> tuple:
+    """(x, y, z, w) of a rotation, w >= 0 (Drake's canonical sign)."""
+    q = R.ToQuaternion()
+    return q.x(), q.y(), q.z(), q.w()
 
 
 class DatasetWriter(LeafSystem):
@@ -50,65 +153,76 @@ class DatasetWriter(LeafSystem):
         - rgb
         - depth
         - frame_time
-        - capsule_state
-        - lumen
+        - frame_pose
         - <stream> (one per sensor stream)
 
-    rgb, depth: the camera's images (depth in metres, NaN/inf where nothing was hit).
-    frame_time: time of the camera's latest frame (s); a new value means a new frame.
-    capsule_state: the capsule's [quaternion wxyz, p_WC, w, v]; with X_BC it gives the
-    camera pose. lumen: [u, v, visible, x, y, z, s] from LumenTruth. Each stream input is
-    written as one CSV row per `period`.
+    rgb, depth: the camera's images (depth: range in metres, +inf beyond the far clip).
+    frame_time: exposure time of the camera's latest frame (s); a new value is a new frame.
+    frame_pose: the camera's pose at that exposure, [R_WC row-major (9), p_WC (3)]. Each
+    stream input is written as one CSV row per sample (`Stream`).
 
     Args:
         out_dir: folder to write (created).
-        X_BC: camera pose in the capsule body frame.
-        frame_check_period: how often to look for a new camera frame (s); at least the
-            camera's fastest frame rate.
-        streams: list of (name, column names, period) for the sensor CSV files.
+        frame_check_period: how often to look for a new camera frame (s): the camera's tick.
+        frame_check_offset: when within that period (s): just after the frame's delivery
+            (the camera's latency, if any); the writer adds READ_DELAY.
+        streams: the sensor streams (`Stream`).
+        mask: (H, W) bool, the pixels inside the lens's image circle; written as mask.png,
+            and depth outside it is written as "no measurement".
         depth_full_scale: metres that the 16-bit depth value 65535 stands for.
-        camera_yaml: text for camera.yaml (lens model and intrinsics).
+        lumen_truth: optional `lumen_truth(X_WC, depth) -> (pixel (2,), visible, point_W (3,),
+            s)`, the lumen ground truth of a frame; without it lumen_truth.csv is not written.
+        texts: {file name: text} written at once (README.md, camera.yaml, sensors.yaml).
+        plant_step: the discrete plant's time step (s; 0: continuous), for `state_time`.
+        plant_step_first: whether the plant steps before the sensors' discrete updates at the
+            same time (an unrestricted update: Drake's default with sampled output ports).
     """
 
-    def __init__(self, out_dir, X_BC: RigidTransform, frame_check_period: float,
-                 streams=(), depth_full_scale: float = 0.2, camera_yaml: str = ""):
+    def __init__(self, out_dir, frame_check_period: float, frame_check_offset: float = 0.0,
+                 streams=(), mask=None, depth_full_scale: float = 0.2, lumen_truth=None,
+                 texts=None, plant_step: float = 0.0, plant_step_first: bool = True):
         super().__init__()
+        self._plant_step = float(plant_step)
+        self._plant_step_first = bool(plant_step_first)
         self._out = Path(out_dir)
         (self._out / "Frames").mkdir(parents=True, exist_ok=True)
-        (self._out / "README.txt").write_text(README)
-        (self._out / "camera.yaml").write_text(
-            camera_yaml + f"depth_png_full_scale_m: {depth_full_scale}\n")
-        self._X_BC = X_BC
+        for name, text in (texts or {}).items():
+            (self._out / name).write_text(text)
+        self._mask = None if mask is None else np.asarray(mask, dtype=bool)
+        if self._mask is not None:
+            cv2.imwrite(str(self._out / "mask.png"), np.where(self._mask, 255, 0).astype(np.uint8))
         self._depth_full_scale = float(depth_full_scale)
+        self._lumen_truth = lumen_truth
         self._rgb = self.DeclareAbstractInputPort("rgb", AbstractValue.Make(ImageRgba8U()))
         self._depth = self.DeclareAbstractInputPort("depth",
                                                     AbstractValue.Make(ImageDepth32F()))
         self._frame_time = self.DeclareVectorInputPort("frame_time", 1)
-        self._state = self.DeclareVectorInputPort("capsule_state", 13)
-        self._lumen = self.DeclareVectorInputPort("lumen", 7)
+        self._frame_pose = self.DeclareVectorInputPort("frame_pose", 12)
         self._files = {
             "position": open(self._out / "SavedPosition.txt", "w"),
             "rotation": open(self._out / "SavedRotationQuaternion.txt", "w"),
             "frames": open(self._out / "frames.csv", "w"),
-            "lumen": open(self._out / "lumen_truth.csv", "w"),
         }
         self._write("frames", "index,time_s")
-        self._write("lumen", "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
+        if lumen_truth is not None:
+            self._files["lumen"] = open(self._out / "lumen_truth.csv", "w")
+            self._write("lumen", "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
         self._frames_written = 0
         self._last_frame_time = None
-        # Just after each camera tick: at the tick itself a publish runs before the camera's
-        # update, and would see the previous frame (and pair it with the newer pose).
-        self.DeclarePeriodicPublishEvent(frame_check_period, FRAME_CHECK_DELAY,
+        # Just after the frame's delivery: at the tick itself a publish runs before the
+        # camera's update, and would see the previous frame.
+        self.DeclarePeriodicPublishEvent(frame_check_period, frame_check_offset + READ_DELAY,
                                          self._on_frame_check)
         self._stream_ports = {}
-        for name, columns, period in streams:
-            port = self.DeclareVectorInputPort(name, len(columns))
-            self._files[name] = open(self._out / f"{name}.csv", "w")
-            self._write(name, ",".join(["time_s", *columns]))
+        for stream in streams:
+            port = self.DeclareVectorInputPort(stream.name, stream.size)
+            self._files[stream.name] = open(self._out / f"{stream.name}.csv", "w")
+            self._write(stream.name, ",".join(["time_s", *stream.columns]))
+            delay = READ_DELAY if stream.after_update else 0.0
             self.DeclarePeriodicPublishEvent(
-                period, 0.0, lambda context, name=name, port=port: self._on_stream(
-                    context, name, port))
-            self._stream_ports[name] = port
+                stream.period, delay, lambda context, stream=stream, port=port, delay=delay:
+                self._on_stream(context, stream, port, delay))
+            self._stream_ports[stream.name] = port
 
     @property
     def frames_written(self) -> int:
@@ -119,37 +233,48 @@ class DatasetWriter(LeafSystem):
         f.write(line + "\n")
         f.flush()
 
-    def _on_stream(self, context, name, port):
-        values = port.Eval(context)
-        self._write(name, ",".join([f"{context.get_time():.6f}",
-                                    *(f"{v:.9g}" for v in values)]))
+    def _on_stream(self, context, stream: Stream, port, delay: float):
+        # The sample's tick, on the stream's grid (Drake's k x period), not the reading's.
+        k = round((context.get_time() - delay) / stream.period)
+        tick = k * stream.period
+        if tick < stream.first_sample - 0.5 * stream.period:
+            return EventStatus.DidNothing()
+        values = np.asarray(port.Eval(context), dtype=float)
+        if stream.order is not None:
+            values = values[list(stream.order)]
+        values = values + 0.0  # no "-0" in the file
+        t = state_time(tick, self._plant_step,
+                       stream.after_update and self._plant_step_first) + stream.stamp_shift
+        self._write(stream.name, ",".join([f"{t:.6f}", *(f"{v:.9g}" for v in values)]))
         return EventStatus.Succeeded()
 
     def _on_frame_check(self, context):
         frame_time = float(self._frame_time.Eval(context)[0])
-        if frame_time < 0 or frame_time == self._last_frame_time:
+        if not np.isfinite(frame_time) or frame_time < 0 or frame_time == self._last_frame_time:
             return EventStatus.DidNothing()
         self._last_frame_time = frame_time
+        # The camera draws in an unrestricted update, alongside the plant's step at the same
+        # time: it shows the state held up to its tick.
+        frame_time = state_time(frame_time, self._plant_step, after_plant_update=False)
         index = self._frames_written
         rgb = self._rgb.Eval(context).data[:, :, :3]
         cv2.imwrite(str(self._out / "Frames" / f"FrameBuffer_{index:04d}.png"),
                     cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         depth = np.array(self._depth.Eval(context).data[:, :, 0], dtype=np.float64)
-        depth[~np.isfinite(depth)] = self._depth_full_scale
-        encoded = np.clip(np.round(depth / self._depth_full_scale * 65535.0), 0, 65535)
+        mask = self._mask if self._mask is not None else np.ones(depth.shape, dtype=bool)
         cv2.imwrite(str(self._out / "Frames" / f"Depth_{index:04d}.png"),
-                    encoded.astype(np.uint16))
-        state = self._state.Eval(context)
-        X_WC = RigidTransform(RotationMatrix(rotation_from_quaternion(state[:4])),
-                              state[4:7]).multiply(self._X_BC)
-        q_WC = X_WC.rotation().ToQuaternion()
+                    encode_depth(depth, mask, self._depth_full_scale))
+        pose = np.asarray(self._frame_pose.Eval(context), dtype=float)
+        X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
         p = X_WC.translation()
         self._write("position", f"{p[0]:.9f} {p[1]:.9f} {p[2]:.9f}")
-        self._write("rotation", f"{q_WC.x():.9f} {q_WC.y():.9f} {q_WC.z():.9f} {q_WC.w():.9f}")
+        self._write("rotation", " ".join(f"{c:.9f}" for c in quaternion_xyzw(X_WC.rotation())))
         self._write("frames", f"{index},{frame_time:.6f}")
-        u, v, visible, x, y, z, s = self._lumen.Eval(context)
-        self._write("lumen", f"{index},{frame_time:.6f},{u:.3f},{v:.3f},{int(visible)},"
-                             f"{x:.6f},{y:.6f},{z:.6f},{s:.6f}")
+        if self._lumen_truth is not None:
+            pixel, visible, point_W, s = self._lumen_truth(X_WC, depth)
+            x, y, z = point_W
+            self._write("lumen", f"{index},{frame_time:.6f},{pixel[0]:.3f},{pixel[1]:.3f},"
+                                 f"{int(visible)},{x:.6f},{y:.6f},{z:.6f},{s:.6f}")
         self._frames_written += 1
         return EventStatus.Succeeded()
 
@@ -157,9 +282,3 @@ class DatasetWriter(LeafSystem):
         """Closes the files (they are flushed after every line already)."""
         for f in self._files.values():
             f.close()
-
-
-def read_depth_png(path, full_scale: float = 0.2) -> np.ndarray:
-    """Metric depth (m) from a dataset's 16-bit depth PNG."""
-    value = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    return value.astype(np.float64) / 65535.0 * full_scale

@@ -3,10 +3,11 @@
 import dataclasses
 from pathlib import Path
 
-import yaml
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
-from capsule_drake.io.dataset import DatasetWriter
+from capsule_drake.io.dataset import DatasetWriter, Stream
+from capsule_drake.io.dataset_docs import (DatasetDescription, camera_yaml, dataset_readme,
+                                           sensors_yaml)
 from capsule_drake.io.mcap_log import add_mcap_logger
 from capsule_drake.io.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
@@ -15,17 +16,24 @@ from capsule_drake.capsule.camera import CameraConfig, camera_tick
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
-# Sensor streams written as CSV files: file name -> [(station output, column names)].
+# Sensor streams written as CSV files: file name -> ([(station output, column names)],
+# the order of the inputs' entries in the columns, or None). Units end the names; quaternions
+# are put in x, y, z, w order (the station's are w, x, y, z).
 _STREAMS = {
-    "imu": [("capsule.imu.accel", ["ax", "ay", "az"]),
-            ("capsule.imu.gyro", ["gx", "gy", "gz"]),
-            ("capsule.imu.accel_true", ["ax_true", "ay_true", "az_true"]),
-            ("capsule.imu.gyro_true", ["gx_true", "gy_true", "gz_true"])],
-    "ahrs": [("capsule.ahrs.q_WB", ["qw", "qx", "qy", "qz"])],
-    "magnetometer": [("capsule.magnetometer.B_S", ["bx", "by", "bz"]),
-                     ("capsule.magnetometer.B_S_true", ["bx_true", "by_true", "bz_true"])],
-    "ground_truth": [("capsule.state", ["qw", "qx", "qy", "qz", "x", "y", "z",
-                                         "wx", "wy", "wz", "vx", "vy", "vz"])],
+    "imu": ([("capsule.imu.accel", ["ax_m_s2", "ay_m_s2", "az_m_s2"]),
+             ("capsule.imu.gyro", ["gx_rad_s", "gy_rad_s", "gz_rad_s"]),
+             ("capsule.imu.accel_true", ["ax_true_m_s2", "ay_true_m_s2", "az_true_m_s2"]),
+             ("capsule.imu.gyro_true", ["gx_true_rad_s", "gy_true_rad_s", "gz_true_rad_s"])],
+            None),
+    "ahrs": ([("capsule.ahrs.q_WB", ["qx", "qy", "qz", "qw"])], (1, 2, 3, 0)),
+    "magnetometer": ([("capsule.magnetometer.B_S", ["bx_T", "by_T", "bz_T"]),
+                      ("capsule.magnetometer.B_S_true", ["bx_true_T", "by_true_T",
+                                                         "bz_true_T"])], None),
+    # capsule.state is [q_WB (w, x, y, z), p_WB, w_WB, v_WB]: written p, q (x, y, z, w), w, v.
+    "ground_truth": ([("capsule.state", ["x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
+                                         "wx_rad_s", "wy_rad_s", "wz_rad_s",
+                                         "vx_m_s", "vy_m_s", "vz_m_s"])],
+                     (4, 5, 6, 1, 2, 3, 0, 7, 8, 9, 10, 11, 12)),
 }
 
 
@@ -42,20 +50,10 @@ def with_all_sensors(scenario: Scenario) -> Scenario:
                       else MagnetometerConfig())))
 
 
-def _camera_yaml(camera, lens) -> str:
-    config = dataclasses.asdict(camera.lens)
-    intrinsics = {name: float(getattr(lens, name)) for name in ("fx", "fy", "cx", "cy")
-                  if hasattr(lens, name)}
-    text = {"lens": config, "intrinsics_px": intrinsics,
-            "pixel_convention": "OpenCV: the first pixel's centre is (0, 0)",
-            "depth": "range along each pixel's ray (m), not z-depth",
-            "fps_mode": camera.fps_mode, "fps": camera.fps}
-    return yaml.safe_dump(text, sort_keys=False)
-
-
 def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
-           mcap: Path | str | None = None) -> RunResult:
-    """Simulates `scenario` with a camera and writes a dataset to `out_dir` as it runs.
+           scenario_name: str = "", mcap: Path | str | None = None) -> RunResult:
+    """Simulates `scenario` with a camera and writes a dataset to `out_dir` as it runs
+    (io/dataset.py; its README.md describes it, naming the scenario `scenario_name`).
 
     Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`),
     and with `mcap` an MCAP file of ROS 2 messages (io/mcap_log.py) as well.
@@ -69,37 +67,57 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
         camera = station.GetSubsystemByName("capsule.camera")
         plant = station.GetSubsystemByName("plant")
         X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
+        imu_period = 1.0 / scenario.capsule.imu.sample_rate
+        periods = {"imu": imu_period, "ahrs": imu_period,
+                   "magnetometer": 1.0 / scenario.capsule.magnetometer.sample_rate,
+                   "ground_truth": scenario.outputs.log_period}
+        # A discrete plant with sampled output ports steps in an unrestricted update, which
+        # Drake runs before the discrete updates at the same time: a sensor's sample at t
+        # then measures the state one plant step later (io/dataset.py, state_time).
+        plant_step = plant.time_step()
+        plant_step_first = plant.GetUniquePeriodicDiscreteUpdateAttribute() is None
+        sensor_lag = plant_step if plant_step > 0 and plant_step_first else 0.0
         streams, sources = [], []
         outputs = {station.get_output_port(i).get_name()
                    for i in range(station.num_output_ports())}
-        for name, parts in _STREAMS.items():
+        for name, (parts, order) in _STREAMS.items():
             if not all(port in outputs for port, _ in parts):
                 continue  # that sensor is switched off in the scenario
-            columns = [c for _, cs in parts for c in cs]
-            period = (scenario.outputs.log_period if name == "ground_truth" else
-                      1.0 / scenario.capsule.imu.sample_rate if name in ("imu", "ahrs") else
-                      1.0 / scenario.capsule.magnetometer.sample_rate)
-            streams.append((name, columns, period))
+            streams.append(Stream(
+                name, tuple(c for _, cs in parts for c in cs), periods[name],
+                # The plant's state is read at the sample time; a sensor's just after its
+                # update there. The AHRS's first estimate is of the attitude one IMU period
+                # in (it steps the first IMU sample forward).
+                after_update=name != "ground_truth",
+                first_sample=imu_period if name == "ahrs" else 0.0, order=order))
             sources.append((name, parts))
+        description = DatasetDescription(
+            lens=camera.lens, camera=camera_config, X_BC=X_BC, streams=streams,
+            imu=scenario.capsule.imu, magnetometer=scenario.capsule.magnetometer,
+            ahrs=scenario.capsule.ahrs, scenario_name=scenario_name,
+            colon_seed=getattr(scenario.colon, "seed", 0), random_seed=scenario.random_seed,
+            duration=scenario.duration, depth_full_scale=camera_config.far,
+            sensor_lag=sensor_lag)
+        lumen = station.GetSubsystemByName("capsule.lumen")
         writer = builder.AddNamedSystem("dataset_writer", DatasetWriter(
-            out_dir, X_BC, frame_check_period=tick, streams=streams,
-            camera_yaml=_camera_yaml(camera_config, camera.lens)))
+            out_dir, frame_check_period=tick, frame_check_offset=camera_config.latency,
+            streams=streams, mask=camera.lens.pixel_rays()[1],
+            depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
+            plant_step=plant_step, plant_step_first=plant_step_first,
+            texts={"README.md": dataset_readme(description),
+                   "camera.yaml": camera_yaml(description),
+                   "sensors.yaml": sensors_yaml(description)}))
         builder.Connect(station.GetOutputPort("capsule.camera.rgb_image"),
                         writer.GetInputPort("rgb"))
         builder.Connect(station.GetOutputPort("capsule.camera.depth_image"),
                         writer.GetInputPort("depth"))
-        # frame_info = [time of the last frame, frames taken, took-a-frame flag, rate].
+        builder.Connect(station.GetOutputPort("capsule.camera.frame_pose"),
+                        writer.GetInputPort("frame_pose"))
+        # frame_info = [exposure time of the last frame, frames taken, took-a-frame flag, rate].
         frame_info = builder.AddNamedSystem("frame_info", Demultiplexer([1, 3]))
         builder.Connect(station.GetOutputPort("capsule.camera.frame_info"),
                         frame_info.get_input_port(0))
         builder.Connect(frame_info.get_output_port(0), writer.GetInputPort("frame_time"))
-        builder.Connect(station.GetOutputPort("capsule.state"),
-                        writer.GetInputPort("capsule_state"))
-        lumen = builder.AddNamedSystem("lumen_vector", Multiplexer([2, 1, 4]))
-        for i, name in enumerate(("lumen_pixel", "lumen_visible", "lumen_point_W")):
-            builder.Connect(station.GetOutputPort(f"capsule.lumen.{name}"),
-                            lumen.get_input_port(i))
-        builder.Connect(lumen.get_output_port(), writer.GetInputPort("lumen"))
         for name, parts in sources:
             mux = builder.AddNamedSystem(f"{name}_vector", Multiplexer([len(c) for _, c in parts]))
             for i, (port, _) in enumerate(parts):

@@ -27,6 +27,11 @@ import csv
 import dataclasses
 import json
 import multiprocessing
+import queue
+import shutil
+import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +39,7 @@ import numpy as np
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
-from capsule_drake.io.run import StepBar, simulate
+from capsule_drake.io.run import simulate
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.scenario import load_scenario
@@ -43,6 +48,15 @@ from capsule_drake.scenario import load_scenario
 CECUM_MARGIN = 0.04
 # Contact counts as wall contact above this load (N).
 CONTACT_THRESHOLD = 0.05
+# A run that ran its whole duration without reaching the cecum "stalled" when it got no
+# closer than STALL_ADVANCE to its furthest point during the last STALL_WINDOW seconds;
+# otherwise it was still advancing, and the time limit cut it off.
+STALL_WINDOW = 30.0  # s
+STALL_ADVANCE = 0.01  # m
+# How often a run reports its progress to the suite (s of wall time).
+PROGRESS_PERIOD = 1.0
+# The Dask event topic the runs report their progress on.
+PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
@@ -92,15 +106,26 @@ def task_scenario(task: Task):
     return load_scenario(task.scenario_file, name, [text, task.scenario_text, run])
 
 
-def run_task(task: Task) -> dict:
+def run_task(task: Task, progress=None) -> dict:
     """Simulates one task through the run loop (`io.run.simulate`, which seeds the random
     context with the scenario's random_seed), stopping at the cecum; returns its row
-    (COLUMNS) and its progress curve."""
+    (COLUMNS) and its progress curve.
+
+    progress: optional callable given a dict as the run goes: {"phase": "building"} at once,
+    then about every PROGRESS_PERIOD s of wall time {"phase": "running", "t": simulated
+    time (s), "duration", "s_cm": the capsule's centreline station (cm from the anal end),
+    "segment": the colon segment it is in, "elapsed": wall time since the run began (s),
+    "rate": simulated seconds per wall second since the simulation began}.
+    """
+    began = time.perf_counter()
+    if progress is not None:
+        progress({"phase": "building"})
     scenario = task_scenario(task)
     colon, _ = load_colon(scenario.colon)
     length = colon.centerline.length
     period = scenario.outputs.log_period
     extra = {}
+    last_report, simulating_since = [-np.inf], [0.0]
 
     def extend(builder, station):
         if station.HasOutputPort("capsule.camera.rgb_image"):
@@ -126,6 +151,16 @@ def run_task(task: Task) -> dict:
     def at_cecum(station, context):
         state = station.GetOutputPort("capsule.state").Eval(context)
         s = float(colon.centerline.closest(state[4:7])[0])
+        now = time.perf_counter()
+        if progress is not None and now - last_report[0] >= PROGRESS_PERIOD:
+            if not np.isfinite(last_report[0]):
+                simulating_since[0] = now
+            last_report[0] = now
+            t = float(context.get_time())
+            progress({"phase": "running", "t": t, "duration": float(scenario.duration),
+                      "s_cm": 100.0 * s, "segment": colon.centerline.segment_at(s),
+                      "elapsed": now - began,
+                      "rate": t / (now - simulating_since[0]) if t > 0 else 0.0})
         return "reached the cecum" if s >= length - CECUM_MARGIN else None
 
     result = simulate(scenario, progress=False, extend=extend, stop_when=at_cecum)
@@ -177,7 +212,9 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     coverage = float(data["coverage"].data()[0, -1]) if "coverage" in data and \
         data["coverage"].data().size else np.nan
     segments = colon.centerline.segment_ranges()
-    stuck = "" if len(reached) else colon.centerline.segment_at(furthest)
+    stuck = "" if len(reached) else where_it_ended(
+        times, s, colon.centerline.segment_at(furthest),
+        cut_by_time=result.status == "completed")
     return {
         "navigator": task.navigator, "seed": task.seed,
         "reached_cecum": bool(len(reached)),
@@ -198,6 +235,24 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         "segments_passed": [name for name, (_, end) in segments.items()
                             if furthest >= end or (name == list(segments)[-1] and len(reached))],
     }
+
+
+def where_it_ended(times, s, segment: str, cut_by_time: bool) -> str:
+    """The `stuck_in` of a run that did not reach the cecum and was not stopped early:
+    `segment` (where its furthest point is) if it stalled, i.e. it came no closer than
+    STALL_ADVANCE to that point during the last STALL_WINDOW s; "time limit (<segment>, at
+    <station> cm)" if it was still advancing when the time limit (`cut_by_time`) ended it.
+
+    times (s) and s (m, centreline stations) are the run's log.
+    """
+    times, s = np.asarray(times, dtype=float), np.asarray(s, dtype=float)
+    if not len(s):
+        return segment
+    furthest = float(s.max())
+    got_there = float(times[np.argmax(s >= furthest - STALL_ADVANCE)])
+    if cut_by_time and times[-1] - got_there < STALL_WINDOW:
+        return f"time limit ({segment}, at {100.0 * furthest:.0f} cm)"
+    return segment
 
 
 def _logged_lumen(data, prefix: str):
@@ -262,31 +317,91 @@ def _detection_scores(camera, data) -> tuple[float, float]:
     return error, rate
 
 
+def _run_task_queued(task: Task, key: int, channel) -> dict:
+    """run_task in a pool process, its progress put on `channel` (a manager's queue)."""
+    return run_task(task, progress=lambda info: channel.put((key, info)))
+
+
+def _run_task_reporting_to_dask(task: Task, key: int) -> dict:
+    """run_task on a Dask worker, its progress sent as events on PROGRESS_TOPIC (through
+    the scheduler, so a worker on another machine reports the same way)."""
+    from distributed import get_worker
+    worker = get_worker()
+    return run_task(task, progress=lambda info: worker.log_event(
+        PROGRESS_TOPIC, {"key": key, **info}))
+
+
 def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
               address: str | None = None, progress: bool = True,
-              on_result=None) -> list[dict]:
+              on_result=None, stream=None, line_period: float = 10.0) -> list[dict]:
     """Runs the tasks in parallel; returns their results in the tasks' order.
 
     engine "local": a pool of `workers` processes on this machine. "dask": a Dask cluster,
     `address` of an existing scheduler or else a local cluster of `workers` processes.
     on_result: called with each result as its run finishes (e.g. `RowWriter`), so a long
     suite that is interrupted keeps the runs it finished.
+    progress: show each run's progress on `stream` (default stderr) as it goes
+    (`RunsProgress`; `line_period`: seconds between two lines of one run when the stream is
+    not a terminal). The runs report it through a manager's queue (local) or Dask events.
     """
     if engine not in ("local", "dask"):
         raise ValueError(f"benchmark engine {engine!r} is not 'local' or 'dask'")
-    bar = StepBar(len(tasks), progress)
+    display = RunsProgress(tasks, progress, stream=stream, line_period=line_period)
+    display.starting(workers if engine == "local" or address is None else None, engine)
     results: list[dict | None] = [None] * len(tasks)
-    if engine == "local":
-        with concurrent.futures.ProcessPoolExecutor(
-                max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(run_task, task): k for k, task in enumerate(tasks)}
+
+    def finish(k, result):
+        results[k] = result
+        if on_result is not None:
+            on_result(result)
+        display.finished(k, result)
+
+    try:
+        if engine == "local":
+            _run_local(tasks, workers, progress, display, finish)
+        else:
+            _run_dask(tasks, workers, address, progress, display, finish)
+    finally:
+        display.close()
+    return results
+
+
+def _run_local(tasks, workers, progress, display, finish):
+    spawn = multiprocessing.get_context("spawn")
+    manager = spawn.Manager() if progress else None
+    stop = threading.Event()
+    drainer = None
+    if manager is not None:
+        channel = manager.Queue()
+
+        def drain():
+            while not stop.is_set():
+                try:
+                    key, info = channel.get(timeout=0.2)
+                except queue.Empty:
+                    continue
+                except (EOFError, OSError):  # the manager has gone
+                    return
+                display.update(key, info)
+
+        drainer = threading.Thread(target=drain, daemon=True)
+        drainer.start()
+    try:
+        with concurrent.futures.ProcessPoolExecutor(max_workers=workers,
+                                                    mp_context=spawn) as pool:
+            futures = {(pool.submit(_run_task_queued, task, k, channel) if manager is not None
+                        else pool.submit(run_task, task)): k for k, task in enumerate(tasks)}
             for future in concurrent.futures.as_completed(futures):
-                k = futures[future]
-                results[k] = future.result()
-                if on_result is not None:
-                    on_result(results[k])
-                bar.step(f"{tasks[k].navigator} seed {tasks[k].seed}")
-        return results
+                finish(futures[future], future.result())
+    finally:
+        stop.set()
+        if drainer is not None:
+            drainer.join(timeout=2.0)
+        if manager is not None:
+            manager.shutdown()
+
+
+def _run_dask(tasks, workers, address, progress, display, finish):
     from dask.distributed import Client, LocalCluster, as_completed
     cluster = None
     if address is None:
@@ -295,18 +410,153 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
                                dashboard_address=None, host="127.0.0.1")
     try:
         with Client(address or cluster) as client:
-            futures = client.map(run_task, tasks, pure=False)
+            if progress:
+                client.subscribe_topic(PROGRESS_TOPIC,
+                                       lambda event: display.update(event[1]["key"], event[1]))
+                futures = [client.submit(_run_task_reporting_to_dask, task, k, pure=False)
+                           for k, task in enumerate(tasks)]
+            else:
+                futures = client.map(run_task, tasks, pure=False)
             index = {future.key: k for k, future in enumerate(futures)}
             for future in as_completed(futures):
-                k = index[future.key]
-                results[k] = future.result()
-                if on_result is not None:
-                    on_result(results[k])
-                bar.step(f"{tasks[k].navigator} seed {tasks[k].seed}")
+                finish(index[future.key], future.result())
+            if progress:
+                client.unsubscribe_topic(PROGRESS_TOPIC)
     finally:
         if cluster is not None:
             cluster.close()
-    return results
+
+
+class RunsProgress:
+    """Each run's progress on stderr while a suite goes: per run, its simulated time and
+    where the capsule is (colon segment, centreline station in cm from the anal end); a line
+    per finished run with how it ended.
+
+    On a terminal, a block of one line per running run under a bar of the runs done, redrawn
+    in place; otherwise (a log file, a pipe) plain lines: a run's start, then its progress
+    every `line_period` s of wall time, then its end. Thread-safe (updates arrive from a
+    queue-draining thread or Dask's event loop).
+    """
+
+    def __init__(self, tasks, enabled: bool = True, stream=None, line_period: float = 10.0):
+        self.tasks, self.enabled = tasks, enabled
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.line_period = line_period
+        self.start = time.perf_counter()
+        self.running: dict[int, dict] = {}
+        self.last_line: dict[int, float] = {}
+        self.done = 0
+        self._drawn = 0
+        self._last_draw = -np.inf
+        self._shown_running: set[int] = set()
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        if self.enabled and self.tty:  # the clock and bar move even while no run reports
+            threading.Thread(target=self._heartbeat, daemon=True).start()
+
+    def _heartbeat(self) -> None:
+        while not self._closed.wait(1.0):
+            with self._lock:
+                if not self._closed.is_set():
+                    self._draw()
+
+    def _name(self, k) -> str:
+        return f"{self.tasks[k].navigator} seed {self.tasks[k].seed}"
+
+    def _clock(self) -> str:
+        return f"[{time.perf_counter() - self.start:6.0f} s]"
+
+    def starting(self, workers, engine: str) -> None:
+        """The suite's first line, at once (a worker process takes a few seconds to start
+        Python and Drake before its first run reports)."""
+        if not self.enabled:
+            return
+        where = (f"{workers} local worker processes" if engine == "local" else
+                 f"a local Dask cluster of {workers} processes" if workers else
+                 "the Dask scheduler's workers")
+        line = (f"{len(self.tasks)} runs on {where}; each reports once its process has "
+                "started Python and Drake")
+        with self._lock:
+            if self.tty:
+                self._write(line + "\n")
+                self._draw()
+            else:
+                self._write(f"{self._clock()} {line}\n")
+
+    def describe(self, k, info) -> str:
+        if info.get("phase") != "running":
+            return f"{self._name(k)}: building the station"
+        rate = info.get("rate", 0.0)
+        return (f"{self._name(k)}: {info['t']:6.1f} / {info['duration']:g} s simulated, "
+                f"{info['segment']} at {info['s_cm']:.0f} cm"
+                + (f" (x{rate:.2f} real time)" if rate > 0 else ""))
+
+    def update(self, k, info: dict) -> None:
+        if not self.enabled:
+            return
+        with self._lock:
+            if k not in self.running and self.last_line.get(k) == np.inf:
+                return  # a late report of a run that has finished
+            self.running[k] = info
+            now = time.perf_counter()
+            if self.tty:
+                if now - self._last_draw >= 0.2:
+                    self._draw()
+            elif (k not in self.last_line or info.get("phase") == "building"
+                  or k not in self._shown_running
+                  or now - self.last_line[k] >= self.line_period):
+                self.last_line[k] = now
+                if info.get("phase") == "running":
+                    self._shown_running.add(k)
+                self._write(f"{self._clock()} {self.describe(k, info)}\n")
+
+    def finished(self, k, result: dict) -> None:
+        with self._lock:
+            self.done += 1
+            self.running.pop(k, None)
+            self.last_line[k] = np.inf
+            if not self.enabled:
+                return
+            row = result["row"]
+            ending = (f"reached the cecum at {row['time_to_cecum_s']:.1f} s"
+                      if row["reached_cecum"] else f"ended: {row['stuck_in']}")
+            line = (f"{self._clock()} done {self.done}/{len(self.tasks)}: {self._name(k)}: "
+                    f"{ending}; {row['sim_time_s']:.1f} s simulated in "
+                    f"{row['wall_time_s']:.0f} s")
+            if self.tty:
+                self._clear()
+                self._write(line + "\n")
+                self._draw()
+            else:
+                self._write(line + "\n")
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed.set()
+            if self.enabled and self.tty:
+                self._clear()
+
+    def _write(self, text: str) -> None:
+        self.stream.write(text)
+        self.stream.flush()
+
+    def _clear(self) -> None:
+        if self._drawn:
+            self._write(f"\x1b[{self._drawn}F\x1b[J")
+            self._drawn = 0
+
+    def _draw(self) -> None:
+        width = max(20, shutil.get_terminal_size((100, 20)).columns - 1)
+        total = len(self.tasks)
+        bar = "#" * int(30 * self.done / max(total, 1))
+        lines = [f"[{bar:<30}] {self.done}/{total} runs  "
+                 f"{time.perf_counter() - self.start:6.0f} s"]
+        lines += [f"  {self.describe(k, info)}" for k, info in sorted(self.running.items())]
+        self._clear()
+        self._write("".join(line[:width] + "\n" for line in lines))
+        self._drawn = len(lines)
+        self._last_draw = time.perf_counter()
 
 
 def _json_default(value):

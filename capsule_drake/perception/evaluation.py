@@ -234,13 +234,27 @@ class EvalResult:
             f"{_percent(s['false_positive_rate'], 9)} {s['ms_per_frame']:8.2f}",
             f"(errors as % of the image diagonal, {self.diagonal:.0f} px, over the "
             f"{s['lumen_visible']} frames with the lumen in view; detected: of those; "
-            f"false pos: of the {s['lumen_hidden']} frames without it)"])
+            f"false pos: of the {s['lumen_hidden']} frames without it)",
+            *(f"n/a: {reason}" for reason in undefined_reasons(s))])
 
 
 def _percent(value: float, width: int) -> str:
-    """A fraction as a percentage right-aligned in `width`, or "-" when undefined (no frame
-    of that kind)."""
-    return f"{100 * value:{width - 1}.1f}%" if np.isfinite(value) else f"{'-':>{width}s}"
+    """A fraction as a percentage right-aligned in `width`, or "n/a" when undefined (no frame
+    of its kind: `undefined_reasons` says why)."""
+    return f"{100 * value:{width - 1}.1f}%" if np.isfinite(value) else f"{'n/a':>{width}s}"
+
+
+def undefined_reasons(summary: dict) -> list[str]:
+    """Why a summary's undefined ("n/a") scores are undefined, one phrase each."""
+    reasons = []
+    if summary["lumen_visible"] == 0:
+        reasons.append("errors and detection rate: no frame with the lumen in view")
+    elif not np.isfinite(summary["median_error"]):
+        reasons.append(f"errors: the lumen was in view in {summary['lumen_visible']} frames "
+                       "and never detected")
+    if summary["lumen_hidden"] == 0:
+        reasons.append("false positives: every frame has the lumen in view")
+    return reasons
 
 
 ACCEPTANCE = {"median_error": 0.015, "p90_error": 0.04, "detection_rate": 0.95,
@@ -272,7 +286,23 @@ def condition_table(summaries: dict, title: str) -> str:
             f"{s['lumen_visible']}) | {_percent(s['false_positive_rate'], 1)} (of "
             f"{s['lumen_hidden']}) | {s['ms_per_frame']:.2f} | "
             f"{'yes' if meets(s) else '**no**'} |")
+    notes = [f"n/a in {condition}: {'; '.join(undefined_reasons(s))}"
+             for condition, s in summaries.items() if undefined_reasons(s)]
+    if notes:
+        rows += [""] + notes
     return "\n".join(rows)
+
+
+def finite_or_none(value):
+    """A results structure with each undefined number (NaN) as None (JSON's null: a strict
+    JSON reader refuses NaN)."""
+    if isinstance(value, dict):
+        return {k: finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_none(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 def evaluate(frames: list[Frame], detector) -> EvalResult:

@@ -109,17 +109,23 @@ class LumenTruth(LeafSystem):
                               np.asarray(state[4:7]))
         return X_WB.multiply(self._X_BC)
 
-    def _calc_truth(self, context, abstract_value):
-        X_WC = self.camera_pose(self._state_port.Eval(context))
+    def truth_at(self, X_WC: RigidTransform, depth=None):
+        """The lumen truth of a camera at X_WC whose depth image (H x W, m) is `depth` (or
+        None: the field of view alone): (pixel (2,), visible bool, point_W (3,), s)."""
         z_WC = X_WC.rotation().col(2)
         point_W, s = lumen_target(self._colon, X_WC.translation(), z_WC, self._lookahead)
+        pixel, visible = project_lumen(self._lens, X_WC, point_W, depth,
+                                       self._depth_is_range)
+        return pixel, visible, np.asarray(point_W, dtype=float), float(s)
+
+    def _calc_truth(self, context, abstract_value):
+        X_WC = self.camera_pose(self._state_port.Eval(context))
         depth = None
         if self._depth_port.HasValue(context):
             image = self._depth_port.Eval(context)
             if image.width() > 0:
                 depth = image.data[:, :, 0]
-        pixel, visible = project_lumen(self._lens, X_WC, point_W, depth,
-                                       self._depth_is_range)
+        pixel, visible, point_W, s = self.truth_at(X_WC, depth)
         abstract_value.set_value((pixel, 1.0 if visible else 0.0, np.append(point_W, s)))
 
     def _calc_pixel(self, context, output: BasicVector):
