@@ -105,7 +105,7 @@ class CapsuleConfig:
     # the capsule where that leaves it, at rest: the snap (0.5-0.6 m/s) is then resolved
     # at a step that keeps it within 0.6 mm of the wall, whatever the run's own step.
     settle: float = 0.0
-    # The IPM: an N52 cylinder of 11.1 x 11.1 mm, m = 1.26 A m^2 (REFERENCE section 1).
+    # The IPM: an N52 cylinder of 11.1 x 11.1 mm, m = 1.26 A m^2 (docs/sources.md section 1).
     # Its pose in the capsule is the `ipm` frame of models/capsule.sdf (frame M, axial
     # magnetisation).
     ipm: MagnetGeometry = field(default_factory=lambda: MagnetGeometry(
@@ -144,7 +144,7 @@ class CapsuleConfig:
 class EpmConfig:
     """The external permanent magnet, what carries it, and what drives it."""
 
-    # 101.6 x 101.6 mm N52 cylinder, 970 A m^2 (REFERENCE section 1).
+    # 101.6 x 101.6 mm N52 cylinder, 970 A m^2 (docs/sources.md section 1).
     magnet: MagnetGeometry = field(default_factory=MagnetGeometry)
     # Smallest allowed gap between the magnet's surface and the patient's skin (m).
     clearance: float = 0.02

@@ -1,4 +1,4 @@
-"""Procedural colon: anatomy against the project reference (section 3), geometry, caching."""
+"""Procedural colon: anatomy against docs/sources.md (section 3), geometry, caching."""
 
 import dataclasses
 import time

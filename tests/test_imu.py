@@ -95,7 +95,7 @@ def test_static_recording_adev_matches_datasheet_density_at_short_tau():
         for axis in range(3):
             N = white_noise_coefficient(tau, adev[:, axis], tau_max=1.0)
             assert N == pytest.approx(density / math.sqrt(2.0), rel=0.10), (axis, N, density)
-            # And the per-sample standard deviation is the REFERENCE's d sqrt(fs / 2).
+            # And the per-sample standard deviation is d sqrt(fs / 2) (sources.md s. 2).
             assert np.std(np.diff(samples[:, axis])) / math.sqrt(2.0) == pytest.approx(
                 density * math.sqrt(config.sample_rate / 2.0), rel=0.05)
 

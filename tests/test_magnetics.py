@@ -262,7 +262,7 @@ def test_far_field_matches_magpylib_exact_cylinder():
     for point, b_exact in zip(points, exact):
         b_dipole = dipole_field(m, point)
         assert_allclose(b_dipole, b_exact, atol=0.01 * np.linalg.norm(b_exact))
-    # Near the magnet the finite size matters (REFERENCE: +18 % force at 10 cm):
+    # Near the magnet the finite size matters (docs/sources.md section 1: +18 % force at 10 cm):
     # the dipole must be visibly off there, or this comparison proves nothing.
     near = 0.08 * Z
     assert not np.allclose(dipole_field(m, near), magnet.getB(near), rtol=0.01)

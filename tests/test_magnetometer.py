@@ -20,7 +20,7 @@ from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.capsule.magnetometer import Magnetometer, MagnetometerConfig
 
 MU0 = 4e-7 * math.pi
-EPM_MOMENT = 970.0  # A m^2, REFERENCE section 1
+EPM_MOMENT = 970.0  # A m^2, docs/sources.md section 1
 IPM = MagnetSpec(name="ipm", body="capsule", p_BM=[0.0, 0.0, -0.003], axis_B=[0, 0, 1],
                  moment=1.26)
 EPM = MagnetSpec(name="epm", body="epm", p_BM=[0.0, 0.0, 0.0], axis_B=[0, 0, 1],
@@ -66,7 +66,7 @@ def test_coaxial_field_matches_the_textbook_closed_form():
     _, truth = _read(dut, poses)
     np.testing.assert_allclose(truth, [0.0, 0.0, MU0 / (4 * math.pi) * 2 * EPM_MOMENT / r**3],
                                rtol=1e-12)
-    assert truth[2] == pytest.approx(0.0575, rel=0.01)  # REFERENCE: 57.5 mT at 15 cm
+    assert truth[2] == pytest.approx(0.0575, rel=0.01)  # sources.md s. 1: 57.5 mT at 15 cm
 
 
 def test_reading_is_the_dipole_field_at_the_sensor_rotated_into_the_sensor_frame():
@@ -149,7 +149,7 @@ def test_noise_statistics_and_seeding():
     n = len(measured)
     sigma = config.noise_density * math.sqrt(config.sample_rate / 2.0)
     residual = measured - truth - bias
-    # Per-sample standard deviation = density sqrt(fs / 2) (REFERENCE section 2), within
+    # Per-sample standard deviation = density sqrt(fs / 2) (sources.md s. 2), within
     # the ~2 % sampling error of 3000 samples (3 x that); zero mean within 4 standard errors.
     np.testing.assert_allclose(residual.std(axis=0), sigma, rtol=0.06)
     assert np.all(np.abs(residual.mean(axis=0)) < 4 * sigma / math.sqrt(n))

@@ -19,7 +19,7 @@ def views():
 
 def test_darkest_region_lies_near_the_lumen_truth(views):
     # With the light at the lens and distance falloff, the darkest spot of the image is the
-    # deepest place: the lumen (REFERENCE section 5). Over views along the whole colon it lies
+    # deepest place: the lumen (sources.md s. 5). Over views along the whole colon it lies
     # within a tenth of the image diagonal of the lumen truth (5 cm ahead on the centerline).
     diagonal = np.hypot(256, 256)
     gaps = []

@@ -3,7 +3,7 @@
 World frame: table top z = 0, +z anterior (up), +x to the patient's left, +y toward the head,
 spine along x = 0, origin at the level of the umbilicus. Units: metres.
 
-Landmarks follow the course described in the project reference (S/U): anus low and
+Landmarks follow the course described in docs/sources.md section 3 (S/U): anus low and
 posterior, rectum along the sacral hollow, sigmoid looping in the pelvis, descending colon
 posterior in the left flank, splenic flexure high in the left upper quadrant, transverse
 colon anterior and sagging toward the feet, hepatic flexure (lower than the splenic) under

@@ -1,10 +1,10 @@
 """Typed, YAML-loadable parameters of the procedural colon.
 
-Status tags follow the project reference: V = checked in a primary source, S = secondary
+Status tags follow docs/sources.md: V = checked in a primary source, S = secondary
 source, U = engineering assumption. Every length is in metres, every angle in radians unless
 the field name says otherwise.
 
-Sources (numbers quoted in the project reference, section "Colon anatomy"):
+Sources (numbers quoted in docs/sources.md, section 3 "Colon anatomy and tissue"):
   - total length 150 +- 19 cm (110-196), CT colonography, n = 295 (V).
   - haustral fold height: ascending 14.6, transverse 9.5, descending 6.5 mm (V).
   - segment lengths: cecum 6-8, ascending 15-20, transverse 45-50, descending ~25,
@@ -46,7 +46,7 @@ class SegmentParams:
 
 
 def _rectum() -> SegmentParams:
-    # Length 12-15 cm (U). Diameter 40 mm: not in the reference, assumed for a distended
+    # Length 12-15 cm (U). Diameter 40 mm: not in the sources, assumed for a distended
     # ampulla (U). No haustra: the rectal valves are modelled separately (ColonParams).
     return SegmentParams(
         length_min=0.12, length_max=0.15, diameter=0.040, fold_height=0.0,
@@ -282,8 +282,8 @@ DIAMETER_RANGE = {
     "cecum": (0.02, 0.09),
 }
 MAX_SEGMENT_LENGTH = 1.0
-"""Longest segment (m): the whole colon is 1.1-2 m (REFERENCE), its longest segment (the
-transverse) 45-50 cm."""
+"""Longest segment (m): the whole colon is 1.1-2 m (docs/sources.md section 3), its longest
+segment (the transverse) 45-50 cm."""
 MIN_SEGMENT_LENGTH = 0.02
 """Shortest segment (m): the cecum, the shortest, is 6-8 cm."""
 MIN_FOLD_SPACING = 0.005

@@ -77,7 +77,7 @@ class CameraConfig:
     # Default: 172-degree equidistant fisheye at 256 x 256 px (PillCam COLON 2's field).
     lens: LensConfig = dataclasses.field(default_factory=LensConfig)
     # "fixed": a frame every 1 / fps. "adaptive": between fps_min and fps_max, faster while
-    # the view moves, as PillCam COLON 2 does (4-35 fps; REFERENCE section 2).
+    # the view moves, as PillCam COLON 2 does (4-35 fps; docs/sources.md section 2).
     fps_mode: str = "fixed"
     # Frame rate of the fixed mode (1/s).
     fps: float = 10.0
@@ -99,7 +99,7 @@ class CameraConfig:
     # The LED ring, modelled as a white point light at the camera: intensity (relative,
     # 1 = full white on a perpendicular white surface at zero distance) and its quadratic
     # distance attenuation k in intensity / (1 + k d^2) (1/m^2). k = 1000 halves the light
-    # at 3.2 cm and leaves 9 % at 10 cm, so the lumen is the dark region (REFERENCE sec. 5).
+    # at 3.2 cm and leaves 9 % at 10 cm, so the lumen is the dark region (sources.md s. 5).
     light_intensity: float = 1.6
     light_attenuation: float = 1000.0
     # Name of the SceneGraph renderer the camera uses (added by `add_camera_renderer`);

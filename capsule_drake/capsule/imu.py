@@ -68,7 +68,7 @@ class ImuConfig:
     """A MEMS IMU on the capsule; YAML-loadable, defaults are an MPU-6050.
 
     SI units throughout (m/s^2, rad/s, s, Hz). Sources: MPU-6050 Product Specification
-    (InvenSense PS-MPU-6000A-00 rev. 3.4) = DS; REFERENCE table section 2; U = engineering
+    (InvenSense PS-MPU-6000A-00 rev. 3.4) = DS; docs/sources.md section 2; U = engineering
     assumption.
     """
 
@@ -96,7 +96,7 @@ class ImuConfig:
     # Gyroscope white-noise density, one-sided (rad/s/sqrt(Hz)): 0.005 deg/s/sqrt(Hz), DS.
     gyro_noise_density: float = 0.005 * DEG
     # Gyroscope bias random walk (rad/s/sqrt(s)): from the bias instability 4 deg/h measured
-    # on one MPU-6050 (REFERENCE section 2; 5-30 deg/h typical) with
+    # on one MPU-6050 (docs/sources.md section 2; 5-30 deg/h typical) with
     # bias_random_walk_from_instability(4 deg/h, 0.005 deg/s/sqrt(Hz)); Allan minimum at 46 s.
     gyro_bias_random_walk: float = 2.3270e-6
     # Gyroscope turn-on bias: fixed part per axis (rad/s) and the per-run standard deviation

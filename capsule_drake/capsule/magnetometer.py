@@ -56,7 +56,7 @@ class MagnetometerConfig:
     initial_bias: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 3)
     initial_bias_sigma: float = 20e-6
     # Full-scale range per axis (T): 50 mT, the widest MLX90393 setting (DS). The external
-    # magnet exceeds it closer than about 16 cm (57.5 mT on axis at 15 cm, REFERENCE
+    # magnet exceeds it closer than about 16 cm (57.5 mT on axis at 15 cm, docs/sources.md
     # section 1): raise it to model a wider-range sensor.
     range: float = 0.05
     # ADC resolution (bits) over the full-scale range (16, DS); 0 = no quantisation.

@@ -6,7 +6,7 @@ and the colon's speed-proportional resistance (its floating joint's damping), an
 the exported input `epm_pose` [p_WE (3), m_hat_W (3)]. The EPM is a commanded pose, as the
 stage or arm servo makes it. Every system is scalar-convertible and the discrete plant is
 built with `use_sampled_output_ports=False`, so `Linearize` and
-`FirstOrderTaylorApproximation` work on it (REFERENCE section 6).
+`FirstOrderTaylorApproximation` work on it (docs/sources.md section 6).
 
 `hover_operating_point` gives the state and input at which the capsule hangs still, its
 magnet along a heading, under the EPM (`analysis.hold_against_gravity`).

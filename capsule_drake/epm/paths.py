@@ -20,7 +20,7 @@ class AlongColon:
 
     At each instant it hovers over the centerline point s(t), as low as its clearance from the
     skin allows, with its moment turned so that its field at that centerline point lies along
-    the colon's tangent (REFERENCE section 1: m_E along (3/2 u u^T - I) h), so the capsule's
+    the colon's tangent (docs/sources.md section 1: m_E along (3/2 u u^T - I) h), so the capsule's
     magnet, and with it the camera, points down the lumen.
     """
 

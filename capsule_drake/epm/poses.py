@@ -2,7 +2,7 @@
 
 Pure functions of the colon's geometry. The EPM always hovers straight above the point it
 acts on, outside the abdomen by at least the configured clearance, with its moment turned so
-that its field at that point lies along the colon's tangent (REFERENCE section 1): the dipole
+that its field at that point lies along the colon's tangent (docs/sources.md section 1): the dipole
 field map B ~ (3 u u^T - I) m inverts as m ~ (3/2 u u^T - I) B, with u the unit vector from
 the EPM to the point.
 

@@ -1,7 +1,7 @@
 """The pseudo-force on the operator's hand: where the lumen is, how near the wall, which way on.
 
 The haptic stylus (Phantom Omni / Geomagic Touch class: 3.3 N peak, 1 kHz servo loop;
-REFERENCE section 4) pushes the operator's hand with the weighted sum of three terms:
+docs/sources.md section 4) pushes the operator's hand with the weighted sum of three terms:
 
 (a) lumen attraction, from the lumen direction seen by the camera (unit ray r_C in the camera
     frame C: x right, y down, z forward along the optical axis):
@@ -52,7 +52,7 @@ class PseudoForceConfig:
     """Gains and limits of the pseudo-force on the haptic stylus; YAML-loadable, all default.
 
     Each default gain makes its term alone 1-2 N in its typical situation: felt clearly,
-    about the device's continuous force (0.88 N) and below its 3.3 N peak (REFERENCE
+    about the device's continuous force (0.88 N) and below its 3.3 N peak (docs/sources.md
     section 4), so two terms can add before the saturation bends the sum. U throughout.
     """
 

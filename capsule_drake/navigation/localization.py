@@ -70,7 +70,7 @@ class LocalizerConfig:
     self_field_drift: float = 0.003
     self_field_drift_walk: float = 1e-5
     # The field model's error as a share of the field (per axis): the point dipole against
-    # a finite magnet is 1-3 % off at 15-25 cm (REFERENCE section 1). It is smooth: the
+    # a finite magnet is 1-3 % off at 15-25 cm (sources.md s. 1). It is smooth: the
     # same at every sensor of the array (fully correlated between them), with a smaller
     # part that differs from sensor to sensor (model_error_local).
     model_error: float = 0.02

@@ -29,7 +29,7 @@ import numpy as np
 
 MODELS = ("equidistant", "kannala_brandt", "pinhole_radtan")
 FISHEYE_MODELS = ("equidistant", "kannala_brandt")
-DEFAULT_FISHEYE_FOV_DEG = 172.0  # PillCam COLON 2 (REFERENCE section 2)
+DEFAULT_FISHEYE_FOV_DEG = 172.0  # PillCam COLON 2 (docs/sources.md section 2)
 DEFAULT_PINHOLE_FOV_DEG = 120.0
 
 _NEWTON_TOLERANCE = 1e-12  # rad (fisheye) or normalised image units (pinhole)

@@ -1,5 +1,5 @@
 """Lumen detection in a capsule image: the darkest region is the lumen when the light is at
-the camera (REFERENCE section 5). Pure OpenCV / numpy, independent of Drake.
+the camera (docs/sources.md section 5). Pure OpenCV / numpy, independent of Drake.
 
 Steps, as the seed paper's family of detectors has them, with the known flaws fixed:
 

@@ -3,7 +3,7 @@
 The camera's depth image holds range along each pixel's ray (systems/camera.py), so the
 depth at the detected lumen's pixel is the free distance along the lumen ray: how far the
 capsule could travel toward the lumen before it meets tissue. An operator judges this from
-the shading (the light falls off with distance, REFERENCE section 5); shared control uses
+the shading (the light falls off with distance, sources.md s. 5); shared control uses
 it to keep the EPM's lead inside the lumen it can see (teleop/mapping.py, `assist`).
 """
 

@@ -57,7 +57,7 @@ def camera_scene(start_s: float = 0.30, config: CameraConfig | None = None,
 
 def darkest_spot(rgb: np.ndarray, mask: np.ndarray | None = None, blur_px: float = 8.0):
     """(u, v) of the darkest spot of a heavily blurred grey image: the simplest lumen cue
-    with a light at the lens (REFERENCE section 5). `mask` marks the pixels the lens sees;
+    with a light at the lens (docs/sources.md section 5). `mask` marks the pixels the lens sees;
     the blur is normalised by it, so the black surround of a fisheye's image circle does not
     darken the rim."""
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)

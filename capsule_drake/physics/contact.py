@@ -42,7 +42,7 @@ class ContactConfig:
     # (as the FastContact scenario does).
     model: str = "hydroelastic"
     # Hydroelastic modulus of the capsule's compliant layer (Pa). 5e6 keeps the penetration
-    # under a 1 N load near 0.6 mm (measured, REFERENCE section 6). Engineering assumption.
+    # under a 1 N load near 0.6 mm (measured, docs/sources.md section 6). Engineering assumption.
     capsule_hydroelastic_modulus: float = 5.0e6
     # Edge length of the capsule's tetrahedral pressure mesh (m). Finer costs query time.
     capsule_resolution_hint: float = 0.004
@@ -54,7 +54,7 @@ class ContactConfig:
     piece_axial_length: float = 0.010
     piece_max_chord_depth: float = 0.0005
     # Coulomb friction between capsule and mucosa (dynamic = static). Measured values span
-    # 0.0004-0.054 on small-bowel mucosa; REFERENCE section 3 suggests sweeping 0.05-0.3.
+    # 0.0004-0.054 on small-bowel mucosa; sources.md s. 3 suggests sweeping 0.05-0.3.
     friction: float = 0.2
     # Resistance to the capsule's motion that grows with its speed (tissue drag, mucus; the
     # colon's friction rises with sliding velocity, Gao et al., IEEE Trans. Biomed. Eng.):
@@ -67,7 +67,7 @@ class ContactConfig:
 
 # Bounds of the contact settings (check_contact_config).
 MAX_FRICTION = 2.0
-"""Largest Coulomb coefficient: 0.0004-0.054 is measured on mucosa (REFERENCE section 3),
+"""Largest Coulomb coefficient: 0.0004-0.054 is measured on mucosa (docs/sources.md section 3),
 rubber on dry steel is ~1; beyond 2 is no surface pair."""
 MIN_RESOLUTION_HINT = 5e-4
 """Finest capsule pressure mesh (m): its tetrahedra number ~ (capsule size / hint)^3, so

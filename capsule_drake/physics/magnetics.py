@@ -366,7 +366,7 @@ def check_magnet_geometry(geometry: "MagnetGeometry") -> None:
 
 # --- Finite-size source: the exact field of a uniformly magnetised cylinder -------------
 # At the EPM's working distances the point dipole is off by 18 % at 10 cm and 3 % at 20 cm
-# (REFERENCE section 1: almost all of it the EPM's finite size). The cylinder's exact field
+# (docs/sources.md section 1: almost all of it the EPM's finite size). The cylinder's exact field
 # (magpylib's closed form) with the capsule's magnet kept a point dipole (its own size costs
 # ~0.1 %) removes that error. Float only: magpylib does not carry derivatives, so the
 # linearisation uses the dipole model.

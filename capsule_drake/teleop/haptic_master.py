@@ -1,4 +1,4 @@
-"""HapticMaster: a Phantom Omni / Geomagic Touch class haptic device (REFERENCE section 4).
+"""HapticMaster: a Phantom Omni / Geomagic Touch class haptic device (docs/sources.md section 4).
 
 The stylus tip is a point mass in the device frame D (x right, y up, z toward the operator,
 origin at the workspace centre), pushed by the operator's hand and by the device's motors
@@ -22,7 +22,7 @@ STYLUS_SIZE = 9  # position (3), quaternion wxyz (4), clutch (1), mode (1)
 class HapticDeviceConfig:
     """The device. YAML-loadable; all fields default (Geomagic Touch figures)."""
 
-    # Half extents of the workspace box in D (m): 160 x 120 x 70 mm (REFERENCE section 4).
+    # Half extents of the workspace box in D (m): 160 x 120 x 70 mm (sources.md s. 4).
     workspace_half_extents: list[float] = dataclasses.field(
         default_factory=lambda: [0.08, 0.06, 0.035])
     # Peak force of the motors (N); the rendered force is saturated by its norm.

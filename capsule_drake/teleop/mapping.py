@@ -4,7 +4,7 @@ The capsule's three motions of the seed paper, as the operator sees them in the 
 image: forward and backward (push the stylus away from you / pull it back), yaw (stylus
 right / left) and pitch (stylus up / down). The EPM moves over the patient along the
 capsule's heading; its moment is turned so that its field at the capsule points along the
-commanded heading (REFERENCE section 1: m ~ (3/2 u u^T - I) h), which turns the capsule's
+commanded heading (docs/sources.md section 1: m ~ (3/2 u u^T - I) h), which turns the capsule's
 magnet, and with it the capsule. The EPM rides at its clearance above the skin (the arm's
 guard would raise it anyway), plus a height the operator does not control.
 
