@@ -19,7 +19,7 @@ With ``r = |p|`` and ``u = p / r``:
     F     = 3 mu0 / (4 pi r^4) [m_s (m_t.u) + m_t (m_s.u) + u (m_s.m_t - 5 (m_s.u)(m_t.u))]
     T     = m_t x B = mu0 / (4 pi r^3) m_t x ((3 u u^T - I) m_s)
 
-The IJRR paper that this project started from prints ``|p_hat|^3`` (always 1) in the
+The seed paper (the 2017 simulation-environment paper) prints ``|p_hat|^3`` (always 1) in the
 torque's denominator; the correct denominator is ``|p|^3``, as written above.
 
 All generic functions are written with ``@``, ``*``, ``**`` and explicit components
