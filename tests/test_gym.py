@@ -235,6 +235,15 @@ def test_a_vector_of_two_environments_steps():
         envs.close()
 
 
+def test_importing_the_package_registers_the_environment_without_drake():
+    code = ("import sys, gymnasium, capsule_drake; "
+            f"assert {ENV_ID!r} in gymnasium.registry; "
+            "assert not [m for m in sys.modules if m.startswith('pydrake')]")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
 @pytest.mark.slow
 def test_the_example_evaluates_both_policies():
     result = subprocess.run(

@@ -253,6 +253,13 @@ class ColonNavigationEnv(gymnasium.Env):
             is always `!External` and the colon's seed the episode's.
         max_cached_colons: colons whose diagrams are kept built.
         render_mode: None or "rgb_array" (the camera's latest frame).
+
+    Attributes (for scripted policies; see examples/gym_evaluate.py): scenario (the
+    first colon's Scenario: magnets, capsule, camera), lens (the camera's Lens, or None),
+    max_move (m) and max_turn (rad), a full action's move and turn per step; colon (the
+    episode's colon), epm_command (the commanded EPM pose [p_WE, m_hat_W]),
+    floor_height(x, y, m_hat) (the lowest EPM centre the clearance allows), build_count
+    (diagrams built so far), reward_weights.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
