@@ -15,9 +15,9 @@ Episodes and seeds. `reset(seed=k)` runs colon `colons[k % len(colons)]` (the sc
 `colon.seed`; `colons` defaults to 0-9, the benchmark's ten colons; pass e.g.
 `colons=range(10, 20)` for held-out colons, or `reset(options={"colon": 12})` for one
 colon), and seeds the sensors' noise with k (as a run seeds it with the scenario's
-`random_seed`: `diagram.SetRandomContext(context, RandomGenerator(k))`). `reset()` without
-a seed draws k from the environment's generator, so a sequence of episodes is reproducible
-from the first seed. A colon's diagram is built once and kept (the last
+`random_seed`: `diagram.SetRandomContext(context, RandomGenerator(k))`; the scenario's own
+random_seed is not used). `reset()` without a seed draws k from the environment's
+generator, so a sequence of episodes is reproducible from the first seed. A colon's diagram is built once and kept (the last
 `max_cached_colons` colons): a reset re-initialises its context (state, noise, time 0).
 
 Action: `Box(-1, 1, (6,), float32)`, a bounded change of the EPM's command per step:
