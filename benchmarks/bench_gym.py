@@ -7,7 +7,10 @@ camera added, in one environment and in a vector of two (gymnasium.vector.AsyncV
 spawned worker processes), random actions from reset seed 0 (colon 0, the rectum): the
 median over `repeats` batches of `steps` steps of the environment steps per second (a vector
 step counts as two), and the real-time factor that gives (simulated seconds per wall second,
-each step being `control_period`, 0.1 s). A batch starts with a reset (not timed); an
+each step being `control_period`, 0.1 s). For one environment, also the steps per second of
+the stepping process's CPU time (what a core of its own would give, whatever else the
+machine runs; the camera's render worker, a process of its own, is not counted in it). A
+batch starts with a reset (not timed); an
 episode that ends within a batch is reset and goes on (timed: it is part of training). Also
 the time to build a colon's diagram (the first reset) and of a reset that reuses it.
 
@@ -48,19 +51,21 @@ def single(observations, image_size, steps, repeats):
     env.reset(seed=SEED)
     build = time.perf_counter() - start
     env.action_space.seed(SEED)
-    resets, rates = [], []
+    resets, rates, cpu_rates = [], [], []
     for _ in range(repeats):
         start = time.perf_counter()
         env.reset(seed=SEED)
         resets.append(time.perf_counter() - start)
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         for _ in range(steps):
             _, _, terminated, truncated, _ = env.step(env.action_space.sample())
             if terminated or truncated:
                 env.reset()
         rates.append(steps / (time.perf_counter() - start))
+        cpu_rates.append(steps / (time.process_time() - cpu_start))
     env.close()
-    return {"build_s": build, "reset_s": statistics.median(resets), "rates": rates}
+    return {"build_s": build, "reset_s": statistics.median(resets), "rates": rates,
+            "cpu_rate": statistics.median(cpu_rates)}
 
 
 def vector(observations, image_size, steps, repeats, count=2):
@@ -86,7 +91,8 @@ def main():
     parser.add_argument("--image-size", type=int, default=64, help="camera image side (px)")
     args = parser.parse_args()
     print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"{args.repeats} x {args.steps} steps, camera {args.image_size} px")
+          f"{args.repeats} x {args.steps} steps, camera {args.image_size} px, load average "
+          f"{os.getloadavg()[0]:.1f} at the start")
     period = gymnasium.make(f"capsule_drake:{ENV_ID}").unwrapped.control_period
     rows = []
     for label, observations in (("default", DEFAULT_OBSERVATIONS),
@@ -96,13 +102,15 @@ def main():
         two = vector(observations, args.image_size, args.steps, args.repeats)
         rows.append((label, 2, two["rates"], None))
     print(f"{'observations':<14}{'envs':>5}{'steps/s (median)':>18}{'min-max':>14}"
-          f"{'real-time factor':>18}{'build (s)':>11}{'reset (s)':>11}")
+          f"{'real-time factor':>18}{'per CPU s':>11}{'build (s)':>11}{'reset (s)':>11}")
     for label, count, rates, extra in rows:
         rate = statistics.median(rates)
+        cpu = f"{extra['cpu_rate']:.1f}" if extra else "-"
         build = f"{extra['build_s']:.1f}" if extra else "-"
         reset = f"{extra['reset_s']:.3f}" if extra else "-"
         print(f"{label:<14}{count:>5}{rate:>18.1f}{f'{min(rates):.1f}-{max(rates):.1f}':>14}"
-              f"{rate * period:>18.2f}{build:>11}{reset:>11}")
+              f"{rate * period:>18.2f}{cpu:>11}{build:>11}{reset:>11}")
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 if __name__ == "__main__":
