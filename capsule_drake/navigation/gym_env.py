@@ -17,8 +17,9 @@ Episodes and seeds. `reset(seed=k)` runs colon `colons[k % len(colons)]` (the sc
 colon), and seeds the sensors' noise with k (as a run seeds it with the scenario's
 `random_seed`: `diagram.SetRandomContext(context, RandomGenerator(k))`; the scenario's own
 random_seed is not used). `reset()` without a seed draws k from the environment's
-generator, so a sequence of episodes is reproducible from the first seed. A colon's diagram is built once and kept (the last
-`max_cached_colons` colons): a reset re-initialises its context (state, noise, time 0).
+generator, so a sequence of episodes is reproducible from the first seed. A colon's
+diagram is built once and kept (the last `max_cached_colons` colons): a reset
+re-initialises its context (state, noise, time 0).
 
 Action: `Box(-1, 1, (6,), float32)`, a bounded change of the EPM's command per step:
     [dx, dy, dz] * max_epm_speed * control_period    move of the EPM's centre (world, m)
@@ -289,9 +290,10 @@ class ColonNavigationEnv(gymnasium.Env):
             try:
                 reward = RewardWeights(**reward)
             except TypeError:
-                unknown = sorted(set(reward) - {f.name for f in dataclasses.fields(RewardWeights)})
-                raise ValueError(f"reward: unknown weight(s) {', '.join(unknown)}; the weights "
-                                 f"are {', '.join(f.name for f in dataclasses.fields(RewardWeights))}") from None
+                names = [f.name for f in dataclasses.fields(RewardWeights)]
+                unknown = sorted(set(reward) - set(names))
+                raise ValueError(f"reward: unknown weight(s) {', '.join(map(str, unknown))}; "
+                                 f"the weights are {', '.join(names)}") from None
         self.reward_weights = reward if reward is not None else RewardWeights()
         check_reward_weights(self.reward_weights)
         self._workspace = _workspace(workspace)
