@@ -510,7 +510,7 @@ class ColonNavigationEnv(gymnasium.Env):
         self._ended = True
         super().close()
 
-    # -- helpers ------------------------------------------------------------------------
+    # -- the episode: command, outputs, observations, info --------------------------------
 
     @property
     def colon(self):
