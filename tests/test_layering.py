@@ -151,7 +151,10 @@ def test_station_is_short():
 # the station is above the scenario; the runners above the station; the CLI on top.
 LAYERS = [
     {"capsule_drake.cli"},
-    {"capsule_drake.io.run", "capsule_drake.io.record", "capsule_drake.navigation.benchmark"},
+    # The runners: each simulates whole stations through the run loop (io/run.py; the
+    # Gymnasium environment steps the run loop's diagram itself, episode by episode).
+    {"capsule_drake.io.run", "capsule_drake.io.record", "capsule_drake.navigation.benchmark",
+     "capsule_drake.navigation.gym_env"},
     {"capsule_drake.station"},
     {"capsule_drake.scenario"},
 ]

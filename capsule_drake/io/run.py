@@ -163,25 +163,13 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     if out is not None:  # before the build, which can take a while
         prepare_folder(out, scenario, meshcat is not None)
     builder = DiagramBuilder()
-    model = capsule_model()
-    # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
     try:
-        station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
-        colon, _ = load_colon(scenario.colon)   # cached: the station's own
-        try:  # the capsule fits where it starts (an imported colon's ends may be open)
-            check_start(colon, scenario.capsule.start_s, model.radius,
-                        model.length + 2.0 * model.radius)
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {e}") from None
+        station, colon, monitor = add_guarded_station(builder, scenario, meshcat)
     except ScenarioError:  # nothing was run: leave no outputs of it
         if out is not None:
             (out / "scenario.yaml").unlink(missing_ok=True)
         raise
-    monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
-    builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
-    guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
-                                                         scenario.guard))
-    builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
+    model = capsule_model()
     period = scenario.outputs.log_period
     loggers = (LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
                LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
@@ -274,12 +262,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                 if status in ("completed", "goal"):
                     status, error = "error", traceback.format_exc()
                     stopped_early = f"could not finish the run's extension: {e}"
-        if station.HasSubsystemNamed("capsule.camera"):
-            # The render worker is a process: end it with the run, not when a pool process
-            # that runs the next run gets round to collecting this diagram.
-            worker = station.GetSubsystemByName("capsule.camera").worker
-            if worker is not None:
-                worker.close()
+        close_render_worker(station)
         logs = spool.joined()
         result = RunResult(metrics={}, times=logs["times"], capsule_state=logs["capsule_state"],
                            contact_load=logs["contact_load"], epm_pose=logs["epm_pose"],
@@ -329,6 +312,44 @@ def chain_extends(*extends):
                 raise failure
         return close
     return extend
+
+
+def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=None):
+    """Adds what every run simulates to `builder`: the station ("station"), the contact
+    monitor ("contact_monitor": the capsule's contact load) and the run guard ("run_guard",
+    io/guard.py: it ends a simulation whose state stops being physical). Returns (station,
+    colon, contact monitor). Shared by `simulate` and the Gymnasium environment
+    (navigation/gym_env.py), which steps the same diagram itself.
+
+    Raises:
+        ScenarioError: the colon cannot be loaded, or the capsule does not fit where it
+            starts.
+    """
+    model = capsule_model()
+    # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
+    station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    colon, _ = load_colon(scenario.colon)   # cached: the station's own
+    try:  # the capsule fits where it starts (an imported colon's ends may be open)
+        check_start(colon, scenario.capsule.start_s, model.radius,
+                    model.length + 2.0 * model.radius)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {e}") from None
+    monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
+    builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
+    guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
+                                                         scenario.guard))
+    builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
+    return station, colon, monitor
+
+
+def close_render_worker(station) -> None:
+    """Ends the station camera's render worker, if it has one. The worker is a process: end
+    it with the run, not when a pool process that runs the next run gets round to
+    collecting the diagram."""
+    if station.HasSubsystemNamed("capsule.camera"):
+        worker = station.GetSubsystemByName("capsule.camera").worker
+        if worker is not None:
+            worker.close()
 
 
 def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
