@@ -7,7 +7,6 @@ Each check compares two screenshots of the same page, one with the thing checked
 things nor on the background's colours.
 """
 
-import os
 
 import cv2
 import numpy as np
@@ -15,21 +14,13 @@ import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 
-from capsule_drake.io.headless import HeadlessPage, chromium_executable
+from browser import chromium
+from capsule_drake.io.headless import HeadlessPage
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import make_station
 
 CAMERA_VIEW = "/teleop/camera_view"
 
-
-def _chromium() -> str:
-    """The Chromium executable; skips without one, except on CI, which must have it."""
-    exe = chromium_executable()
-    if exe is None:
-        if os.environ.get("CI"):
-            pytest.fail("chromium is not on PATH (the CI set-up must install it)")
-        pytest.skip("chromium is not on PATH")
-    return exe
 
 
 def _changed(a: np.ndarray, b: np.ndarray, threshold: int = 30) -> np.ndarray:
@@ -56,7 +47,7 @@ def _unwarp(image: np.ndarray, region: np.ndarray, size: int) -> np.ndarray:
 
 @pytest.mark.slow
 def test_the_meshcat_page_draws_the_scene_and_the_camera_view(tmp_path):
-    exe = _chromium()
+    exe = chromium()
     meshcat = Meshcat(MeshcatParams(port=0))
     scenario = load_scenario(name="Teleop", override=(
         "{epm: {mount: !Stage {}, driver: !Teleop {operator: browser}}}"))

@@ -9,7 +9,6 @@ around where the run's logged capsule position projects with the page's own came
 
 import base64
 import json
-import os
 import re
 
 import cv2
@@ -23,7 +22,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import ImageRgba8U
 
-from capsule_drake.io.headless import HeadlessPage, chromium_executable
+from browser import chromium
+from capsule_drake.io.headless import HeadlessPage
 from capsule_drake.io.replay import (PANEL_WIDTH, STREAM_SYSTEM, CameraStream, decimate,
                                      encode_frame, replay_page)
 from capsule_drake.io.run import simulate
@@ -144,14 +144,6 @@ def test_thinned_series_keep_their_peaks():
     assert len(decimate(t, y, points=600)[0]) <= 600
 
 
-def _chromium() -> str:
-    exe = chromium_executable()
-    if exe is None:
-        if os.environ.get("CI"):
-            pytest.fail("chromium is not on PATH (the CI set-up must install it)")
-        pytest.skip("chromium is not on PATH")
-    return exe
-
 
 def _changed(a: np.ndarray, b: np.ndarray, threshold: int = 25) -> np.ndarray:
     return np.abs(a.astype(int) - b.astype(int)).max(axis=2) > threshold
@@ -176,7 +168,7 @@ PROJECT = """(function (p) {
 
 @pytest.mark.slow
 def test_the_replay_shows_the_capsule_and_the_camera_stream_at_the_replays_time(tmp_path):
-    exe = _chromium()
+    exe = chromium()
     # The capsule starts in the sigmoid, inside the colon (not at its open end).
     scenario = load_scenario(name="WithSensors", override=(
         "{duration: 1.0, capsule: {start_s: 0.30, lumen_tracker: null}, pseudo_force: null}"))
