@@ -3,6 +3,9 @@ run, spooled as it goes, whole on every way a run ends. Signals, disks and bad i
 through the command line: tests/test_bad_inputs.py."""
 
 import json
+import os
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +15,7 @@ from pydrake.systems.framework import LeafSystem
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io.outputs import (LogSpool, OutputError, check_room, claim_folder,
                                       load_logs, new_run_folder, write_atomic)
-from capsule_drake.io.run import simulate
+from capsule_drake.io.run import DeferredSignals, Interrupted, simulate
 from capsule_drake.scenario import load_scenario
 
 def _one_line(err: str) -> str:
@@ -129,3 +132,62 @@ def test_an_error_inside_the_simulation_keeps_what_was_logged(tmp_path, error):
     assert "Traceback" in (tmp_path / "error.txt").read_text()
     assert load_logs(tmp_path)["times"][-1] == pytest.approx(0.3)
     assert json.loads((tmp_path / "metrics.json").read_text())["status"] == "error"
+
+
+class _Signals(LeafSystem):
+    """Sends this process `number` from a publish event at t = 0.3 s: the signal arrives
+    while Drake is calling Python, as a real one does at any moment of a run."""
+
+    def __init__(self, number):
+        super().__init__()
+        self._number = number
+        self.DeclarePeriodicPublishEvent(0.3, 0.3, self._send)
+
+    def _send(self, context):
+        if context.get_time() < 0.35:
+            os.kill(os.getpid(), self._number)
+
+
+def _raise_interrupted(number, frame):  # the command line's handler
+    raise Interrupted(number)
+
+
+@pytest.fixture
+def cli_handlers():
+    names = ("SIGINT", "SIGTERM", "SIGHUP")
+    previous = {name: signal.signal(getattr(signal, name), _raise_interrupted)
+                for name in names}
+    yield
+    for name, handler in previous.items():
+        signal.signal(getattr(signal, name), handler)
+
+
+def test_a_signal_during_the_simulation_is_noted_and_the_run_ends_at_its_next_step(
+        tmp_path, cli_handlers):
+    # The handler is not run inside Drake's calls into Python, where an exception can turn
+    # into a TypeError (pybind11 converting an argument): the run ends at the next step.
+    scenario = load_scenario(override="{duration: 2.0}")
+    result = simulate(scenario, out_dir=tmp_path, progress=False,
+                      extend=lambda builder, station: builder.AddSystem(
+                          _Signals(signal.SIGHUP)) and None)
+    assert result.status == "interrupted" and result.metrics["signal"] == "SIGHUP"
+    assert result.metrics["stopped_early"] == "interrupted (SIGHUP) at t = 0.300 s"
+    assert {"metrics.json", "logs.npz", "scenario.yaml"} <= {p.name for p in tmp_path.iterdir()}
+    assert load_logs(tmp_path)["times"][-1] == pytest.approx(0.3)
+    assert signal.getsignal(signal.SIGHUP) is _raise_interrupted  # handlers put back
+
+
+def test_deferred_signals_note_one_raise_a_second_and_hold_until_written(cli_handlers):
+    with DeferredSignals() as signals:
+        os.kill(os.getpid(), signal.SIGTERM)       # noted, not raised
+        assert signals.pending == signal.SIGTERM
+        with pytest.raises(Interrupted):           # a second: the run is stuck, raise
+            os.kill(os.getpid(), signal.SIGINT)
+    arrived = []
+    with pytest.raises(Interrupted) as raised:
+        with signals.held():
+            os.kill(os.getpid(), signal.SIGHUP)    # noted while the outputs are written
+            time.sleep(0.05)
+            arrived.append("the block went on")
+    assert arrived and raised.value.signal_name == "SIGHUP"  # raised as the block ended
+    assert signal.getsignal(signal.SIGHUP) is _raise_interrupted

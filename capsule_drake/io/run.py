@@ -181,20 +181,24 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     ApplySimulatorConfig(scenario.simulator, simulator)
     diagram.SetRandomContext(simulator.get_mutable_context(),
                              RandomGenerator(scenario.random_seed))
-    if stop_when is not None:
-        last_check = [-np.inf]
+    signals = DeferredSignals()
+    last_check = [-np.inf]
 
-        def monitor_run(root_context):
-            t = root_context.get_time()
-            if t - last_check[0] < 0.5:
-                return EventStatus.DidNothing()
-            last_check[0] = t
-            reason = stop_when(station, station.GetMyContextFromRoot(root_context))
-            if reason:
-                return EventStatus.ReachedTermination(diagram, reason)
+    def monitor_run(root_context):
+        if signals.pending is not None:  # Ctrl-C or a termination signal: stop here
+            return EventStatus.ReachedTermination(diagram, "interrupted")
+        if stop_when is None:
             return EventStatus.DidNothing()
+        t = root_context.get_time()
+        if t - last_check[0] < 0.5:
+            return EventStatus.DidNothing()
+        last_check[0] = t
+        reason = stop_when(station, station.GetMyContextFromRoot(root_context))
+        if reason:
+            return EventStatus.ReachedTermination(diagram, reason)
+        return EventStatus.DidNothing()
 
-        simulator.set_monitor(monitor_run)
+    simulator.set_monitor(monitor_run)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
                                set_visualizations_while_recording=live_meshcat)
@@ -219,17 +223,21 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     status, stopped_early, stopped_at, signal_name, error = "completed", None, None, None, None
     wall_start = time.perf_counter()
     try:
-        simulator.Initialize()
-        chunk = max(scenario.duration / 200.0, 0.05)
-        t = 0.0
-        while t < scenario.duration:
-            t = t + chunk
-            if t > scenario.duration - 1e-9:  # end on the duration, not an ulp short of it
-                t = scenario.duration
-            result = simulator.AdvanceTo(t)
-            bar.update(context.get_time())
-            drain()
-            if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+        with signals:  # on leaving, the signals are held until `signals.held()` ends
+            simulator.Initialize()
+            chunk = max(scenario.duration / 200.0, 0.05)
+            t = 0.0
+            while t < scenario.duration and signals.pending is None:
+                t = t + chunk
+                if t > scenario.duration - 1e-9:  # end on the duration, not an ulp short
+                    t = scenario.duration
+                result = simulator.AdvanceTo(t)
+                bar.update(context.get_time())
+                drain()
+                if signals.pending is not None:
+                    break
+                if result.reason() != SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                    continue
                 found = parse_guard_reason(result.message())
                 if found is None:
                     status, stopped_at = "goal", result.message()
@@ -238,6 +246,9 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                     status = "diverged" if kind in DIVERGED else "left_colon"
                     stopped_early = f"stopped by the run guard at {text}"
                 break
+        if signals.pending is not None:
+            status, signal_name = "interrupted", signal.Signals(signals.pending).name
+            stopped_early = f"interrupted ({signal_name}) at t = {context.get_time():.3f} s"
     except KeyboardInterrupt as e:  # Ctrl-C, or a termination signal (cli: Interrupted)
         status, signal_name = "interrupted", getattr(e, "signal_name", "SIGINT")
         stopped_early = f"interrupted ({signal_name}) at t = {context.get_time():.3f} s"
@@ -248,7 +259,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                          f"{type(e).__name__}: {text}")
     # However it ended: close what the run opened, score it, write it, with Ctrl-C and the
     # termination signals held until the files are whole.
-    with signals_held():
+    with signals.held():
         wall_time = time.perf_counter() - wall_start
         bar.close()
         try:
@@ -399,16 +410,63 @@ def replay_html(result: RunResult, meshcat, colon) -> str:
     return replay_page(meshcat.StaticHtml(), frames, plots)
 
 
-@contextlib.contextmanager
-def signals_held():
-    """Holds Ctrl-C and termination signals while outputs are being written (in the main
-    thread): a second Ctrl-C arrives after the files are whole, not halfway through one."""
-    held = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+class DeferredSignals:
+    """While a run simulates, Ctrl-C and the termination signals whose handler is Python's
+    (Ctrl-C's KeyboardInterrupt, the CLI's `Interrupted`) are noted, not raised: the
+    simulator's monitor ends the run at its next step, and the run's outputs are written.
+
+    An exception raised by a signal handler lands in whatever Python code runs at that
+    moment, and inside Drake that may be pybind11 converting a callback's argument, which
+    reports it as a TypeError ("incompatible function arguments") instead of the interrupt.
+    A second signal before the first has been acted on is raised at once (a stuck step).
+    After the `with`, until `held()` ends, signals are only noted (the outputs are being
+    written); the first of them is raised as `held()` ends. Python runs signal handlers
+    in the main thread whichever thread the signal reached, so this holds where a signal
+    mask (per thread) would not. Outside the main thread, or for a signal left to the
+    system (SIG_DFL, SIG_IGN), nothing changes."""
+
+    NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
+
+    def __init__(self):
+        self.pending: int | None = None      # the signal that ended the simulation
+        self._later: int | None = None       # the first one while the outputs are written
+        self._simulating = False
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self):
+        self.pending, self._later, self._simulating = None, None, True
+        if threading.current_thread() is threading.main_thread():
+            for name in self.NAMES:
+                number = getattr(signal, name, None)
+                handler = signal.getsignal(number) if number is not None else None
+                if callable(handler) and handler != self._note:
+                    self._previous[number] = handler
+                    signal.signal(number, self._note)
+        return self
+
+    def _note(self, number, frame):
+        if not self._simulating:
+            self._later = self._later or number
+        elif self.pending is None:
+            self.pending = number
+        else:
+            self._previous[number](number, frame)  # raises (KeyboardInterrupt, Interrupted)
+
+    def __exit__(self, *exc):
+        self._simulating = False
+        return False
+
+    @contextlib.contextmanager
+    def held(self):
+        """Signals are noted until this block is done; then the handlers are put back and
+        the first signal that arrived meanwhile is raised (a second Ctrl-C arrives after
+        the files are whole)."""
+        try:
+            yield
+        finally:
+            previous, self._previous = self._previous, {}
+            for number, handler in previous.items():
+                signal.signal(number, handler)
+            later, self._later = self._later, None
+            if later is not None and later in previous:
+                previous[later](later, None)
