@@ -143,6 +143,42 @@ def test_channels_have_ros2_schemas(recorded):
 
 
 @pytest.mark.slow
+def test_run_with_sensors_writes_the_ros2_channels(tmp_path):
+    # The acceptance's command itself: `run --scenario WithSensors --mcap FILE`, read back
+    # with the mcap library: image, IMU, magnetic-field and tf channels with ROS 2 schemas,
+    # each with messages that decode, stamped on the run's clock.
+    path = tmp_path / "run.mcap"
+    code = cli_main(["run", "--scenario", "WithSensors", "--duration", "0.3", "--quiet",
+                     "--no-recording", "--out", str(tmp_path / "run"), "--mcap", str(path)])
+    assert code == 0
+    header, summary, messages = read_mcap(path)
+    assert header.profile == "ros2"
+    types = {channel.topic: summary.schemas[channel.schema_id].name
+             for channel in summary.channels.values()}
+    for topic, name in [("/capsule/camera/image_raw", "sensor_msgs/msg/Image"),
+                        ("/capsule/imu/data", "sensor_msgs/msg/Imu"),
+                        ("/capsule/magnetometer", "sensor_msgs/msg/MagneticField"),
+                        ("/tf", "tf2_msgs/msg/TFMessage"),
+                        ("/tf_static", "tf2_msgs/msg/TFMessage")]:
+        assert types[topic] == name, topic
+        assert messages[topic], topic
+        schema = next(summary.schemas[c.schema_id] for c in summary.channels.values()
+                      if c.topic == topic)
+        assert schema.encoding == "ros2msg"
+    image = messages["/capsule/camera/image_raw"][-1][1]
+    assert image.encoding == "rgb8" and len(image.data) == image.height * image.step > 0
+    imu = messages["/capsule/imu/data"][-1][1]
+    assert 5.0 < np.linalg.norm([imu.linear_acceleration.x, imu.linear_acceleration.y,
+                                 imu.linear_acceleration.z]) < 15.0  # gravity, +- motion
+    field = messages["/capsule/magnetometer"][-1][1].magnetic_field
+    assert 0.0 < np.linalg.norm([field.x, field.y, field.z]) < 1.0  # tesla
+    children = {t.child_frame_id for _, tf, _, _ in messages["/tf"] for t in tf.transforms}
+    assert {"capsule", "epm"} <= children
+    last = max(t for items in messages.values() for t, _, _, _ in items)
+    assert 0.25e9 <= last <= 0.3e9 + 1e6
+
+
+@pytest.mark.slow
 def test_messages_have_the_right_sizes_and_times(recorded):
     _, (_, _, messages) = recorded
     for topic, items in messages.items():
