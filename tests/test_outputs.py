@@ -15,7 +15,7 @@ from pydrake.systems.framework import LeafSystem
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io.outputs import (LogSpool, OutputError, check_room, claim_folder,
                                       load_logs, new_run_folder, write_atomic)
-from capsule_drake.io.run import DeferredSignals, Interrupted, simulate
+from capsule_drake.io.run import DeferredSignals, Interrupted, chain_extends, simulate
 from capsule_drake.scenario import load_scenario
 
 def _one_line(err: str) -> str:
@@ -191,3 +191,39 @@ def test_deferred_signals_note_one_raise_a_second_and_hold_until_written(cli_han
             arrived.append("the block went on")
     assert arrived and raised.value.signal_name == "SIGHUP"  # raised as the block ended
     assert signal.getsignal(signal.SIGHUP) is _raise_interrupted
+
+
+def _render_workers() -> list[int]:
+    """This process's children that are camera render workers (capsule/render_worker.py)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            command = (entry / "cmdline").read_bytes()
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == os.getpid() and b"render_process" in command:
+            found.append(int(entry.name))
+    return found
+
+
+def test_a_failed_build_closes_the_render_worker_and_the_extensions_already_added(tmp_path):
+    # A camera with latency draws in a worker process; an extension that fails after another
+    # was added: the run is not started, the worker has ended and the first one is closed.
+    scenario = load_scenario(override="{duration: 0.5, capsule: {camera: {fps: 5.0, "
+                                      "latency: 0.05}}}")
+    closed = []
+
+    def first(builder, station):
+        assert _render_workers()  # the station's camera started its worker
+        return lambda: closed.append("first")
+
+    def second(builder, station):
+        raise RuntimeError("cannot open the dataset folder")
+
+    with pytest.raises(RuntimeError, match="dataset folder"):
+        simulate(scenario, progress=False, extend=chain_extends(first, second))
+    assert closed == ["first"]
+    assert _render_workers() == []

@@ -171,16 +171,22 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         raise
     model = capsule_model()
     period = scenario.outputs.log_period
-    loggers = (LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
-               LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
-               LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period))
-    finish = extend(builder, station) if extend is not None else None
-    diagram = builder.Build()
+    finish = None
+    try:  # a build that fails closes what the station and the extensions opened
+        loggers = (LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
+                   LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
+                   LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period))
+        finish = extend(builder, station) if extend is not None else None
+        diagram = builder.Build()
 
-    simulator = Simulator(diagram)
-    ApplySimulatorConfig(scenario.simulator, simulator)
-    diagram.SetRandomContext(simulator.get_mutable_context(),
-                             RandomGenerator(scenario.random_seed))
+        simulator = Simulator(diagram)
+        ApplySimulatorConfig(scenario.simulator, simulator)
+        diagram.SetRandomContext(simulator.get_mutable_context(),
+                                 RandomGenerator(scenario.random_seed))
+    except BaseException:
+        _close_quietly(finish)
+        close_render_worker(station)
+        raise
     signals = DeferredSignals()
     last_check = [-np.inf]
 
@@ -309,8 +315,16 @@ def chain_extends(*extends):
         return None
 
     def extend(builder, station):
-        closers = [close for close in (e(builder, station) for e in extends)
-                   if close is not None]
+        closers = []
+        try:
+            for e in extends:
+                closer = e(builder, station)
+                if closer is not None:
+                    closers.append(closer)
+        except BaseException:  # the ones already added are closed; the failure is raised
+            for closer in reversed(closers):
+                _close_quietly(closer)
+            raise
 
         def close():
             failure = None
@@ -344,6 +358,7 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
         check_start(colon, scenario.capsule.start_s, model.radius,
                     model.length + 2.0 * model.radius)
     except ValueError as e:
+        close_render_worker(station)
         raise ScenarioError(f"scenario: {e}") from None
     monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
@@ -351,6 +366,17 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
                                                          scenario.guard))
     builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     return station, colon, monitor
+
+
+def _close_quietly(close) -> None:
+    """Runs a close hook (if any) on the way out of a failure: its own error is dropped, the
+    failure being handled is the one to report."""
+    if close is None:
+        return
+    try:
+        close()
+    except Exception:
+        pass
 
 
 def close_render_worker(station) -> None:
