@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.systems.framework import LeafSystem
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from capsule_drake.cli import main as cli_main

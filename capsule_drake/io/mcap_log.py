@@ -92,7 +92,6 @@ MAGNETOMETER = "capsule_magnetometer"
 EPM = "epm"
 
 
-
 @dataclasses.dataclass(frozen=True)
 class PlantTiming:
     """Which plant state a reading shows (io/dataset.py's `state_time`, shared with the
