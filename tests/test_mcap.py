@@ -1,12 +1,14 @@
 """MCAP logs of ROS 2 messages (io/mcap_log.py, io/ros2_messages.py), read back with the
 `mcap` library and the `mcap_ros2` decoder, and checked against independent routes: the
 message definitions against the `rosbags` package's copy of ROS 2's, the payloads against
-its CDR decoder, the images against the dataset's PNGs of the same run, the poses against
-logs.npz, the camera model against OpenCV's fisheye projection, the IMU's frame against
-gravity and the Hall sensors' against the EPM's dipole field."""
+its CDR decoder, the images against the dataset's PNGs of the same run, every stamp against
+the dataset's times of the same samples, the poses against logs.npz, the camera model against
+OpenCV's fisheye projection, the IMU's frame against gravity, its stamps against the ground
+truth's angular velocity, and the Hall sensors' frames against the EPM's dipole field."""
 
 import collections
 import csv
+from unittest import mock
 
 import cv2
 import numpy as np
@@ -15,12 +17,13 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.systems.framework import LeafSystem
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from capsule_drake.cli import main as cli_main
 from capsule_drake.io.dataset import read_depth_png
-from capsule_drake.io.mcap_log import add_mcap_logger, check_mcap_path
+from capsule_drake.io import mcap_log
+from capsule_drake.io.mcap_log import Ros2McapFile, add_mcap_logger, check_mcap_path
 from capsule_drake.io.outputs import OutputError
 from capsule_drake.io.ros2_messages import DEFINITIONS, schema_text
 from capsule_drake.io.run import chain_extends, simulate
@@ -102,14 +105,23 @@ def test_a_bad_mcap_path_is_one_line_and_status_2(tmp_path, capsys):
         check_mcap_path(tmp_path / "big.mcap", expected_bytes=1e18)
 
 
+PLANT_STEP = 0.002  # WithSensors' plant.time_step (s)
+
+
+def read_csv(path):
+    return np.genfromtxt(path, delimiter=",", names=True)
+
+
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """`record --scenario WithSensors --mcap` for 1 s: the dataset and the MCAP of one run,
-    with the IMU turned on the board (so its frame differs from the capsule's)."""
+    with the IMU turned on the board (so its frame differs from the capsule's), and /tf and
+    the ground truth at every plant step (so every sensor stamp has its state there)."""
     folder = tmp_path_factory.mktemp("mcap")
     out, path = folder / "dataset", folder / "run.mcap"
     code = cli_main(["record", "--scenario", "WithSensors", "--duration", "1.0", "--quiet",
-                     "--scenario-text", "{capsule: {imu: {rpy_BS_deg: [0.0, 0.0, 90.0]}}}",
+                     "--scenario-text", "{capsule: {imu: {rpy_BS_deg: [0.0, 0.0, 90.0]}}, "
+                     f"outputs: {{log_period: {PLANT_STEP}}}}}",
                      "--out", str(out), "--mcap", str(path)])
     assert code == 0
     return out, read_mcap(path)
@@ -187,7 +199,10 @@ def test_messages_have_the_right_sizes_and_times(recorded):
         stamps = [seconds(m.header.stamp) if hasattr(m, "header") else
                   seconds(m.transforms[0].header.stamp) for _, m, _, _ in items]
         assert np.all(np.diff(stamps) > 0), topic
-        assert all(s * 1e9 <= t + 1 for s, (t, _, _, _) in zip(stamps, items)), topic
+        # Logged when produced: a sensor's sample (of the state one plant step after its
+        # tick) just after its tick, before its stamp; anything else at or after its stamp.
+        assert all(s * 1e9 <= t + PLANT_STEP * 1e9 + 1
+                   for s, (t, _, _, _) in zip(stamps, items)), topic
     images = [m for _, m, _, _ in messages["/capsule/camera/image_raw"]]
     assert len(images) == 10  # 10 frames/s, the one at 1 s not yet taken
     for image in images:
@@ -197,31 +212,32 @@ def test_messages_have_the_right_sizes_and_times(recorded):
     assert (depth.encoding, depth.step, len(depth.data)) == ("32FC1", 1024, 256 * 1024)
     imu = [m for _, m, _, _ in messages["/capsule/imu/data"]]
     assert len(imu) == 100 and imu[0].header.frame_id == "capsule_imu"
-    assert imu[0].orientation_covariance[0] == 0.0  # the AHRS gives the orientation
+    # ROS's "no orientation" until the AHRS's first estimate (with the second sample), then
+    # an orientation with its covariance unknown (all zeros).
+    assert imu[0].orientation_covariance[0] == -1.0
+    assert all(list(m.orientation_covariance) == [0.0] * 9 for m in imu[1:])
     field = messages["/capsule/magnetometer"][0][1]
     assert field.header.frame_id == "capsule_magnetometer"
-    assert len(messages["/tf"]) == 101  # every 10 ms from 0 to 1 s, as logs.npz
+    assert len(messages["/tf"]) == 501  # every plant step from 0 to 1 s, as logs.npz
 
 
 @pytest.mark.slow
 def test_images_are_the_datasets_frames(recorded):
     out, (_, _, messages) = recorded
     with open(out / "frames.csv") as f:
-        frames = {round(float(row["time_s"]), 6): int(row["index"]) for row in csv.DictReader(f)}
+        frames = [(int(row["index"]), float(row["time_s"])) for row in csv.DictReader(f)]
     images = messages["/capsule/camera/image_raw"]
     depths = messages["/capsule/camera/depth/image_raw"]
     info = messages["/capsule/camera/camera_info"][0][1]
     lens = Lens(load_scenario(name="WithSensors").capsule.camera.lens)
     rays = lens.unproject(lens.pixel_grid()).reshape(256, 256, 3)
     assert len(frames) == len(images)
-    for (_, image, _, _), (_, depth, _, _) in zip(images, depths):
-        # The dataset stamps a frame with the time of the state it shows, which for a tick
-        # that rounding puts just after a plant step is that step's (io/dataset.py); the
-        # MCAP with the frame's exposure time: at most one plant step (2 ms) apart.
-        times = np.array(list(frames))
-        nearest = times[np.argmin(np.abs(times - seconds(image.header.stamp)))]
-        assert abs(nearest - seconds(image.header.stamp)) <= 0.0021
-        index = frames[nearest]
+    # Both stamp a frame with the time of the state it shows: its exposure, or the next
+    # plant step's when rounding puts the tick just after a step (0.302 s here).
+    assert any(abs(t - 0.302) < 1e-9 for _, t in frames)
+    for (index, time), (_, image, _, _), (_, depth, _, _) in zip(frames, images, depths):
+        assert abs(seconds(image.header.stamp) - time) < 1e-9
+        assert depth.header.stamp == image.header.stamp
         png = cv2.cvtColor(cv2.imread(str(out / "Frames" / f"FrameBuffer_{index:04d}.png")),
                            cv2.COLOR_BGR2RGB)
         rgb = np.frombuffer(bytes(image.data), np.uint8).reshape(256, 256, 3)
@@ -258,28 +274,88 @@ def test_tf_is_the_logged_state(recorded):
 
 
 @pytest.mark.slow
+def test_sensor_stamps_are_the_datasets_times_and_tf_the_state_they_saw(recorded):
+    # The same samples in both files of one run: each IMU, AHRS and magnetometer message
+    # stamped with its dataset row's time (the state it measured, one plant step after the
+    # tick) and carrying its values.
+    out, (_, _, messages) = recorded
+    imu_csv, ahrs_csv = read_csv(out / "imu.csv"), read_csv(out / "ahrs.csv")
+    field_csv, truth = read_csv(out / "magnetometer.csv"), read_csv(out / "ground_truth.csv")
+    imu = [m for _, m, _, _ in messages["/capsule/imu/data"]]
+    stamps = np.array([seconds(m.header.stamp) for m in imu])
+    assert len(imu) == len(imu_csv)
+    np.testing.assert_allclose(stamps, imu_csv["time_s"], rtol=0, atol=1e-9)
+    assert stamps[0] == pytest.approx(PLANT_STEP, abs=1e-9)
+    for m, row in zip(imu, imu_csv):
+        a, w = m.linear_acceleration, m.angular_velocity
+        np.testing.assert_allclose([a.x, a.y, a.z, w.x, w.y, w.z],
+                                   [row[k] for k in ("ax_m_s2", "ay_m_s2", "az_m_s2",
+                                                     "gx_rad_s", "gy_rad_s", "gz_rad_s")],
+                                   rtol=1e-8, atol=1e-12)
+    fields = [m for _, m, _, _ in messages["/capsule/magnetometer"]]
+    assert len(fields) == len(field_csv)
+    for m, row in zip(fields, field_csv):
+        assert abs(seconds(m.header.stamp) - row["time_s"]) < 1e-9
+        B = m.magnetic_field
+        np.testing.assert_allclose([B.x, B.y, B.z], [row["bx_T"], row["by_T"], row["bz_T"]],
+                                   rtol=1e-8, atol=1e-15)
+    # The AHRS's orientation of the IMU frame, from the second message on (the first says
+    # "no orientation": the dataset has no row there), is its row of ahrs.csv turned by the
+    # IMU's mounting.
+    X_BS = static_transform(messages, "capsule_imu")
+    R_BS = X_BS.rotation().matrix()
+    np.testing.assert_allclose(stamps[1:], ahrs_csv["time_s"], rtol=0, atol=1e-9)
+    for m, row in zip(imu[1:], ahrs_csv):
+        o = m.orientation
+        R_WS = Quaternion(o.w, o.x, o.y, o.z).rotation()
+        R_WB = Quaternion(row["qw"], row["qx"], row["qy"], row["qz"]).rotation()
+        np.testing.assert_allclose(R_WS, R_WB @ R_BS, atol=1e-8)
+    # /tf at a sample's stamp is the state the sample saw: the IMU's ideal rate (imu.csv's
+    # gyro_true) is the angular velocity of the state at that time (ground_truth.csv, in
+    # world) turned into S by the /tf and /tf_static there. The state one plant step
+    # earlier, what the old stamps pointed to, is far off while the capsule moves.
+    capsule = transforms(messages, "capsule")
+    rows = np.searchsorted(truth["time_s"], stamps - 1e-7)
+    np.testing.assert_allclose(truth["time_s"][rows], stamps, rtol=0, atol=1e-9)
+    w_W = np.column_stack([truth["wx_rad_s"], truth["wy_rad_s"], truth["wz_rad_s"]])
+    gyro_true = np.column_stack([imu_csv["gx_true_rad_s"], imu_csv["gy_true_rad_s"],
+                                 imu_csv["gz_true_rad_s"]])
+    errors = {}
+    for shift in (0, 1):
+        predicted = []
+        for row in rows - shift:
+            p, q = capsule[round(float(truth["time_s"][row]), 6)]
+            np.testing.assert_allclose(p, [truth[k][row] for k in ("x_m", "y_m", "z_m")],
+                                       atol=1e-9)
+            R_WB = pose(p, q).rotation().matrix()
+            predicted.append(R_BS.T @ R_WB.T @ w_W[row])
+        errors[shift] = np.abs(np.array(predicted) - gyro_true).max()
+    assert errors[0] < 1e-6 and errors[1] > 0.1, errors
+
+
+@pytest.mark.slow
 def test_camera_model_projects_the_lumen_truth(recorded):
     # The lumen truth's world point, carried into the camera by /tf and /tf_static and
     # projected by OpenCV's fisheye model with the CameraInfo's K and D, lands on the truth's
-    # pixel (computed by the simulator's own lens model). The truth is of the pose one plant
-    # step (2 ms) after the tf sample: within a pixel.
+    # pixel (computed by the simulator's own lens model), with /tf at the truth's stamp:
+    # the pose it was computed from.
     _, (_, _, messages) = recorded
     X_BC = static_transform(messages, "capsule_camera_optical_frame")
     capsule = transforms(messages, "capsule")
     info = messages["/capsule/camera/camera_info"][-1][1]
     K, D = np.array(info.k).reshape(3, 3), np.array(info.d)
-    checked = 0
+    errors = []
     for (_, pixel, _, _), (_, point, _, _) in zip(messages["/capsule/lumen_truth/pixel"],
                                                    messages["/capsule/lumen_truth/point"]):
         t = round(seconds(pixel.header.stamp), 6)
-        if pixel.point.z != 1.0 or t < 0.5 or t not in capsule:
-            continue  # not visible, or while the capsule still settles
+        if pixel.point.z != 1.0:
+            continue  # not visible
         X_WC = pose(*capsule[t]).multiply(X_BC)
         p_C = X_WC.inverse().multiply([point.point.x, point.point.y, point.point.z])
         uv, _ = cv2.fisheye.projectPoints(p_C.reshape(1, 1, 3), np.zeros(3), np.zeros(3), K, D)
-        assert np.linalg.norm(uv.ravel() - [pixel.point.x, pixel.point.y]) < 1.0
-        checked += 1
-    assert checked >= 3
+        errors.append(np.linalg.norm(uv.ravel() - [pixel.point.x, pixel.point.y]))
+    print(f"lumen truth: OpenCV vs the lens model, largest {max(errors):.2g} px")
+    assert len(errors) >= 5 and max(errors) < 0.01
 
 
 @pytest.mark.slow
@@ -318,9 +394,12 @@ def test_imu_frame_sees_gravity_up(recorded):
 def test_interrupted_run_leaves_a_finished_file_without_camera_topics(tmp_path):
     # Default with an IMU and the Hall array (no camera), Ctrl-C at 0.3 s inside the
     # simulation: the run's close hook finishes the file, which reads back whole, with the
-    # IMU and Hall topics, the tf and no camera topic.
+    # IMU and Hall topics, the tf (at every plant step, so that each Hall sample's stamp
+    # has the state it saw) and no camera topic.
     scenario = load_scenario(name="Default", override=[
-        "{duration: 1.0, capsule: {imu: {}, magnetic_array: {}, localizer: {}}}"])
+        "{duration: 1.0, capsule: {imu: {}, magnetic_array: {}, localizer: {}}, "
+        f"outputs: {{log_period: {PLANT_STEP}}}}}"])
+    assert scenario.plant.time_step == PLANT_STEP
     path = tmp_path / "interrupted.mcap"
 
     class CtrlC(LeafSystem):
@@ -363,3 +442,56 @@ def test_interrupted_run_leaves_a_finished_file_without_camera_topics(tmp_path):
             assert np.linalg.norm(measured - expected) < 0.02 * np.linalg.norm(expected) + 2e-4
     estimate = messages["/capsule/localizer/pose"][-1][1]
     assert estimate.header.frame_id == "world" and len(estimate.pose.covariance) == 36
+    # Each estimate (made half a period after the samples, on them) is stamped as they are.
+    hall = [seconds(m.header.stamp) for _, m, _, _ in messages["/capsule/magnetic_array/hall_0"]]
+    poses = [seconds(m.header.stamp) for _, m, _, _ in messages["/capsule/localizer/pose"]]
+    assert len(poses) >= 29 and poses == hall[:len(poses)]
+    assert hall[0] == pytest.approx(PLANT_STEP, abs=1e-9)
+
+
+class _FailingWriter:
+    """An mcap Writer whose start (or finish) raises, keeping the stream it was given."""
+
+    streams = []
+
+    def __init__(self, stream, **kwargs):
+        self.streams.append(stream)
+
+    def start(self, **kwargs):
+        raise OSError(28, "No space left on device")
+
+
+class _WriterFailingAtFinish(mcap_log.Writer):
+    def finish(self):
+        raise OSError(5, "Input/output error")
+
+
+def test_the_file_is_closed_on_every_path(tmp_path):
+    # Writer.start raising (disk full at the header): the stream opened for it is closed.
+    log = Ros2McapFile(tmp_path / "a.mcap")
+    tf = {"transforms": []}
+    with mock.patch.object(mcap_log, "Writer", _FailingWriter):
+        with pytest.raises(OSError, match="No space"):
+            log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 0)
+    stream, = _FailingWriter.streams
+    assert stream.closed
+    log.close()
+    log.close()  # idempotent
+    # Writer.finish raising: the file is closed all the same, and the error comes out once.
+    log = Ros2McapFile(tmp_path / "b.mcap")
+    with mock.patch.object(mcap_log, "Writer", _WriterFailingAtFinish):
+        log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 0)
+    stream = log._stream
+    with pytest.raises(OSError, match="Input/output"):
+        log.close()
+    assert stream.closed
+    log.close()
+    # The ordinary path: closed twice, the file reads back whole.
+    log = Ros2McapFile(tmp_path / "c.mcap")
+    log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 5)
+    log.close()
+    log.close()
+    _, summary, messages = read_mcap(tmp_path / "c.mcap")
+    assert summary.statistics.message_count == 1 and messages["/tf"][0][0] == 5
+    with pytest.raises(RuntimeError, match="closed"):
+        log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 6)

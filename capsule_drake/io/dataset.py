@@ -111,6 +111,12 @@ def state_time(t: float, plant_step: float, after_plant_update: bool) -> float:
     return (k + 1) * plant_step
 
 
+def sample_tick(read_time: float, period: float, offset: float) -> float:
+    """The sample time, on its sampler's grid (Drake's k x period), of a periodic reading at
+    `read_time` made `offset` after each multiple of `period`."""
+    return round((read_time - offset) / period) * period
+
+
 def encode_depth(depth_m: np.ndarray, mask: np.ndarray, full_scale: float) -> np.ndarray:
     """The 16-bit depth PNG's values of a range image (m; +inf beyond the camera's far clip,
     0 nearer than its near clip, NaN where nothing was measured). See DEPTH_*."""
@@ -235,8 +241,7 @@ class DatasetWriter(LeafSystem):
 
     def _on_stream(self, context, stream: Stream, port, delay: float):
         # The sample's tick, on the stream's grid (Drake's k x period), not the reading's.
-        k = round((context.get_time() - delay) / stream.period)
-        tick = k * stream.period
+        tick = sample_tick(context.get_time(), stream.period, delay)
         if tick < stream.first_sample - 0.5 * stream.period:
             return EventStatus.DidNothing()
         values = np.asarray(port.Eval(context), dtype=float)

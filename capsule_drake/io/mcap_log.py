@@ -31,10 +31,18 @@ the optical axis, +x right, +y down); `capsule_imu`, `capsule_magnetometer`, `ca
 the sensor frames S of their configs; `epm` the external magnet E (centre, +z its moment);
 `capsule_camera_image` (not a tf frame) the image's pixel coordinates, for the lumen's pixels.
 
-Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer),
-the time the value describes: a sensor's sample time, a frame's exposure, a pose's time. The
-MCAP log time is when the simulation produced the message (after a camera's latency, a
-detector's run); they differ only for frames delivered late and what is computed on them.
+Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer):
+the time of the plant state the value describes, the time the dataset's files give the same
+sample (`PlantTiming`, on io/dataset.py's `state_time`). A discrete plant steps before the
+sensors sample at the same time, so a sensor's sample at its tick t (IMU, AHRS, magnetometer,
+Hall sensors, contact sensor, and the localiser's estimate on them) measures the state one
+plant step later and is stamped t + step; a camera frame shows the state held up to its
+exposure; /tf, the contact wrench and the lumen truth show the state held when they are read.
+So the capsule's /tf at a message's stamp is the state the message saw, where /tf has a
+sample at that time (at every stamp when outputs.log_period is the plant's step; otherwise a
+viewer interpolates between /tf samples). The MCAP log time is when the simulation produced
+the message: after a camera's latency or a detector's run, and for a sensor's sample one
+plant step before its stamp (the discrete plant computes the next step's state first).
 
 Each event's messages are written with Ctrl-C and the termination signals held, so an
 interrupt lands between messages; `close()` (the run loop's close hook) then finishes the
@@ -42,6 +50,7 @@ file (its last chunk, index and footer) however the run ended.
 """
 
 import contextlib
+import dataclasses
 import math
 import os
 import signal
@@ -64,6 +73,7 @@ from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.io.dataset import READ_DELAY, sample_tick, state_time
 from capsule_drake.io.outputs import OutputError
 from capsule_drake.io.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
@@ -81,9 +91,33 @@ IMU = "capsule_imu"
 MAGNETOMETER = "capsule_magnetometer"
 EPM = "epm"
 
-# How long after a sample time the logger reads a sampled sensor (s): at the sample time
-# itself a publish event runs before the sensor's update and would see the previous sample.
-SAMPLE_READ_DELAY = 1e-6
+
+@dataclasses.dataclass(frozen=True)
+class PlantTiming:
+    """Which plant state a reading shows (io/dataset.py's `state_time`, shared with the
+    dataset's files so that both stamp a sample alike).
+
+    step: the discrete plant's time step (s; 0: continuous). step_first: whether the plant
+    steps before the sensors' discrete updates at the same time (an unrestricted update,
+    Drake's default with sampled output ports).
+    """
+
+    step: float = 0.0
+    step_first: bool = True
+
+    @classmethod
+    def of(cls, plant) -> "PlantTiming":
+        return cls(plant.time_step(), plant.GetUniquePeriodicDiscreteUpdateAttribute() is None)
+
+    def sampled(self, tick: float) -> float:
+        """The state time of a sensor's sample taken in a discrete update at `tick`."""
+        return state_time(tick, self.step, self.step_first)
+
+    def held(self, t: float) -> float:
+        """The state time of what a publish event at t reads (the state held up to t: a
+        publish runs before the updates at its time), or a camera draws at its exposure t
+        (in an unrestricted update, beside the plant's step)."""
+        return state_time(t, self.step, after_plant_update=False)
 
 
 def hall_frame(i: int) -> str:
@@ -174,13 +208,17 @@ class Ros2McapFile:
         self.closed = False
 
     def _open(self):
-        self._stream = open(self.path, "wb")
-        self._writer = Writer(self._stream, chunk_size=self._chunk_size,
-                              compression=self._compression)
-        self._writer.start(profile=Profile.ROS2, library="capsule_drake")
-        # rosbag2 reads the channels' QoS with the metadata format its "rosbag2" record
-        # names; an empty one means version 8 and before: integer policies (ros2_messages).
-        self._writer.add_metadata("rosbag2", {"serialized_metadata": ""})
+        stream = open(self.path, "wb")
+        try:
+            writer = Writer(stream, chunk_size=self._chunk_size, compression=self._compression)
+            writer.start(profile=Profile.ROS2, library="capsule_drake")
+            # rosbag2 reads the channels' QoS with the metadata format its "rosbag2" record
+            # names; an empty one means version 8 and before: integer policies (ros2_messages).
+            writer.add_metadata("rosbag2", {"serialized_metadata": ""})
+        except BaseException:
+            stream.close()
+            raise
+        self._stream, self._writer = stream, writer
 
     def _channel(self, topic: str, type_name: str, latched: bool):
         if self._writer is None:
@@ -211,26 +249,36 @@ class Ros2McapFile:
         self.messages += 1
 
     def close(self):
-        """Writes the last chunk, the summary and the footer, and closes the file."""
+        """Writes the last chunk, the summary and the footer, and closes the file, which is
+        closed even if finishing it fails. Idempotent: later calls do nothing."""
         if self.closed:
             return
         self.closed = True
-        if self._writer is not None:
-            try:
-                self._writer.finish()
-            finally:
-                self._stream.close()
+        writer, stream = self._writer, self._stream
+        self._writer = self._stream = None
+        try:
+            if writer is not None:
+                writer.finish()
+        finally:
+            if stream is not None:
+                stream.close()
 
 
 # --- What is logged: one stream per source, each read by its own periodic event ------------
 
 class _Stream:
     """A source of messages: the station outputs it reads (name -> vector size, or a model
-    value for an abstract port), when (every `period` s from `offset`), and `write`."""
+    value for an abstract port), when (every `period` s from `offset`), and `write`;
+    `timing` the plant's, for the stamps."""
 
     inputs: dict = {}
     period: float = 0.01
     offset: float = 0.0
+    timing: PlantTiming = PlantTiming()
+
+    def tick(self, t: float) -> float:
+        """The sample time (on the stream's grid) that the reading at t follows."""
+        return sample_tick(t, self.period, self.offset)
 
     def write(self, log: Ros2McapFile, t: float, values: dict) -> None:
         raise NotImplementedError
@@ -238,12 +286,15 @@ class _Stream:
 
 class _PosesStream(_Stream):
     """/tf (world -> capsule, world -> epm) and the capsule's contact wrench, at the run's
-    log period and times (those of logs.npz). The EPM's frame: its body's pose when the
-    plant has it (arm, servoed stage), else the kinematic stage's axes (yaw about z, then
-    pitch about y; +z its moment) from epm.pose."""
+    log period (read when logs.npz is), stamped with the time of the state they show: the
+    sample time itself when it is on the plant's grid. The EPM's frame: its body's pose
+    when the plant has it (arm, servoed stage), else the kinematic stage's axes (yaw about
+    z, then pitch about y; +z its moment) from epm.pose."""
 
-    def __init__(self, period, capsule_geometries, epm_body_index=None, num_bodies=0):
+    def __init__(self, period, capsule_geometries, epm_body_index=None, num_bodies=0,
+                 timing: PlantTiming = PlantTiming()):
         self.period = period
+        self.timing = timing
         self._geometries = set(capsule_geometries)
         self._epm_index = epm_body_index
         self.inputs = {"capsule.state": 13, "epm.pose": 6,
@@ -261,20 +312,20 @@ class _PosesStream(_Stream):
         return pose[:3], _quaternion_of(R)
 
     def write(self, log, t, values):
-        ns = _ns(t)
+        ns = _ns(self.timing.held(t))
         state = np.asarray(values["capsule.state"])
         q_WB = state[:4] / np.linalg.norm(state[:4])
         p_WE, q_WE = self.epm_pose(values)
         log.write("/tf", "tf2_msgs/msg/TFMessage", {"transforms": [
             transform_stamped(ns, WORLD, CAPSULE, state[4:7], q_WB),
-            transform_stamped(ns, WORLD, EPM, p_WE, q_WE)]}, ns)
+            transform_stamped(ns, WORLD, EPM, p_WE, q_WE)]}, _ns(t))
         R_WB = rotation_from_quaternion(q_WB)
         torque_W, force_W = capsule_contact_wrench_W(values["contact_results"], self._geometries,
                                                      state[4:7])
         log.write("/capsule/contact/wrench", "geometry_msgs/msg/WrenchStamped", {
             "header": header(ns, CAPSULE),
             "wrench": {"force": vector3(R_WB.T @ force_W),
-                       "torque": vector3(R_WB.T @ torque_W)}}, ns)
+                       "torque": vector3(R_WB.T @ torque_W)}}, _ns(t))
 
 
 def _diagonal(variance: float) -> list[float]:
@@ -284,12 +335,25 @@ def _diagonal(variance: float) -> list[float]:
 class _ImuStream(_Stream):
     """sensor_msgs/Imu in the IMU's frame: its samples, their white-noise variance per
     sample as covariance, and the AHRS's orientation of that frame in world when there is
-    an AHRS (orientation_covariance all 0: not estimated), else orientation_covariance[0] =
-    -1 (the message's "no orientation")."""
+    an AHRS, else orientation_covariance[0] = -1 (ROS's "no orientation given").
 
-    def __init__(self, config, with_ahrs: bool):
+    The AHRS's orientation is of the state the same sample saw (it steps each sample one
+    period forward: capsule/ahrs.py). Its first estimate comes with the second sample:
+    before it the AHRS holds a placeholder (the identity), so the first message says "no
+    orientation". The AHRS gives no uncertainty, so orientation_covariance is all zeros,
+    which ROS reads as "covariance unknown" (not "exact"): tilt (roll, pitch) is corrected
+    toward the accelerometer's vertical, but heading (yaw) is the gyro's integral only, with
+    no absolute reference (no magnetometer in the filter), and drifts with the gyro's bias
+    for as long as the run lasts.
+    """
+
+    def __init__(self, config, with_ahrs: bool, timing: PlantTiming = PlantTiming()):
         self.period = 1.0 / config.sample_rate
-        self.offset = SAMPLE_READ_DELAY
+        self.offset = READ_DELAY
+        self.timing = timing
+        # The AHRS updates half a period after each sample (capsule/ahrs.py): the sample at
+        # one period is the first read with its estimate.
+        self._first_estimate = self.period
         self._R_BS = config.X_BS().rotation()
         accel, gyro = imu_channels(config)
         self._accel_cov = _diagonal(accel.white_sigma ** 2)
@@ -299,8 +363,10 @@ class _ImuStream(_Stream):
             self.inputs["capsule.ahrs.q_WB"] = 4
 
     def write(self, log, t, values):
-        stamp = _ns(t - self.offset)
-        if "capsule.ahrs.q_WB" in values:
+        tick = self.tick(t)
+        stamp = _ns(self.timing.sampled(tick))
+        if ("capsule.ahrs.q_WB" in values
+                and tick >= self._first_estimate - 0.5 * self.period):
             q_WB = np.asarray(values["capsule.ahrs.q_WB"])
             R_WS = RotationMatrix(rotation_from_quaternion(q_WB)).multiply(self._R_BS)
             orientation, orientation_cov = quaternion_wxyz(_quaternion_of(R_WS)), [0.0] * 9
@@ -319,16 +385,18 @@ class _FieldStream(_Stream):
     """sensor_msgs/MagneticField (T) of 3-axis field sensors, one topic and frame each, with
     their white-noise variance per sample as covariance."""
 
-    def __init__(self, port: str, topics_frames, sample_rate: float, noise_sigma: float):
+    def __init__(self, port: str, topics_frames, sample_rate: float, noise_sigma: float,
+                 timing: PlantTiming = PlantTiming()):
         self.period = 1.0 / sample_rate
-        self.offset = SAMPLE_READ_DELAY
+        self.offset = READ_DELAY
+        self.timing = timing
         self._port = port
         self._topics_frames = list(topics_frames)
         self._cov = _diagonal(noise_sigma ** 2)
         self.inputs = {port: 3 * len(self._topics_frames)}
 
     def write(self, log, t, values):
-        stamp = _ns(t - self.offset)
+        stamp = _ns(self.timing.sampled(self.tick(t)))
         B = np.asarray(values[self._port]).reshape(-1, 3)
         for (topic, frame), field in zip(self._topics_frames, B):
             log.write(topic, "sensor_msgs/msg/MagneticField", {
@@ -339,14 +407,15 @@ class _FieldStream(_Stream):
 class _ContactSensorStream(_Stream):
     """The contact sensor's reading, a force in the capsule frame (no torque)."""
 
-    def __init__(self, config):
+    def __init__(self, config, timing: PlantTiming = PlantTiming()):
         self.period = 1.0 / config.sample_rate
-        self.offset = SAMPLE_READ_DELAY
+        self.offset = READ_DELAY
+        self.timing = timing
         self.inputs = {"capsule.contact_sensor.F_B": 3}
 
     def write(self, log, t, values):
         log.write("/capsule/contact_sensor/wrench", "geometry_msgs/msg/WrenchStamped", {
-            "header": header(_ns(t - self.offset), CAPSULE),
+            "header": header(_ns(self.timing.sampled(self.tick(t))), CAPSULE),
             "wrench": {"force": vector3(values["capsule.contact_sensor.F_B"]),
                        "torque": vector3([0.0, 0.0, 0.0])}}, _ns(t))
 
@@ -354,11 +423,13 @@ class _ContactSensorStream(_Stream):
 class _PoseEstimateStream(_Stream):
     """The localiser's estimate of the capsule's pose in world with its covariance, turned
     from the estimator's [position, rotation vector on the body side] to ROS's [position,
-    rotation about the world's fixed axes]: dtheta_W = R_WB dtheta_B."""
+    rotation about the world's fixed axes]: dtheta_W = R_WB dtheta_B. It updates half a
+    period after the sensors sample, on those samples: stamped as they are."""
 
-    def __init__(self, config):
+    def __init__(self, config, timing: PlantTiming = PlantTiming()):
         self.period = config.period
-        self.offset = 0.5 * config.period + SAMPLE_READ_DELAY  # it updates half a period late
+        self.offset = 0.5 * config.period + READ_DELAY
+        self.timing = timing
         self.inputs = {"capsule.localizer.pose": 7, "capsule.localizer.covariance": 36}
 
     def write(self, log, t, values):
@@ -368,7 +439,7 @@ class _PoseEstimateStream(_Stream):
         T[3:, 3:] = rotation_from_quaternion(q_WB)
         covariance = T @ np.asarray(values["capsule.localizer.covariance"]).reshape(6, 6) @ T.T
         log.write("/capsule/localizer/pose", "geometry_msgs/msg/PoseWithCovarianceStamped", {
-            "header": header(_ns(t - self.offset), WORLD),
+            "header": header(_ns(self.timing.sampled(self.tick(t))), WORLD),
             "pose": {"pose": {"position": vector3(pose[4:7]),
                               "orientation": quaternion_wxyz(q_WB)},
                      "covariance": [float(c) for c in covariance.ravel()]}}, _ns(t))
@@ -428,21 +499,24 @@ class _CameraStream(_Stream):
     the tracker, which runs `latency` + 1 us after the tick) delivered it:
 
     - the colour image (rgb8) and, when rendered, the depth (32FC1, `depth_for_ros`), each
-      with a CameraInfo, stamped with the frame's exposure time;
+      with a CameraInfo, stamped with the time of the state the frame shows: its exposure
+      (the next plant step's time when rounding puts the exposure just after a step), as
+      the dataset's frames.csv;
     - the lumen truth: its pixel (PointStamped: x = u, y = v in pixels, z = 1 visible or 0;
       NaN pixel when behind the lens) and its 3-D target point in world, stamped with the
-      frame's delivery (the truth is computed from the capsule's pose then, at most one
-      plant step later: with no latency, the exposure), and an ImageMarker (green circle)
-      stamped as the image;
+      time of the capsule's state it is computed from, the one held at the frame's delivery
+      (with no latency and a discrete plant, one plant step after the exposure), and an
+      ImageMarker (green circle) stamped as the image;
     - with a tracker, its detection on that frame: pixel (x = u, y = v, NaN when not found;
       z = its confidence in [0, 1]) and an ImageMarker (orange circle), stamped as the image
       so a viewer overlays it; a frame without a detection gets a REMOVE marker.
     """
 
     def __init__(self, lens, tick: float, latency: float, render_depth: bool,
-                 with_tracker: bool):
+                 with_tracker: bool, timing: PlantTiming = PlantTiming()):
         self.period = tick
-        self.offset = latency + 2.0 * SAMPLE_READ_DELAY
+        self.offset = latency + 2.0 * READ_DELAY
+        self.timing = timing
         self._lens = lens
         rays, self._in_field = lens.pixel_rays()
         self._ray_z = rays[..., 2]
@@ -469,7 +543,7 @@ class _CameraStream(_Stream):
         if count == self._last_count or count < 1:
             return
         self._last_count = count
-        now, stamp = _ns(t), _ns(exposure)
+        now, stamp = _ns(t), _ns(self.timing.held(exposure))
         rgb = np.ascontiguousarray(values["capsule.camera.rgb_image"].data[:, :, :3])
         H, W = rgb.shape[:2]
         info = camera_info(self._lens, stamp)
@@ -489,7 +563,7 @@ class _CameraStream(_Stream):
         pixel = np.asarray(values["capsule.lumen.lumen_pixel"], dtype=float)
         visible = float(values["capsule.lumen.lumen_visible"][0]) > 0.5
         point = np.asarray(values["capsule.lumen.lumen_point_W"])[:3]
-        stamp_truth = _ns(t - 2.0 * SAMPLE_READ_DELAY)  # the delivery: the pose it is of
+        stamp_truth = _ns(self.timing.held(t))  # the pose it is computed from
         log.write("/capsule/lumen_truth/pixel", "geometry_msgs/msg/PointStamped", {
             "header": header(stamp_truth, PIXELS),
             "point": {"x": pixel[0], "y": pixel[1], "z": 1.0 if visible else 0.0}}, now)
@@ -610,36 +684,39 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
     body = plant.GetBodyByName(CAPSULE_BODY)
     epm_index = (int(plant.GetBodyByName(EPM_BODY).index()) if plant.HasBodyNamed(EPM_BODY)
                  else None)
+    timing = PlantTiming.of(plant)
     streams = [_PosesStream(scenario.outputs.log_period,
                             plant.GetCollisionGeometriesForBody(body), epm_index,
-                            plant.num_bodies())]
+                            plant.num_bodies(), timing)]
     static = []
     if "capsule.camera.rgb_image" in outputs:
         camera = station.GetSubsystemByName("capsule.camera")
         static.append((CAPSULE, CAMERA, plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()))
         streams.append(_CameraStream(camera.lens, camera.tick(), camera.latency(),
                                      camera.config.render_depth,
-                                     "capsule.lumen_tracker.lumen_pixel" in outputs))
+                                     "capsule.lumen_tracker.lumen_pixel" in outputs, timing))
     if "capsule.imu.accel" in outputs:
         static.append((CAPSULE, IMU, capsule.imu.X_BS()))
-        streams.append(_ImuStream(capsule.imu, "capsule.ahrs.q_WB" in outputs))
+        streams.append(_ImuStream(capsule.imu, "capsule.ahrs.q_WB" in outputs, timing))
     if "capsule.magnetometer.B_S" in outputs:
         config = capsule.magnetometer
         static.append((CAPSULE, MAGNETOMETER, config.X_BS()))
         streams.append(_FieldStream("capsule.magnetometer.B_S",
                                     [("/capsule/magnetometer", MAGNETOMETER)],
-                                    config.sample_rate, config.channel().white_sigma))
+                                    config.sample_rate, config.channel().white_sigma,
+                                    timing))
     if "capsule.magnetic_array.B" in outputs:
         array = capsule.magnetic_array
         n = len(array.positions)
         static += [(CAPSULE, hall_frame(i), array.X_BS(i)) for i in range(n)]
         streams.append(_FieldStream("capsule.magnetic_array.B",
                                     [(f"/capsule/magnetic_array/hall_{i}", hall_frame(i))
-                                     for i in range(n)], array.sample_rate, array.noise_rms))
+                                     for i in range(n)], array.sample_rate, array.noise_rms,
+                                    timing))
     if "capsule.contact_sensor.F_B" in outputs:
-        streams.append(_ContactSensorStream(capsule.contact_sensor))
+        streams.append(_ContactSensorStream(capsule.contact_sensor, timing))
     if "capsule.localizer.pose" in outputs:
-        streams.append(_PoseEstimateStream(capsule.localizer))
+        streams.append(_PoseEstimateStream(capsule.localizer, timing))
     logger = builder.AddNamedSystem("mcap_logger", McapLogger(
         Ros2McapFile(path, compression), streams, static))
     for name in logger.stream_inputs():
