@@ -18,6 +18,7 @@ from capsule_drake.navigation.autonomy import (BACKOFF, COAST, CRUISE, PUSH, SEA
                                                LumenFollowerConfig, LumenFollowerController,
                                                check_lumen_follower_config)
 from capsule_drake.schema import ScenarioError
+from capsule_drake.teleop.mapping import limit_pitch
 
 FLOOR = 0.15  # a flat floor for the EPM's centre (m)
 # The Navigation scenario's magnets (N52 cylinders, 101.6 mm and 11.1 mm) and a 12 g capsule.
@@ -236,6 +237,72 @@ def test_a_stall_pushes_then_backs_off():
     assert status[0] == BACKOFF and status[1] == -config.backoff_force
     assert _net_force(command, heading) @ heading == pytest.approx(-config.backoff_force,
                                                                   abs=0.005)
+
+
+def test_a_push_that_loses_the_lumen_still_ends_in_a_back_off_then_a_search():
+    """The push's wiggle swings the lumen out of view: the (immobile) capsule has not come
+    free, so the push runs its time and backs off, then searches, rather than coasting on
+    into the next stall (a capsule at the splenic flexure cycled cruise, push, coast,
+    search for 500 s without once backing off)."""
+    config = FAST
+    follower, simulator, context = _follower(config)
+    t = 0.0
+    while t < 40.0 and _outputs(follower, context)[2][0] != PUSH:
+        t += 0.1
+        simulator.AdvanceTo(t)
+    assert _outputs(follower, context)[2][0] == PUSH
+    follower.GetInputPort("lumen_visible").FixValue(context, [0.0])
+    modes = []
+    while t < 80.0 and SEARCH not in modes:
+        t += 0.1
+        simulator.AdvanceTo(t)
+        modes.append(_outputs(follower, context)[2][0])
+    assert COAST not in modes
+    assert modes.index(BACKOFF) < modes.index(SEARCH)
+    assert set(modes) == {PUSH, BACKOFF, SEARCH}
+
+
+def _elevation(h):
+    return np.degrees(np.arctan2(h[2], np.hypot(h[0], h[1])))
+
+
+def _azimuth(h):
+    return np.degrees(np.arctan2(h[1], h[0]))
+
+
+def test_limit_pitch_turns_a_near_vertical_heading_toward_the_way_it_came():
+    limit = np.radians(60.0)
+    way = np.array([0.0, 1.0, 0.3])  # the way forward: along +y
+    # Within the limit: unchanged, with or without `toward`.
+    h = np.array([0.6, 0.3, 0.7])
+    np.testing.assert_allclose(limit_pitch(h, limit, toward=way), h / np.linalg.norm(h))
+    for elevation in (61.0, 70.0, 80.0, 89.0, 90.0, 95.0):
+        # A lumen this steep whose horizontal part points sideways (-x).
+        e = np.radians(elevation)
+        h = np.array([-np.cos(e), 0.0, np.sin(e)])
+        clipped = limit_pitch(h, limit, toward=way)
+        assert np.linalg.norm(clipped) == pytest.approx(1.0)
+        assert _elevation(clipped) == pytest.approx(60.0)
+        # Its horizontal part by the stated rule: h's plus what h lacks of cos(60 deg) along
+        # the way's horizontal unit vector (+y), measured here as an azimuth.
+        flat = np.array([-np.cos(e), 0.0]) + (0.5 - abs(np.cos(e))) * np.array([0.0, 1.0])
+        assert _azimuth(clipped) == pytest.approx(np.degrees(np.arctan2(flat[1], flat[0])))
+    # Straight up: the way's horizontal direction; just past the limit: h's own, nearly.
+    assert _azimuth(limit_pitch(np.array([0.0, 0.0, 1.0]), limit, toward=way)) == \
+        pytest.approx(90.0)
+    e = np.radians(60.5)
+    assert _azimuth(limit_pitch(np.array([-np.cos(e), 0.0, np.sin(e)]), limit,
+                                toward=way)) == pytest.approx(180.0, abs=2.0)
+    # Without `toward` the horizontal direction is h's own, however small (as before).
+    e = np.radians(89.0)
+    assert _azimuth(limit_pitch(np.array([-np.cos(e), 0.0, np.sin(e)]), limit)) == \
+        pytest.approx(180.0)
+    # Downward alike, and a vertical `toward` leaves h's own.
+    e = np.radians(-85.0)
+    down = limit_pitch(np.array([np.cos(e), 0.0, np.sin(e)]), limit, toward=way)
+    assert _elevation(down) == pytest.approx(-60.0) and down[1] > 0.9 * np.cos(limit)
+    assert _azimuth(limit_pitch(np.array([np.cos(e), 0.0, np.sin(e)]), limit,
+                                toward=[0.0, 0.0, 1.0])) == pytest.approx(0.0)
 
 
 def test_a_lumen_behind_the_way_it_came_is_not_followed():

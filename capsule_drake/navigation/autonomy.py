@@ -9,7 +9,12 @@ that it keeps the magnet at its clearance. It knows nothing else of the colon.
 The control law, every `period`:
 - Heading h: the lumen direction in the world (the ray turned by the camera's orientation),
   low-passed, kept within `max_lead_deg` of the capsule's axis (a capsule the tissue holds
-  back cannot wind up a large turn) and within `max_pitch_deg` of the horizontal.
+  back cannot wind up a large turn) and within `max_pitch_deg` of the horizontal. Where
+  the lumen is steeper than that (a flexure that climbs), its horizontal direction is
+  unreliable; the clipped heading turns it toward the way forward's, the more the steeper
+  (`limit_pitch`). (Keeping the lumen's own, a lumen 82-85 deg up with a horizontal part
+  of a few per cent sideways gave a heading 60 deg up and 55 deg off the colon's axis, into
+  the wall of seed 7's splenic flexure, where the capsule stayed for 500 s.)
 - Force, not position: the EPM goes where the magnet's pull on the capsule plus the
   capsule's weight is a drive force f along h (`epm_pose_for_force`): the pull carries
   the weight and leaves f to move the capsule, which floats in the insufflated lumen
@@ -28,9 +33,10 @@ The control law, every `period`:
   shrinks while it moves faster (quickly above `overspeed` times the target); the command
   moves at most `max_epm_speed`, so a capsule that breaks free does not drag the EPM on.
 - Stall: with f at its largest and no progress for `stall_after`, push: f sweeps between
-  `push_force` and `push_force_low` and the heading wiggles sideways; if the capsule
-  still does not move within `push_time`, back off (f = `backoff_force` backward, for
-  `backoff_time`) and retry.
+  `push_force` and `push_force_low` and the heading wiggles sideways (the lumen may
+  swing out of view meanwhile; the push goes on); if the capsule still does not move
+  within `push_time`, back off (f = `backoff_force` backward, for `backoff_time`), then
+  search if the lumen is out of view, and retry.
 - Lumen lost (not seen for `lost_after`): coast (f = `coast_force` on along the heading
   held, for `coast_time`: in a bend the lumen goes out of sight behind the wall and comes
   back round it), then search: the heading sweeps a cone around the last forward direction
@@ -447,12 +453,13 @@ class LumenFollowerController(LeafSystem):
                     x[_BASE] = seen
                     x[_STALL_T] = 0.0
         elif mode == PUSH:
+            # The lumen lost during a push does not end it: the push's own wiggle swings it
+            # out of view. (Ending it in a coast, as at first, never reached the back off:
+            # a capsule held at the splenic flexure went cruise, push, coast, search, cruise
+            # for 500 s.)
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
                 switch(CRUISE)  # go on with the force that got it moving
                 x[_F] = np.clip(x[_F], c.min_force, c.max_force)
-            elif lost:
-                switch(COAST)
-                x[_BASE] = forward_base()
             elif x[_MODE_T] > c.push_time:
                 switch(BACKOFF)
                 x[_BASE] = forward_base()
@@ -503,7 +510,7 @@ class LumenFollowerController(LeafSystem):
         if np.linalg.norm(h) < 1e-6:
             h = z_W
         h = lead_at_most(h / np.linalg.norm(h), z_W, np.radians(c.max_lead_deg))
-        h = limit_pitch(h, np.radians(c.max_pitch_deg))
+        h = limit_pitch(h, np.radians(c.max_pitch_deg), toward=way)
         x[_H] = h
 
         # The EPM where the pull plus the weight is `drive` along h.

@@ -95,14 +95,29 @@ def turn(h, axis, angle):
             + axis * (axis @ h) * (1.0 - np.cos(angle)))
 
 
-def limit_pitch(h, max_pitch: float):
-    """h with its elevation above the horizontal clipped to +-max_pitch (rad)."""
+def limit_pitch(h, max_pitch: float, toward=None):
+    """h with its elevation above the horizontal clipped to +-max_pitch (rad).
+
+    The clipped heading keeps h's horizontal direction. That direction is ill-defined as h
+    nears the vertical (a lumen straight up: its few per cent of horizontal part is noise,
+    which the clip would blow up to a full cos(max_pitch) sideways). With `toward` (a
+    direction whose horizontal part is trusted, e.g. the way the capsule has come), the
+    horizontal direction is h's plus toward's horizontal unit vector times what h lacks of
+    cos(max_pitch): h's own at the limit, toward's at the vertical, continuous between."""
+    h = np.asarray(h, dtype=float) / np.linalg.norm(h)
     horizontal = np.hypot(h[0], h[1])
     elevation = np.arctan2(h[2], horizontal)
-    if abs(elevation) <= max_pitch or horizontal < 1e-9:
-        return h / np.linalg.norm(h)
+    if abs(elevation) <= max_pitch:
+        return h
+    flat = h[:2].copy()
+    if toward is not None and np.hypot(toward[0], toward[1]) > 1e-9:
+        flat = flat + (np.cos(max_pitch) - horizontal) * (
+            np.asarray(toward[:2], dtype=float) / np.hypot(toward[0], toward[1]))
+    if np.linalg.norm(flat) < 1e-9:
+        return h
     e = np.clip(elevation, -max_pitch, max_pitch)
-    return np.array([h[0] / horizontal * np.cos(e), h[1] / horizontal * np.cos(e), np.sin(e)])
+    flat = flat / np.linalg.norm(flat) * np.cos(e)
+    return np.array([flat[0], flat[1], np.sin(e)])
 
 
 def lead_at_most(h, axis, max_angle: float):
