@@ -68,6 +68,13 @@ def test_progress_shows_each_run_as_it_goes(local_results, progress_lines):
 
 
 @pytest.mark.slow
+def test_each_local_run_has_a_process_of_its_own():
+    # One worker, two runs: two processes (a worker kept each run's memory, 0.6-0.7 GB).
+    results = run_suite(_tasks(), workers=1, engine="local", progress=False)
+    assert len({r["worker_pid"] for r in results}) == 2
+
+
+@pytest.mark.slow
 def test_each_run_is_written_as_it_finishes(local_results, finished_rows):
     with open(finished_rows) as f:
         written = list(csv.DictReader(f))

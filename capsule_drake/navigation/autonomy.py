@@ -453,8 +453,8 @@ class LumenFollowerController(LeafSystem):
                     x[_BASE] = seen
                     x[_STALL_T] = 0.0
         elif mode == PUSH:
-            # The lumen lost during a push does not end it: the push's own wiggle swings it
-            # out of view. (Ending it in a coast, as at first, never reached the back off:
+            # The lumen lost during a push does not end it: the push's wiggle and its force
+            # sweep move the view, and the lumen can go out of sight. (Ending it in a coast, as at first, never reached the back off:
             # a capsule held at the splenic flexure went cruise, push, coast, search, cruise
             # for 500 s.)
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
