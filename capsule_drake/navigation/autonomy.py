@@ -454,9 +454,9 @@ class LumenFollowerController(LeafSystem):
                     x[_STALL_T] = 0.0
         elif mode == PUSH:
             # The lumen lost during a push does not end it: the push's wiggle and its force
-            # sweep move the view, and the lumen can go out of sight. (Ending it in a coast, as at first, never reached the back off:
-            # a capsule held at the splenic flexure went cruise, push, coast, search, cruise
-            # for 500 s.)
+            # sweep move the view, and the lumen can go out of sight. (Ending it in a coast,
+            # as at first, never reached the back off: a capsule held at the splenic
+            # flexure went cruise, push, coast, search, cruise for 500 s.)
             if (p - x[_ANCHOR]) @ x[_BASE] > c.unstick_distance:
                 switch(CRUISE)  # go on with the force that got it moving
                 x[_F] = np.clip(x[_F], c.min_force, c.max_force)

@@ -110,9 +110,9 @@ def limit_pitch(h, max_pitch: float, toward=None):
     if abs(elevation) <= max_pitch:
         return h
     flat = h[:2].copy()
-    if toward is not None and np.hypot(toward[0], toward[1]) > 1e-9:
-        flat = flat + (np.cos(max_pitch) - horizontal) * (
-            np.asarray(toward[:2], dtype=float) / np.hypot(toward[0], toward[1]))
+    way = np.zeros(2) if toward is None else np.asarray(toward[:2], dtype=float)
+    if np.hypot(*way) > 1e-9:
+        flat = flat + (np.cos(max_pitch) - horizontal) * (way / np.hypot(*way))
     if np.linalg.norm(flat) < 1e-9:
         return h
     e = np.clip(elevation, -max_pitch, max_pitch)
