@@ -35,7 +35,7 @@ import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 
 import capsule_drake  # noqa: E402,F401  (registers the environment)
-from capsule_drake.navigation.gym_env import DEFAULT_OBSERVATIONS, ENV_ID  # noqa: E402
+from capsule_drake.app.gym_env import DEFAULT_OBSERVATIONS, ENV_ID  # noqa: E402
 
 SEED = 0
 

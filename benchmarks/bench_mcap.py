@@ -1,4 +1,4 @@
-"""Cost of the MCAP logger (io/mcap_log.py) in a WithSensors run.
+"""Cost of the MCAP logger (app/mcap_log.py) in a WithSensors run.
 
 Prints:
   - the logger's time per event inside a simulation, by stream: per camera frame (colour,
@@ -23,8 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from capsule_drake.io.mcap_log import add_mcap_logger
-from capsule_drake.io.run import simulate
+from capsule_drake.app.mcap_log import add_mcap_logger
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import load_scenario
 
 

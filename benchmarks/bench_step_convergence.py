@@ -4,7 +4,7 @@
         [--duration 20] [--steps 0.25,0.5,1,2,3,4] [--reference 0.25] [--scenario-text YAML]
         [--log-every-step]
 
-Each step runs the same scenario (same seed) through the one run loop (io/run.py) with
+Each step runs the same scenario (same seed) through the one run loop (app/run.py) with
 `plant.time_step` set to it, bypassing the scenario's step bound (physics/step_bound.py), so
 that the table also shows what happens beyond it. Printed per step, against the reference:
   - advance along the colon (m) and its difference from the reference's (%);
@@ -27,7 +27,7 @@ import numpy as np
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import load_scenario
 
 

@@ -99,7 +99,7 @@ def load_case(case: str, duration: float, step: float, period: float):
 
 def run_one(case: str, duration: float, step: float, period: float) -> dict:
     """Runs one configuration in this process; returns its numbers."""
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
 
     start = time.perf_counter()
     scenario = load_case(case, duration, step, period)

@@ -22,7 +22,7 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 
 from capsule_drake.io.headless import HeadlessPage, chromium_executable
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import make_station
 

@@ -24,7 +24,7 @@ import numpy as np
 import capsule_drake  # noqa: F401  (registers the environment)
 from capsule_drake.capsule.model import capsule_model, rotation_from_quaternion
 from capsule_drake.control.analysis import epm_pose_for_force
-from capsule_drake.navigation.gym_env import action_toward
+from capsule_drake.app.gym_env import action_toward
 
 # The heuristic's drive force along the lumen (N): the lumen follower's cruise range.
 DRIVE_FORCE = 0.03

@@ -491,7 +491,7 @@ def test_the_followers_gains_from_yaml_change_what_it_does():
     station, and changes its behaviour: with ten times the gain its drive force grows ten
     times faster while the capsule moves slower than the target speed, so after 3 s it
     drives harder, the EPM is elsewhere and the capsule with it."""
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
     base = "{colon: {seed: 0}, duration: 3.0, capsule: {camera: {latency: 0.0}}}"
     gain = 10.0 * LumenFollowerConfig().force_gain
     results, followers, status = {}, {}, {}

@@ -23,13 +23,13 @@ import pytest
 import trimesh
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-from capsule_drake.cli import main as cli_main
-from capsule_drake.io import outputs
-from capsule_drake.io.outputs import load_logs
+from capsule_drake.app.cli import main as cli_main
+from capsule_drake.app import outputs
+from capsule_drake.app.outputs import load_logs
 from tube_set import straight_tube
 
 REPO = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "capsule_drake.cli"]
+CLI = [sys.executable, "-m", "capsule_drake.app.cli"]
 RUN = ["run", "--no-recording", "--quiet", "--duration", "0.2"]
 
 

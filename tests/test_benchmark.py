@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
+from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, run_task, summary, task_scenario,
                                                 where_it_ended, write_outputs)
 
@@ -166,8 +166,8 @@ def test_the_benchmark_honours_the_random_seed():
 
 
 def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_path):
-    from capsule_drake import cli
-    from capsule_drake.cli import main
+    from capsule_drake.app import cli
+    from capsule_drake.app.cli import main
 
     def no_runs(*args, **kwargs):
         raise AssertionError("a bad command line must fail before any run starts")
@@ -216,7 +216,7 @@ class _Log:
 def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
     from types import SimpleNamespace
 
-    from capsule_drake.navigation.benchmark import _detection_scores
+    from capsule_drake.app.benchmark import _detection_scores
     camera = SimpleNamespace(lens=SimpleNamespace(width=300, height=400))  # diagonal 500 px
     truth = [[100, 100]] * 5 + [[np.nan, np.nan]]
     truth_visible = [[1]] * 5 + [[0]]

@@ -10,7 +10,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.capsule.contact_sensor import ContactForceSensor, ContactSensorConfig
 from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import ScenarioError, load_scenario
 
 SAMPLE_RATE = 200.0    # 5 ms: five plant steps (1 ms) per sample

@@ -11,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
-from capsule_drake.io.dataset import DatasetWriter, Stream, encode_depth, read_depth_png
+from capsule_drake.app.dataset import DatasetWriter, Stream, encode_depth, read_depth_png
 
 
 class FrameClock(LeafSystem):

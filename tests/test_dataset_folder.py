@@ -13,10 +13,10 @@ import pytest
 import trimesh
 import yaml
 
-from capsule_drake import cli
+from capsule_drake.app import cli
 from capsule_drake.anatomy import load_colon
-from capsule_drake.cli import main as cli_main
-from capsule_drake.io.dataset_docs import load_example_code, split_of_seed
+from capsule_drake.app.cli import main as cli_main
+from capsule_drake.app.dataset_docs import load_example_code, split_of_seed
 from capsule_drake.perception import Lens, LensConfig
 from capsule_drake.scenario import load_scenario
 

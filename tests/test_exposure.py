@@ -11,7 +11,7 @@ import psutil
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "capsule_drake.cli"]
+CLI = [sys.executable, "-m", "capsule_drake.app.cli"]
 LOOPBACK = {"127.0.0.1", "::1"}
 
 

@@ -7,11 +7,11 @@ import pytest
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.cli import main as cli_main
+from capsule_drake.app.cli import main as cli_main
 from capsule_drake.io.guard import (GuardConfig, check_capsule_in_colon, check_capsule_state,
                                     parse_guard_reason)
 from capsule_drake.io.metrics import OUTCOMES, capsule_surface_points_C
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import ScenarioError, load_scenario
 
 

@@ -1,4 +1,4 @@
-"""The Gymnasium environment (navigation/gym_env.py): Gymnasium's own checker, the spaces,
+"""The Gymnasium environment (app/gym_env.py): Gymnasium's own checker, the spaces,
 the reward's progress against the centreline found independently, the action's bounds
 and the EPM's clearance from the skin, the seeding, the reuse of built diagrams, a vector
 of two environments, and the example script."""
@@ -16,7 +16,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import capsule_drake  # noqa: F401  (registers the environment)
-from capsule_drake.navigation.gym_env import (ENV_ID, OBSERVATIONS, ColonNavigationEnv,
+from capsule_drake.app.gym_env import (ENV_ID, OBSERVATIONS, ColonNavigationEnv,
                                               action_toward, rotate)
 
 REPO = Path(__file__).resolve().parents[1]

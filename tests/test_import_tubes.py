@@ -147,7 +147,7 @@ def test_a_y_with_a_short_arm_is_refused_as_a_branch(tmp_path):
 
 
 def test_the_command_refuses_a_sphere_with_one_line(tmp_path, capsys):
-    from capsule_drake.cli import main
+    from capsule_drake.app.cli import main
 
     path = tmp_path / "ball.obj"
     trimesh.creation.icosphere(subdivisions=3, radius=0.05).export(path)

@@ -160,7 +160,7 @@ def _inside(scenario_name, override, duration):
     wall mesh, capsule radius): the capsule stayed inside if its axis never came nearer
     the wall than its radius (less the contact's compliance)."""
     from capsule_drake.anatomy import load_colon
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
 
     scenario = load_scenario(name=scenario_name, override=override)
     scenario = dataclasses.replace(scenario, duration=duration)
@@ -185,7 +185,7 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     slides back 3.6 cm, then jumps forward between 6 and 10 s; at 4, 6, 10 and 12 s the two
     runs agree within 1 mm, at 8 s, mid-jump, they are 7.1 and 9.9 cm along.)"""
     from capsule_drake.anatomy import load_colon
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
 
     path = tmp_path / "colon.obj"
     load_colon(load_scenario(name="Default").colon)[0].visual_mesh().export(path)
@@ -244,7 +244,7 @@ def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp
     colon (a point cloud, an empty folder) stops the run with one line, no traceback."""
     from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.ex_vivo import write_segment
-    from capsule_drake.cli import main
+    from capsule_drake.app.cli import main
     from capsule_drake.station import make_station
 
     mesh = write_segment(tmp_path / "scan")

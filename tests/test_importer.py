@@ -180,7 +180,7 @@ def test_import_colon_command(tmp_path, capsys):
     """capsule-sim import-colon: a millimetre mesh is refused with the scale that fixes it
     (exit 2, one line); with --scale it is repaired and written, its centreline loadable."""
     from capsule_drake.anatomy.centerline import Centerline
-    from capsule_drake.cli import main
+    from capsule_drake.app.cli import main
 
     tube = _open_tube()
     tube.invert()

@@ -7,9 +7,9 @@ from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1] / "capsule_drake"
 
-# The top-level runners: the only modules that may import the station (they run whole
-# stations; everything else is a block the station adds, or works without a station).
-STATION_RUNNERS = {"capsule_drake.cli", "capsule_drake.io.run"}
+# The application layer (capsule_drake/app/): the only modules that may import the station
+# (they run whole stations; everything else is a block the station adds, or works without
+# a station).
 STATION_MAX_LINES = 300
 
 
@@ -19,6 +19,7 @@ def module_name(path: Path) -> str:
 
 
 MODULES = {module_name(path): path for path in sorted(PACKAGE_DIR.rglob("*.py"))}
+APP = {module for module in MODULES if module.startswith("capsule_drake.app")}
 
 
 def imported_modules(node, module: str, is_package: bool) -> list[str]:
@@ -107,9 +108,9 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_the_import_graph_is_read():
     # The checks below are not vacuous: the modules are found and their imports resolved.
     graph = import_graph(top_level_only=True)
-    assert {"capsule_drake.station", "capsule_drake.scenario", "capsule_drake.cli",
-            "capsule_drake.io.run", "capsule_drake.anatomy"} <= set(graph)
-    assert "capsule_drake.station" in graph["capsule_drake.io.run"]
+    assert {"capsule_drake.station", "capsule_drake.scenario", "capsule_drake.app.cli",
+            "capsule_drake.app.run", "capsule_drake.anatomy"} <= set(graph)
+    assert "capsule_drake.station" in graph["capsule_drake.app.run"]
     assert "capsule_drake.anatomy.source" in graph["capsule_drake.anatomy"]  # the __init__
     assert all(target in MODULES for edges in graph.values() for target in edges)
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
@@ -131,14 +132,13 @@ def test_no_imports_of_the_package_inside_functions():
 
 
 def test_only_the_runners_import_the_station_and_nothing_imports_the_cli():
-    assert STATION_RUNNERS <= set(MODULES)
     graph = import_graph(top_level_only=False)  # an import anywhere in a module counts
     station = sorted(m for m, edges in graph.items() if "capsule_drake.station" in edges)
-    assert set(station) <= STATION_RUNNERS, (
-        f"capsule_drake.station imported by {station}; only the runners "
-        f"{sorted(STATION_RUNNERS)} may build whole stations")
-    cli = sorted(m for m, edges in graph.items() if "capsule_drake.cli" in edges)
-    assert not cli, f"capsule_drake.cli imported by {cli}"
+    assert set(station) <= APP, (
+        f"capsule_drake.station imported by {station}; only the application layer "
+        f"(capsule_drake/app/) may build whole stations")
+    cli = sorted(m for m, edges in graph.items() if "capsule_drake.app.cli" in edges)
+    assert not cli, f"capsule_drake.app.cli imported by {cli}"
 
 
 def test_station_is_short():
@@ -148,13 +148,9 @@ def test_station_is_short():
 
 # The layers from the top: each module may import only modules of its own layer or below.
 # A block (everything not listed) is below the scenario, which collects the blocks' configs;
-# the station is above the scenario; the runners above the station; the CLI on top.
+# the station is above the scenario; the application layer above the station.
 LAYERS = [
-    {"capsule_drake.cli"},
-    # The runners: each simulates whole stations through the run loop (io/run.py; the
-    # Gymnasium environment steps the run loop's diagram itself, episode by episode).
-    {"capsule_drake.io.run", "capsule_drake.io.record", "capsule_drake.navigation.benchmark",
-     "capsule_drake.navigation.gym_env"},
+    APP,   # the run loop, record, benchmark, Gymnasium environment, writers, the CLI
     {"capsule_drake.station"},
     {"capsule_drake.scenario"},
 ]

@@ -213,7 +213,7 @@ def test_detector_on_rendered_frames_against_the_lumen_truth(rendered_frames, de
 
 
 def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, capsys):
-    from capsule_drake.cli import main
+    from capsule_drake.app.cli import main
 
     out = tmp_path / "eval"
     code = main(["eval-lumen", "--frames", "6", "--colons", "1", "--seed", "20", "--quiet",

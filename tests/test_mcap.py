@@ -1,4 +1,4 @@
-"""MCAP logs of ROS 2 messages (io/mcap_log.py, io/ros2_messages.py), read back with the
+"""MCAP logs of ROS 2 messages (app/mcap_log.py, app/ros2_messages.py), read back with the
 `mcap` library and the `mcap_ros2` decoder, and checked against independent routes: the
 message definitions against the `rosbags` package's copy of ROS 2's, the payloads against
 its CDR decoder, the images against the dataset's PNGs of the same run, every stamp against
@@ -20,13 +20,13 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from capsule_drake.cli import main as cli_main
-from capsule_drake.io.dataset import read_depth_png
-from capsule_drake.io import mcap_log
-from capsule_drake.io.mcap_log import Ros2McapFile, add_mcap_logger, check_mcap_path
-from capsule_drake.io.outputs import OutputError
-from capsule_drake.io.ros2_messages import DEFINITIONS, schema_text
-from capsule_drake.io.run import chain_extends, simulate
+from capsule_drake.app.cli import main as cli_main
+from capsule_drake.app.dataset import read_depth_png
+from capsule_drake.app import mcap_log
+from capsule_drake.app.mcap_log import Ros2McapFile, add_mcap_logger, check_mcap_path
+from capsule_drake.app.outputs import OutputError
+from capsule_drake.app.ros2_messages import DEFINITIONS, schema_text
+from capsule_drake.app.run import chain_extends, simulate
 from capsule_drake.perception.lens import Lens
 from capsule_drake.physics.magnetics import dipole_field
 from capsule_drake.scenario import load_scenario

@@ -39,7 +39,7 @@ def test_notebook_runs(path, tmp_path):
 
 
 def test_the_notebooks_verb_opens_jupyterlab_on_the_notebooks(monkeypatch):
-    from capsule_drake import cli
+    from capsule_drake.app import cli
     started = []
     monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: object())
     monkeypatch.setattr(cli.os, "execv", lambda path, argv: started.append(argv))
@@ -51,7 +51,7 @@ def test_the_notebooks_verb_opens_jupyterlab_on_the_notebooks(monkeypatch):
 
 
 def test_without_jupyterlab_the_notebooks_verb_says_how_to_install_it(monkeypatch, capsys):
-    from capsule_drake import cli
+    from capsule_drake.app import cli
     monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: None)
     monkeypatch.setattr(cli.os, "execv", lambda *a: pytest.fail("nothing to start"))
     assert cli.main(["notebooks"]) == 2

@@ -1,4 +1,4 @@
-"""A run's outputs (io/outputs.py, io/run.py): never overwritten silently, checked before the
+"""A run's outputs (app/outputs.py, app/run.py): never overwritten silently, checked before the
 run, spooled as it goes, whole on every way a run ends. Signals, disks and bad inputs
 through the command line: tests/test_bad_inputs.py."""
 
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.cli import main as cli_main
-from capsule_drake.io.outputs import (LogSpool, OutputError, check_room, claim_folder,
+from capsule_drake.app.cli import main as cli_main
+from capsule_drake.app.outputs import (LogSpool, OutputError, check_room, claim_folder,
                                       load_logs, new_run_folder, write_atomic)
-from capsule_drake.io.run import DeferredSignals, Interrupted, chain_extends, simulate
+from capsule_drake.app.run import DeferredSignals, Interrupted, chain_extends, simulate
 from capsule_drake.scenario import load_scenario
 
 def _one_line(err: str) -> str:

@@ -26,7 +26,7 @@ from browser import chromium
 from capsule_drake.io.headless import HeadlessPage
 from capsule_drake.io.replay import (PANEL_WIDTH, STREAM_SYSTEM, CameraStream, decimate,
                                      encode_frame, replay_page)
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.io.visualization import tube_mesh
 from capsule_drake.scenario import load_scenario
 

@@ -150,7 +150,7 @@ def test_missing_file_and_unknown_name(tmp_path):
 ])
 def test_cli_bad_input_is_one_line_and_nonzero(tmp_path, text, key):
     path = write(tmp_path, text)
-    proc = subprocess.run([sys.executable, "-m", "capsule_drake.cli", "run", str(path),
+    proc = subprocess.run([sys.executable, "-m", "capsule_drake.app.cli", "run", str(path),
                            "--out", str(tmp_path / "out")], capture_output=True, text=True)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
@@ -159,7 +159,7 @@ def test_cli_bad_input_is_one_line_and_nonzero(tmp_path, text, key):
 
 
 def test_cli_missing_file(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "capsule_drake.cli", "run",
+    proc = subprocess.run([sys.executable, "-m", "capsule_drake.app.cli", "run",
                            str(tmp_path / "missing.yaml")], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"capsule-sim: error: {tmp_path / 'missing.yaml'}: scenario file not found"

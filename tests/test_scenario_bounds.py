@@ -210,7 +210,7 @@ def test_what_the_sweep_accepts_builds_and_runs(base_files):
     minutes; one run per value took ~30 minutes for the ~550 values accepted before the
     bounds); a set the checks refuse together is split until each part loads. Not in the
     default run (the suite's 15-minute budget): run it with `./run-tests -m extended`."""
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
 
     results = _sweep(base_files, lambda leaf: FLOATS if leaf.kind is float else INTS)
     groups = {}
@@ -422,7 +422,7 @@ def test_scenario_names_must_be_text(tmp_path):
 ])
 def test_cli_bad_files_cost_one_line(tmp_path, make, key):
     path = make(tmp_path)
-    proc = subprocess.run([sys.executable, "-m", "capsule_drake.cli", "run", str(path),
+    proc = subprocess.run([sys.executable, "-m", "capsule_drake.app.cli", "run", str(path),
                            "--out", str(tmp_path / "out")], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 2

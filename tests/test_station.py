@@ -10,9 +10,9 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.cli import main as cli_main
+from capsule_drake.app.cli import main as cli_main
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
 from capsule_drake.station import make_station, settled_start
 
@@ -222,7 +222,7 @@ def test_fast_contact_model_drags_the_capsule_inside_the_wall():
 
 
 def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch):
-    import capsule_drake.io.run as run_module
+    import capsule_drake.app.run as run_module
 
     class FailingSimulator(run_module.Simulator):
         def AdvanceTo(self, t):

@@ -366,7 +366,7 @@ def test_bound_is_fast():
 def test_the_issue_step_diverges_and_the_bound_does_not():
     """The issue's 0.1 s step: the run guard stops the Default run (it no longer means
     anything); at the bound it completes."""
-    from capsule_drake.io.run import simulate
+    from capsule_drake.app.run import simulate
 
     scenario = load_scenario(name="Default", override="duration: 1.5")
     scenario.plant.time_step = 0.1

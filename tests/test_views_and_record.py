@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from capsule_drake.anatomy import load_colon
-from capsule_drake.cli import main as cli_main
+from capsule_drake.app.cli import main as cli_main
 from capsule_drake.perception.views import darkest_spot, views_along_colon
 from capsule_drake.scenario import load_scenario
 

@@ -27,7 +27,7 @@ Default run).
 
 The guard is a LeafSystem whose periodic publish event returns Drake's
 `EventStatus.ReachedTermination` with the reason: the simulator returns from AdvanceTo
-with that message, and the run loop (io/run.py) writes what was logged and exits non-zero.
+with that message, and the run loop (app/run.py) writes what was logged and exits non-zero.
 """
 
 import dataclasses

@@ -33,7 +33,7 @@ the sensor frames S of their configs; `epm` the external magnet E (centre, +z it
 
 Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer):
 the time of the plant state the value describes, the time the dataset's files give the same
-sample (`PlantTiming`, on io/dataset.py's `state_time`). A discrete plant steps before the
+sample (`PlantTiming`, on app/dataset.py's `state_time`). A discrete plant steps before the
 sensors sample at the same time, so a sensor's sample at its tick t (IMU, AHRS, magnetometer,
 Hall sensors, contact sensor, and the localiser's estimate on them) measures the state one
 plant step later and is stamped t + step; a camera frame shows the state held up to its
@@ -73,9 +73,9 @@ from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
-from capsule_drake.io.dataset import READ_DELAY, sample_tick, state_time
-from capsule_drake.io.outputs import OutputError
-from capsule_drake.io.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
+from capsule_drake.app.dataset import READ_DELAY, sample_tick, state_time
+from capsule_drake.app.outputs import OutputError
+from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
                                             vector3)
 from capsule_drake.physics.contact_monitor import capsule_contact_wrench_W
@@ -94,7 +94,7 @@ EPM = "epm"
 
 @dataclasses.dataclass(frozen=True)
 class PlantTiming:
-    """Which plant state a reading shows (io/dataset.py's `state_time`, shared with the
+    """Which plant state a reading shows (app/dataset.py's `state_time`, shared with the
     dataset's files so that both stamp a sample alike).
 
     step: the discrete plant's time step (s; 0: continuous). step_first: whether the plant

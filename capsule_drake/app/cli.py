@@ -22,13 +22,13 @@ import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-from capsule_drake.io.dataset_docs import SPLIT_RULE, split_counts, split_of_seed, splits_readme
-from capsule_drake.io.mcap_log import add_mcap_logger, check_mcap_path, expected_mcap_bytes
-from capsule_drake.io.record import record, with_all_sensors
-from capsule_drake.io.outputs import (RUN_OUTPUTS, OutputError, claim_folder, new_run_folder,
+from capsule_drake.app.dataset_docs import SPLIT_RULE, split_counts, split_of_seed, splits_readme
+from capsule_drake.app.mcap_log import add_mcap_logger, check_mcap_path, expected_mcap_bytes
+from capsule_drake.app.record import record, with_all_sensors
+from capsule_drake.app.outputs import (RUN_OUTPUTS, OutputError, claim_folder, new_run_folder,
                                       write_atomic)
-from capsule_drake.io.run import Interrupted, StepBar, WriteError, chain_extends, simulate
-from capsule_drake.navigation.benchmark import (COLUMNS, RowWriter, Task, format_table,
+from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
+from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, segment_table, summary,
                                                 task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
@@ -156,7 +156,7 @@ def _parser() -> argparse.ArgumentParser:
                     "autonomy-detected, autonomy-sensors, teleop-guided, teleop-unguided, or "
                     "a user's "
                     "'package.module:function' (the plug-in interface in "
-                    "capsule_drake/navigation/benchmark.py).")
+                    "capsule_drake/app/benchmark.py).")
     bench.add_argument("--seeds", default="0-9",
                        help="colon seeds: '0-9', '0,3,7' or '5' (default 0-9)")
     bench.add_argument("--navigators", default="autonomy-truth,autonomy-detected",

@@ -8,7 +8,7 @@ suite runs in parallel processes on this machine (`engine="local"`) or on a Dask
 address), with a progress line, and gives the same table for the same seeds either way.
 
 Navigators, each a named scenario whose `epm.driver` drives the EPM (diagrams/default.yaml),
-all run through the one run loop (io/run.py `simulate`, which seeds the random context):
+all run through the one run loop (app/run.py `simulate`, which seeds the random context):
 - "autonomy-truth" (scenario Navigation), "autonomy-detected" (NavigationDetected): the
   lumen follower (navigation/autonomy.py), steering from the lumen truth or from the lumen
   tracker on the camera's frames, on the capsule's true pose;
@@ -40,7 +40,7 @@ import numpy as np
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
-from capsule_drake.io.run import simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.scenario import load_scenario

@@ -1,6 +1,6 @@
 """The text files of a recorded dataset: README.md (for a person), camera.yaml and
-sensors.yaml (for a program). Pure text from the recording's settings; io/record.py gathers
-them, io/dataset.py writes the rest of the folder.
+sensors.yaml (for a program). Pure text from the recording's settings; app/record.py gathers
+them, app/dataset.py writes the rest of the folder.
 
 Every number a user needs to read the folder (intrinsics, mountings, rates, depth encoding)
 is written into these files, so that the folder loads with numpy and OpenCV alone; the
@@ -14,7 +14,7 @@ import math
 import yaml
 from pydrake.math import RigidTransform
 
-from capsule_drake.io.dataset import DEPTH_BEYOND, DEPTH_NONE, DEPTH_SCALE, quaternion_xyzw
+from capsule_drake.app.dataset import DEPTH_BEYOND, DEPTH_NONE, DEPTH_SCALE, quaternion_xyzw
 
 
 @dataclasses.dataclass
@@ -40,7 +40,7 @@ class DatasetDescription:
     duration: float = 0.0
     depth_full_scale: float = 0.2
     # How much later than its tick a sensor's sample measures the state (s): the plant's
-    # step when it steps before the sensors (io/dataset.py, state_time); 0 otherwise.
+    # step when it steps before the sensors (app/dataset.py, state_time); 0 otherwise.
     sensor_lag: float = 0.0
 
 

@@ -5,7 +5,7 @@
 
 Registered when `capsule_drake` is imported (or with gymnasium's "module:id" form,
 `gymnasium.make("capsule_drake:capsule_drake/ColonNavigation-v0")`). The task is the
-navigation benchmark's (navigation/benchmark.py): the capsule starts in the rectum of a
+navigation benchmark's (app/benchmark.py): the capsule starts in the rectum of a
 seeded procedural colon (the scenario `Navigation` of diagrams/default.yaml, its
 `capsule.start_s`), and the episode ends at the cecum. The agent takes the place of the
 benchmark's navigators: the station's EPM driver is `!External`, and every step the
@@ -95,8 +95,8 @@ from capsule_drake.epm.guard import floor_guard
 from capsule_drake.epm.paths import External, stage_trajectory
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.io.guard import DIVERGED, parse_guard_reason
-from capsule_drake.io.run import add_guarded_station, close_render_worker
-from capsule_drake.navigation.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
+from capsule_drake.app.run import add_guarded_station, close_render_worker
+from capsule_drake.app.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
 from capsule_drake.perception import Lens
 from capsule_drake.scenario import load_scenario
 from capsule_drake.schema import need_range

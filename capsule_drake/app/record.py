@@ -5,11 +5,11 @@ from pathlib import Path
 
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
-from capsule_drake.io.dataset import DatasetWriter, Stream
-from capsule_drake.io.dataset_docs import (DatasetDescription, camera_yaml, dataset_readme,
+from capsule_drake.app.dataset import DatasetWriter, Stream
+from capsule_drake.app.dataset_docs import (DatasetDescription, camera_yaml, dataset_readme,
                                            sensors_yaml)
-from capsule_drake.io.mcap_log import add_mcap_logger
-from capsule_drake.io.run import RunResult, chain_extends, simulate
+from capsule_drake.app.mcap_log import add_mcap_logger
+from capsule_drake.app.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.capsule.camera import CameraConfig, camera_tick
@@ -53,10 +53,10 @@ def with_all_sensors(scenario: Scenario) -> Scenario:
 def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
            scenario_name: str = "", mcap: Path | str | None = None) -> RunResult:
     """Simulates `scenario` with a camera and writes a dataset to `out_dir` as it runs
-    (io/dataset.py; its README.md describes it, naming the scenario `scenario_name`).
+    (app/dataset.py; its README.md describes it, naming the scenario `scenario_name`).
 
     Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`),
-    and with `mcap` an MCAP file of ROS 2 messages (io/mcap_log.py) as well.
+    and with `mcap` an MCAP file of ROS 2 messages (app/mcap_log.py) as well.
     """
     scenario = with_all_sensors(scenario)
     out_dir = Path(out_dir)
@@ -73,7 +73,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                    "ground_truth": scenario.outputs.log_period}
         # A discrete plant with sampled output ports steps in an unrestricted update, which
         # Drake runs before the discrete updates at the same time: a sensor's sample at t
-        # then measures the state one plant step later (io/dataset.py, state_time).
+        # then measures the state one plant step later (app/dataset.py, state_time).
         plant_step = plant.time_step()
         plant_step_first = plant.GetUniquePeriodicDiscreteUpdateAttribute() is None
         sensor_lag = plant_step if plant_step > 0 and plant_step_first else 0.0

@@ -23,7 +23,7 @@ from capsule_drake.anatomy.start_check import check_start
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
-from capsule_drake.io.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
+from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, write_atomic)
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
 from capsule_drake.io.visualization import MARKER_SYSTEM
@@ -142,7 +142,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         meshcat: a pydrake Meshcat to draw into and record, or None.
         out_dir: if given, a folder (created if need be) that is checked for room, then
             gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
-            see io/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
+            see app/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
             recording.html (the replay page: `replay_html`) and (after an error) error.txt
             with the traceback.
         progress: show a progress bar on stderr.
@@ -344,7 +344,7 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     monitor ("contact_monitor": the capsule's contact load) and the run guard ("run_guard",
     io/guard.py: it ends a simulation whose state stops being physical). Returns (station,
     colon, contact monitor). Shared by `simulate` and the Gymnasium environment
-    (navigation/gym_env.py), which steps the same diagram itself.
+    (app/gym_env.py), which steps the same diagram itself.
 
     Raises:
         ScenarioError: the colon cannot be loaded, or the capsule does not fit where it
