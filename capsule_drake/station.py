@@ -24,25 +24,17 @@ and epm.status (the arm's controller's report).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import types
 
-import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.camera import add_camera_walls
 from capsule_drake.epm.mount import add_epm_models, add_epm_mount, add_epm_pose
-from capsule_drake.epm.paths import External, stage_trajectory
-from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.epm.stage import Stage
 from capsule_drake.io.visualization import add_meshcat
 from capsule_drake.physics.magnet_force import add_magnet_force, export_magnet_outputs
-from capsule_drake.scenario import CapsuleConfig, Scenario
+from capsule_drake.scenario import Scenario
 from capsule_drake.scene import (add_block, add_scene, add_table_and_colon, finish_capsule,
                                  is_block, set_capsule_start)
 
@@ -64,19 +56,19 @@ def blocks_of(config):
             yield from blocks_of(value)
 
 
-SETTLE_STEP = 5e-4
-"""Plant step of the settling (s): where the capsule's first snap onto the wall, at
-0.5-0.6 m/s, stays within 0.6 mm of it (README, Performance)."""
-
-
-def make_station(scenario: Scenario, meshcat=None):
+def make_station(scenario: Scenario, meshcat=None, capsule_start: RigidTransform | None = None):
     """Builds the diagram for `scenario`; adds Meshcat visualisation only if `meshcat` is
-    given. The scenario is not modified; nothing is simulated but, with capsule.settle,
-    the settling of the capsule's start (settled_start)."""
+    given. Nothing is simulated and the scenario is not modified.
+
+    Args:
+        capsule_start: the capsule's start pose X_WB0, if not the scenario's (on the
+            centreline at capsule.start_s). A run with capsule.settle > 0 settles the capsule
+            first (app/run.py, settled_start) and passes where it came to rest.
+    """
     builder = DiagramBuilder()
     parts = add_scene(builder, scenario, meshcat)
-    if scenario.capsule.settle > 0.0:
-        parts.X_WB0 = settled_start(scenario)
+    if capsule_start is not None:
+        parts.X_WB0 = capsule_start
     add_epm_models(parts, scenario.epm)
     camera = scenario.capsule.camera
     add_table_and_colon(parts, scenario, perception=camera is None)
@@ -102,37 +94,3 @@ def make_station(scenario: Scenario, meshcat=None):
     diagram = builder.Build()
     diagram.set_name("capsule_station")
     return diagram
-
-
-def settled_start(scenario: Scenario) -> RigidTransform:
-    """Where the capsule comes to rest when let settle (capsule.settle): the scenario's
-    physics alone (its colon, contact, magnets; no sensors, no driver) simulated for
-    `capsule.settle` seconds at SETTLE_STEP, the capsule starting on the centreline and the
-    EPM held, on the kinematic stage, at the pose the run starts it at. The run then starts
-    there, at rest. Cached: stations of the same physics settle once per process."""
-    physics = copy.deepcopy(scenario)
-    physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s,
-                                    ipm=scenario.capsule.ipm)
-    physics.pseudo_force = None
-    physics.epm.mount, physics.epm.driver = Stage(), External()
-    physics.plant.time_step = SETTLE_STEP
-    colon, _ = load_colon(scenario.colon)
-    epm_start = stage_to_pose(stage_trajectory(
-        scenario.epm.driver, colon, scenario.capsule.start_s, scenario.epm.magnet,
-        scenario.epm.clearance).value(0.0).ravel())
-    key = (repr(physics), scenario.capsule.settle, tuple(epm_start))
-    if key not in _SETTLED:
-        diagram = make_station(physics)
-        simulator = Simulator(diagram)
-        context = simulator.get_mutable_context()
-        diagram.GetInputPort("epm.command").FixValue(context, epm_start)
-        simulator.AdvanceTo(scenario.capsule.settle)
-        state = diagram.GetOutputPort("capsule.state").Eval(context)
-        if len(_SETTLED) >= 16:
-            _SETTLED.clear()
-        _SETTLED[key] = RigidTransform(Quaternion(state[:4] / np.linalg.norm(state[:4])),
-                                       state[4:7])
-    return _SETTLED[key]
-
-
-_SETTLED: dict = {}

@@ -14,7 +14,7 @@ from capsule_drake.teleop.channel import (
     ChannelConfig, DelayChannel, PassivityConfig, PassivityController, TeleopChannel,
     TeleopChannelConfig, check_channel_config, check_passivity_config, packet_fate,
     passivity_step, predicted_work)
-from capsule_drake.teleop.delay_bench import press_and_hold, run_delay_bench
+from capsule_drake.app.delay_bench import press_and_hold, run_delay_bench
 
 PERIOD = 0.001
 
@@ -185,7 +185,7 @@ def test_passivity_observer_integrates_the_work_of_the_held_force():
 
 
 def _teleop_loop(delay, enabled, target, x0, wall_stiffness, duration, jitter=0.0, loss=0.0):
-    """The one-DoF delay bench (capsule_drake.teleop.delay_bench): (t, x, v, work, energy,
+    """The one-DoF delay bench (capsule_drake.app.delay_bench): (t, x, v, work, energy,
     force_change, rendered force) sampled at 1 kHz."""
     return tuple(run_delay_bench(delay, enabled, target, x0, wall_stiffness, duration,
                                  jitter, loss))

@@ -165,3 +165,34 @@ def test_no_block_imports_a_layer_above_it():
         upward += [f"{module} imports {target}" for module in sorted(below)
                    for target in sorted(graph[module] & layer)]
     assert not upward, "imports from a lower layer to a higher one:\n" + "\n".join(upward)
+
+
+SIMULATOR_MAKER = "capsule_drake.app.run"
+"""The one module that constructs a Simulator (`simulator_for`): every run, the settling of a
+start and the teleoperation bench step their diagram through it."""
+
+
+def simulator_constructions(path: Path) -> list[int]:
+    """Lines of a module where a pydrake Simulator is constructed (`Simulator(...)`, also
+    as `analysis.Simulator(...)` or `Simulator_[T](...)`)."""
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, ast.Call):
+            continue
+        func = node.func.value if isinstance(node.func, ast.Subscript) else node.func
+        name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+        if name in ("Simulator", "Simulator_"):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_a_simulator_is_constructed_in_one_module(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("a = Simulator(d)\nb = analysis.Simulator_[float](d)\nc = Simulatorx(d)\n")
+    assert simulator_constructions(sample) == [1, 2]   # the check is not vacuous
+    found = {module: lines for module, path in MODULES.items()
+             if (lines := simulator_constructions(path))}
+    assert set(found) == {SIMULATOR_MAKER}, (
+        "Simulator constructed outside " + SIMULATOR_MAKER + ": "
+        + ", ".join(f"{m}:{lines}" for m, lines in found.items() if m != SIMULATOR_MAKER))
+    assert len(found[SIMULATOR_MAKER]) == 1

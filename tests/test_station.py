@@ -14,7 +14,8 @@ from capsule_drake.app.cli import main as cli_main
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.app.run import simulate
 from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
-from capsule_drake.station import make_station, settled_start
+from capsule_drake.app.run import settled_start
+from capsule_drake.station import make_station
 
 
 def test_station_exports_named_ports():

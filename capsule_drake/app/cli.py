@@ -741,9 +741,10 @@ def _raise_interrupted(signal_number, frame):
     raise Interrupted(signal_number)
 
 
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    _created_folders.clear()
+def main(argv=None, noted=None) -> int:
+    """The command. `noted`: signals that arrived before it (app/entry.py notes them while
+    the libraries are imported); the first ends the command at once, as it would have."""
+    noted = noted if noted is not None else []
     # A termination signal (kill, timeout, a closed terminal) ends a run as Ctrl-C does:
     # what was logged is written, then the exit status says which signal it was. SIGINT
     # too: a process started in the background (nohup, `&` in a script) inherits it ignored,
@@ -752,6 +753,10 @@ def main(argv=None) -> int:
         for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(number, _raise_interrupted)
     try:
+        if noted:  # before anything ran
+            raise Interrupted(noted[0])
+        args = _parser().parse_args(argv)
+        _created_folders.clear()
         if args.verb == "run":
             return _run(args)
         if args.verb == "record":

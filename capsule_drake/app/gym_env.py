@@ -87,15 +87,12 @@ import math
 import gymnasium
 import numpy as np
 from gymnasium import spaces
-from pydrake.common import RandomGenerator
-from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.epm.guard import floor_guard
 from capsule_drake.epm.paths import External, stage_trajectory
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.io.guard import DIVERGED, parse_guard_reason
-from capsule_drake.app.run import add_guarded_station, close_render_worker
+from capsule_drake.app.run import CONTACT_MONITOR, Run
 from capsule_drake.app.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
 from capsule_drake.perception import Lens
 from capsule_drake.scenario import load_scenario
@@ -106,6 +103,8 @@ OBSERVATIONS = ("camera", "imu", "magnetometer", "hall", "epm", "truth")
 DEFAULT_OBSERVATIONS = ("imu", "magnetometer", "epm")
 COMMAND_PERIOD = 0.05
 """Period (s) of the EPM command's ramp within a step: the lumen follower's 20 Hz."""
+CONTACT_STATS = "contact_stats"
+"""The environment's ContactStats system, beside the run's station."""
 CONTACT_SAMPLE_PERIOD = 0.01
 """Period (s) at which the contact load is sampled for the reward (peak, time in contact)."""
 DEFAULT_WORKSPACE = ((-0.35, -0.45, 0.0), (0.35, 0.45, 0.7))
@@ -221,18 +220,23 @@ def action_toward(epm_command, target, max_move: float, max_turn: float) -> np.n
 
 
 @dataclasses.dataclass
-class _Run:
-    """One colon's built diagram and what stepping it needs."""
+class _Colon:
+    """One colon's run (its built diagram, stepped by the run loop) and what the episode
+    needs of it."""
 
     colon_seed: int
-    scenario: object
-    diagram: object
-    simulator: object
-    station: object
-    colon: object
+    run: Run
     guard: object            # EpmGuard: the clearance floor
     start_command: np.ndarray
     start_s: float
+
+    @property
+    def station(self):
+        return self.run.station
+
+    @property
+    def colon(self):
+        return self.run.colon
 
 
 class ColonNavigationEnv(gymnasium.Env):
@@ -317,7 +321,7 @@ class ColonNavigationEnv(gymnasium.Env):
         self.observation_space = self._observation_space(self.scenario)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         self.build_count = 0   # diagrams built (a colon's first episode, or after eviction)
-        self._runs: collections.OrderedDict[int, _Run] = collections.OrderedDict()
+        self._runs: collections.OrderedDict[int, _Colon] = collections.OrderedDict()
         self._run = None
         self._ended = True
 
@@ -371,32 +375,32 @@ class ColonNavigationEnv(gymnasium.Env):
 
     # -- building -----------------------------------------------------------------------
 
-    def _run_for(self, colon_seed: int) -> _Run:
+    def _run_for(self, colon_seed: int) -> _Colon:
         """The built diagram of a colon: kept from an earlier episode, or built now."""
         if colon_seed in self._runs:
             self._runs.move_to_end(colon_seed)
             return self._runs[colon_seed]
         while len(self._runs) >= self._max_cached:
             _, old = self._runs.popitem(last=False)
-            close_render_worker(old.station)
+            old.run.close()
         scenario = self._scenario_for(colon_seed)
-        builder = DiagramBuilder()
-        station, colon, monitor = add_guarded_station(builder, scenario)
-        stats = builder.AddNamedSystem("contact_stats", ContactStats(CONTACT_SAMPLE_PERIOD,
-                                                                     CONTACT_THRESHOLD))
-        builder.Connect(monitor.GetOutputPort("contact_load"), stats.get_input_port())
-        diagram = builder.Build()
-        simulator = Simulator(diagram)
-        ApplySimulatorConfig(scenario.simulator, simulator)
+
+        def add_contact_stats(builder, station):
+            stats = builder.AddNamedSystem(CONTACT_STATS, ContactStats(CONTACT_SAMPLE_PERIOD,
+                                                                       CONTACT_THRESHOLD))
+            builder.Connect(builder.GetSubsystemByName(CONTACT_MONITOR).GetOutputPort(
+                "contact_load"), stats.get_input_port())
+
+        run = Run(scenario, extend=add_contact_stats, log=False)
         epm = scenario.epm
-        start = stage_to_pose(stage_trajectory(External(), colon, scenario.capsule.start_s,
+        start = stage_to_pose(stage_trajectory(External(), run.colon, scenario.capsule.start_s,
                                                epm.magnet, epm.clearance).value(0.0).ravel())
-        run = _Run(colon_seed, scenario, diagram, simulator, station, colon,
-                   floor_guard(colon.abdomen, epm.magnet, epm.clearance), start,
-                   scenario.capsule.start_s)
-        self._runs[colon_seed] = run
+        entry = _Colon(colon_seed, run, floor_guard(run.colon.abdomen, epm.magnet,
+                                                    epm.clearance),
+                       start, scenario.capsule.start_s)
+        self._runs[colon_seed] = entry
         self.build_count += 1
-        return run
+        return entry
 
     # -- the Gymnasium interface --------------------------------------------------------
 
@@ -409,16 +413,17 @@ class ColonNavigationEnv(gymnasium.Env):
         run = self._run_for(colon_seed)
         self._run = run
         self._noise_seed = episode % 2**32
-        context = run.simulator.get_mutable_context()
-        context.SetTime(0.0)
-        run.diagram.SetRandomContext(context, RandomGenerator(self._noise_seed))
+        run.run.reset(self._noise_seed)
+        context = run.run.context
         self._station_context = run.station.GetMyMutableContextFromRoot(context)
-        self._stats_context = run.diagram.GetSubsystemByName(
-            "contact_stats").GetMyMutableContextFromRoot(context)
+        self._stats_context = run.run.diagram.GetSubsystemByName(
+            CONTACT_STATS).GetMyMutableContextFromRoot(context)
         self._command = self._safe(run.start_command[:3], run.start_command[3:])[:2]
         self._set_command(np.concatenate(self._command))
-        run.simulator.Initialize()
-        run.simulator.AdvanceTo(0.0)   # the sensors' first samples (events at t = 0)
+        run.run.initialize()
+        ending = run.run.advance_to(0.0)   # the sensors' first samples (events at t = 0)
+        if ending is not None and ending.status == "error":
+            raise RuntimeError(f"colon {colon_seed}: {ending.text}")
         self._steps = 0
         self._s = float(run.start_s)
         self._s = self._station_of(self._capsule_state())
@@ -442,7 +447,7 @@ class ColonNavigationEnv(gymnasium.Env):
         p0, m0 = self._command
         move, turn = self.max_move * a[:3], self.max_turn * a[3:]
         self._stats_context.SetDiscreteState(np.zeros(2))
-        simulator, context = self._run.simulator, self._run.simulator.get_mutable_context()
+        run = self._run.run
         raised, ended, reason, diverged = False, "", "", False
         for j in range(1, self._substeps + 1):
             f = j / self._substeps
@@ -451,18 +456,10 @@ class ColonNavigationEnv(gymnasium.Env):
             self._set_command(np.concatenate([p, m]))
             self._command = (p, m)
             t = (self._steps * self._substeps + j) * self.control_period / self._substeps
-            try:
-                result = simulator.AdvanceTo(t)
-            except Exception as e:  # Drake's errors inside the simulation
-                text = str(e).strip().splitlines()[0] if str(e).strip() else ""
-                ended, reason = "error", (f"simulation error at t = {context.get_time():.3f} "
-                                          f"s: {type(e).__name__}: {text}")
-                break
-            if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-                found = parse_guard_reason(result.message())
-                kind, text = found if found is not None else ("", result.message())
-                ended, reason = "guard", f"stopped by the run guard at {text}"
-                diverged = kind in DIVERGED
+            ending = run.advance_to(t)
+            if ending is not None:
+                ended = "error" if ending.status == "error" else "guard"
+                reason, diverged = ending.text, ending.status == "diverged"
                 break
         self._steps += 1
         w = self.reward_weights
@@ -484,7 +481,7 @@ class ColonNavigationEnv(gymnasium.Env):
         if ended:
             terms["guard_stop"] = -w.guard_stop
         elif s >= self._run.colon.centerline.length - CECUM_MARGIN:
-            ended, reason = "cecum", f"reached the cecum at t = {context.get_time():.3f} s"
+            ended, reason = "cecum", f"reached the cecum at t = {run.time:.3f} s"
             terms["cecum"] = w.cecum
         terminated = bool(ended)
         truncated = not terminated and self._steps >= self._steps_per_episode
@@ -503,8 +500,8 @@ class ColonNavigationEnv(gymnasium.Env):
         return np.array(image.data[:, :, :3], dtype=np.uint8)
 
     def close(self):
-        for run in self._runs.values():
-            close_render_worker(run.station)
+        for entry in self._runs.values():
+            entry.run.close()
         self._runs.clear()
         self._run = None
         self._ended = True
@@ -584,7 +581,7 @@ class ColonNavigationEnv(gymnasium.Env):
         run = self._run
         length = run.colon.centerline.length
         load = float(self._output_load())
-        return {"t": float(run.simulator.get_context().get_time()),
+        return {"t": float(run.run.time),
                 "colon_seed": int(run.colon_seed), "noise_seed": int(self._noise_seed),
                 "s": float(self._s), "progress": float(self._s - self._s0),
                 "progress_fraction": float((self._furthest - self._s0)
@@ -595,8 +592,8 @@ class ColonNavigationEnv(gymnasium.Env):
                 "ended": ended, "reason": reason}
 
     def _output_load(self) -> float:
-        monitor = self._run.diagram.GetSubsystemByName("contact_monitor")
-        context = monitor.GetMyContextFromRoot(self._run.simulator.get_context())
+        monitor = self._run.run.contact_monitor
+        context = monitor.GetMyContextFromRoot(self._run.run.context)
         load = float(monitor.GetOutputPort("contact_load").Eval(context)[0])
         return load if math.isfinite(load) else 0.0
 

@@ -1,8 +1,11 @@
-"""Simulate a built station: logging, pacing, progress, and the run's output folder."""
+"""The one run loop: a scenario's station built, stepped, guarded and written (`Run`,
+`simulate`), with the stages around it (the settled start, signals, the output folder,
+progress)."""
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import json
 import signal
 import sys
@@ -14,13 +17,19 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common import RandomGenerator
-from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import (ApplySimulatorConfig, Simulator, SimulatorConfig,
+                                      SimulatorStatus)
 from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.start_check import check_start
 from capsule_drake.capsule.model import capsule_model
+from capsule_drake.epm.paths import External, stage_trajectory
+from capsule_drake.epm.poses import stage_to_pose
+from capsule_drake.epm.stage import Stage
 from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
@@ -28,7 +37,7 @@ from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_ro
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
 from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.physics.contact_monitor import ContactMonitor
-from capsule_drake.scenario import Scenario, ScenarioError, dump_scenario
+from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
 
 
@@ -122,11 +131,238 @@ class StepBar:
             self.stream.flush()
 
 
+SETTLE_STEP = 5e-4
+"""Plant step of the settling (s): where the capsule's first snap onto the wall, at
+0.5-0.6 m/s, stays within 0.6 mm of it (README, Performance)."""
+
+CONTACT_MONITOR = "contact_monitor"
+"""The run's contact monitor (the capsule's contact load), beside the station."""
+
+
+def simulator_for(diagram, config: SimulatorConfig | None = None, random_seed: int | None = None):
+    """A Simulator of `diagram` with Drake's SimulatorConfig applied and, if given, the
+    diagram's random context seeded: the one place a Simulator is made."""
+    simulator = Simulator(diagram)
+    if config is not None:
+        ApplySimulatorConfig(config, simulator)
+    if random_seed is not None:
+        diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(random_seed))
+    return simulator
+
+
+def settled_start(scenario: Scenario) -> RigidTransform:
+    """Where the capsule comes to rest when let settle (capsule.settle), the first stage of
+    such a run: the scenario's physics alone (its colon, contact, magnets; no sensors, no
+    driver) simulated for `capsule.settle` seconds at SETTLE_STEP, the capsule starting on
+    the centreline and the EPM held, on the kinematic stage, at the pose the run starts it
+    at. The run then starts there, at rest. Cached: runs of the same physics settle once
+    per process."""
+    physics = copy.deepcopy(scenario)
+    physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s,
+                                    ipm=scenario.capsule.ipm)
+    physics.pseudo_force = None
+    physics.epm.mount, physics.epm.driver = Stage(), External()
+    physics.plant.time_step = SETTLE_STEP
+    colon, _ = load_colon(scenario.colon)
+    epm_start = stage_to_pose(stage_trajectory(
+        scenario.epm.driver, colon, scenario.capsule.start_s, scenario.epm.magnet,
+        scenario.epm.clearance).value(0.0).ravel())
+    key = (repr(physics), scenario.capsule.settle, tuple(epm_start))
+    if key not in _SETTLED:
+        diagram = make_station(physics)
+        simulator = simulator_for(diagram)
+        context = simulator.get_mutable_context()
+        diagram.GetInputPort("epm.command").FixValue(context, epm_start)
+        simulator.AdvanceTo(scenario.capsule.settle)
+        state = diagram.GetOutputPort("capsule.state").Eval(context)
+        if len(_SETTLED) >= 16:
+            _SETTLED.clear()
+        _SETTLED[key] = RigidTransform(Quaternion(state[:4] / np.linalg.norm(state[:4])),
+                                       state[4:7])
+    return _SETTLED[key]
+
+
+_SETTLED: dict = {}
+
+
+@dataclass
+class Ending:
+    """How a run ended before its time was up (or None from `Run.advance_to`: it was not)."""
+
+    # "goal" (stop_when), "diverged" or "left_colon" (the run guard), "error" (inside the
+    # simulation), "interrupted" (a signal).
+    status: str
+    text: str                  # one line: the goal's text, or what stopped it and when
+    traceback: str | None = None   # an error's
+    signal: str | None = None      # an interruption's: "SIGINT", "SIGTERM", "SIGHUP"
+
+
+def _error_ending(e: BaseException, t: float) -> Ending:
+    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    return Ending("error", f"simulation error at t = {t:.3f} s: {type(e).__name__}: {text}",
+                  traceback.format_exc())
+
+
+def _interrupted(name: str, t: float) -> Ending:
+    return Ending("interrupted", f"interrupted ({name}) at t = {t:.3f} s", signal=name)
+
+
+class Run:
+    """One scenario's station, built and stepped: the one run loop that `simulate` (the
+    CLI's verbs, the benchmark's runs) and the Gymnasium environment all step.
+
+    The stages, in order: the settling of the capsule's start (capsule.settle: see
+    `settled_start`), the build (the station with the contact monitor and the run guard,
+    `add_guarded_station`; the loggers; the caller's `extend`), the Simulator
+    (scenario.simulator applied, the random context seeded with scenario.random_seed).
+    Then `advance_to(t)` as often as the caller likes: each returns None, or the `Ending`
+    that stopped it (the guard, a goal, an error inside the simulation, a signal noted by
+    `signals`). `close()` frees what the run holds (the extensions' close hooks, the
+    camera's render worker, the simulator's monitor) and must be called; a `with` block
+    does it.
+
+    Args:
+        meshcat: a pydrake Meshcat the station draws into, or None.
+        extend: optional `extend(builder, station) -> close()`: adds systems around the
+            station before the diagram is built; the returned callable, if any, runs in
+            `finish_extensions()` (or `close()`).
+        stop_when: optional `stop_when(station, station_context) -> str | None`, asked every
+            simulated half second: a text ends the run there (Ending "goal").
+        log: add the loggers of the capsule's state, contact load and EPM pose (every
+            scenario.outputs.log_period), which `drain()` empties.
+        signals: a DeferredSignals whose noted signal ends the run at its next step.
+    """
+
+    def __init__(self, scenario: Scenario, *, meshcat=None, extend=None, stop_when=None,
+                 log: bool = True, signals: DeferredSignals | None = None):
+        self.scenario = scenario
+        capsule_start = settled_start(scenario) if scenario.capsule.settle > 0.0 else None
+        builder = DiagramBuilder()
+        station, colon, monitor = add_guarded_station(builder, scenario, meshcat,
+                                                      capsule_start)
+        self._finish = None
+        try:  # a build that fails closes what the station and the extensions opened
+            period = scenario.outputs.log_period
+            self._loggers = (
+                LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
+                LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
+                LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
+            ) if log else ()
+            self._finish = extend(builder, station) if extend is not None else None
+            diagram = builder.Build()
+            simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
+        except BaseException:
+            _close_quietly(self._finish)
+            close_render_worker(station)
+            raise
+        self.station, self.colon, self.contact_monitor = station, colon, monitor
+        self.diagram, self.simulator = diagram, simulator
+        self.context = simulator.get_mutable_context()
+        self._stop_when, self._signals = stop_when, signals
+        self._last_check = -np.inf
+        self._closed = False
+        if stop_when is not None or signals is not None:
+            simulator.set_monitor(self._monitor)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    @property
+    def time(self) -> float:
+        return self.context.get_time()
+
+    def reset(self, random_seed: int) -> None:
+        """Back to time 0 with the default state, the random context seeded anew (an
+        episode of the Gymnasium environment); `initialize()` after fixing the inputs."""
+        self.context.SetTime(0.0)
+        self.diagram.SetRandomContext(self.context, RandomGenerator(random_seed))
+        self._last_check = -np.inf
+
+    def initialize(self) -> None:
+        self.simulator.Initialize()
+
+    def _monitor(self, root_context):
+        if self._signals is not None and self._signals.pending is not None:
+            return EventStatus.ReachedTermination(self.diagram, "interrupted")
+        if self._stop_when is None:
+            return EventStatus.DidNothing()
+        t = root_context.get_time()
+        if t - self._last_check < 0.5:
+            return EventStatus.DidNothing()
+        self._last_check = t
+        reason = self._stop_when(self.station, self.station.GetMyContextFromRoot(root_context))
+        if reason:
+            return EventStatus.ReachedTermination(self.diagram, reason)
+        return EventStatus.DidNothing()
+
+    def advance_to(self, t: float) -> Ending | None:
+        """Simulates up to time t. Returns None if it got there, else how the run ended:
+        the run guard (io/guard.py), `stop_when`'s goal, an error inside the simulation
+        (Drake's, including its failed assertions, or a plug-in's), or a signal. A second
+        signal before the first was acted on raises (KeyboardInterrupt, or the CLI's
+        `Interrupted`)."""
+        try:
+            result = self.simulator.AdvanceTo(t)
+        except (Exception, SystemExit) as e:  # Drake's errors; its failed assertions exit
+            return _error_ending(e, self.time)
+        if self._signals is not None and self._signals.pending is not None:
+            return _interrupted(signal.Signals(self._signals.pending).name, self.time)
+        if result.reason() != SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+            return None
+        found = parse_guard_reason(result.message())
+        if found is None:
+            return Ending("goal", result.message())
+        kind, text = found
+        return Ending("diverged" if kind in DIVERGED else "left_colon",
+                      f"stopped by the run guard at {text}")
+
+    def drain(self) -> dict | None:
+        """Moves the loggers' samples out (the LOG_KEYS of app/outputs.py), or None without
+        loggers."""
+        if not self._loggers:
+            return None
+        logs = [logger.FindMutableLog(self.context) for logger in self._loggers]
+        # A run cut short may stop between two loggers' samples: keep the common part.
+        k = min(log.num_samples() for log in logs)
+        # Copies: the logs' arrays are views of storage that Clear() hands back.
+        chunk = dict(zip(LOG_KEYS, (np.array(logs[0].sample_times()[:k]),
+                                    np.array(logs[0].data()[:, :k]),
+                                    np.array(logs[1].data()[0, :k]),
+                                    np.array(logs[2].data()[:, :k]))))
+        for log in logs:
+            log.Clear()
+        return chunk
+
+    def finish_extensions(self) -> None:
+        """Runs the extensions' close hook (once); its error is raised."""
+        finish, self._finish = self._finish, None
+        if finish is not None:
+            finish()
+
+    def close(self) -> None:
+        """Frees what the run holds: the extensions' close hook (its error dropped: call
+        `finish_extensions` first to see it), the camera's render worker, the simulator's
+        monitor (a Python callable inside the C++ simulator, which Python's garbage
+        collector cannot see through)."""
+        if self._closed:
+            return
+        self._closed = True
+        finish, self._finish = self._finish, None
+        _close_quietly(finish)
+        close_render_worker(self.station)
+        self.simulator.clear_monitor()
+        self._stop_when = None
+
+
 def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
              progress: bool = True, live_meshcat: bool = False, extend=None,
              stop_when=None) -> RunResult:
     """Builds the station for `scenario`, runs it for `scenario.duration` and scores it:
-    the one run loop of `run`, `record`, `teleop` and `benchmark`.
+    `run`, `record`, `teleop` and the benchmark's runs, on the one run loop (`Run`).
 
     It applies `scenario.simulator` (Drake's SimulatorConfig: target_realtime_rate 1 paces
     the run to the wall clock), seeds the diagram's random context with
@@ -135,8 +371,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     (io/guard.py: a state that stops being physical ends it).
 
     However the run ends (its duration, a goal, the guard, an error inside the simulation,
-    Ctrl-C or a termination signal), what was logged is kept and written; `status` in the
-    result and in metrics.json says which it was.
+    Ctrl-C or a termination signal, during the build as well), what was logged is kept and
+    written; `status` in the result and in metrics.json says which it was.
 
     Args:
         meshcat: a pydrake Meshcat to draw into and record, or None.
@@ -147,12 +383,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
-        extend: optional `extend(builder, station) -> close()`: adds systems (a dataset
-            writer, loggers, a controller) around the station before the diagram is built;
-            the returned callable, if any, runs after the simulation, however it ended.
-        stop_when: optional `stop_when(station, station_context) -> str | None`, asked
-            every simulated half second: a text ends the run there (a goal reached), and
-            becomes the metrics' "stopped_at".
+        extend: see `Run`.
+        stop_when: see `Run`; its text becomes the metrics' "stopped_at".
 
     Raises:
         OutputError: `out_dir` cannot be written or has no room (before simulating), or
@@ -162,147 +394,86 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:  # before the build, which can take a while
         prepare_folder(out, scenario, meshcat is not None)
-    builder = DiagramBuilder()
+    signals = DeferredSignals()
     try:
-        station, colon, monitor = add_guarded_station(builder, scenario, meshcat)
-    except ScenarioError:  # nothing was run: leave no outputs of it
-        if out is not None:
+        with signals:  # a signal during the build stops the run at its start
+            run = Run(scenario, meshcat=meshcat, extend=extend, stop_when=stop_when,
+                      signals=signals)
+    except BaseException as e:  # nothing was run: leave no outputs of it
+        signals.restore()
+        if out is not None and isinstance(e, (ScenarioError, KeyboardInterrupt)):
             (out / "scenario.yaml").unlink(missing_ok=True)
         raise
-    model = capsule_model()
-    period = scenario.outputs.log_period
-    finish = None
-    try:  # a build that fails closes what the station and the extensions opened
-        loggers = (LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
-                   LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
-                   LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period))
-        finish = extend(builder, station) if extend is not None else None
-        diagram = builder.Build()
-
-        simulator = Simulator(diagram)
-        ApplySimulatorConfig(scenario.simulator, simulator)
-        diagram.SetRandomContext(simulator.get_mutable_context(),
-                                 RandomGenerator(scenario.random_seed))
-    except BaseException:
-        _close_quietly(finish)
-        close_render_worker(station)
-        raise
-    signals = DeferredSignals()
-    last_check = [-np.inf]
-
-    def monitor_run(root_context):
-        if signals.pending is not None:  # Ctrl-C or a termination signal: stop here
-            return EventStatus.ReachedTermination(diagram, "interrupted")
-        if stop_when is None:
-            return EventStatus.DidNothing()
-        t = root_context.get_time()
-        if t - last_check[0] < 0.5:
-            return EventStatus.DidNothing()
-        last_check[0] = t
-        reason = stop_when(station, station.GetMyContextFromRoot(root_context))
-        if reason:
-            return EventStatus.ReachedTermination(diagram, reason)
-        return EventStatus.DidNothing()
-
-    simulator.set_monitor(monitor_run)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
                                set_visualizations_while_recording=live_meshcat)
     spool = LogSpool(out)
-    context = simulator.get_mutable_context()
-
-    def drain():
-        """Moves the loggers' samples into the spool (which writes them every few seconds)."""
-        logs = [logger.FindMutableLog(context) for logger in loggers]
-        # A run cut short may stop between two loggers' samples: keep the common part.
-        k = min(log.num_samples() for log in logs)
-        # Copies: the logs' arrays are views of storage that Clear() hands back.
-        chunk = dict(zip(LOG_KEYS, (np.array(logs[0].sample_times()[:k]),
-                                    np.array(logs[0].data()[:, :k]),
-                                    np.array(logs[1].data()[0, :k]),
-                                    np.array(logs[2].data()[:, :k]))))
-        for log in logs:
-            log.Clear()
-        spool.add(chunk, context.get_time())
-
     bar = Progress(scenario.duration, enabled=progress)
-    status, stopped_early, stopped_at, signal_name, error = "completed", None, None, None, None
+    ending = None
     wall_start = time.perf_counter()
     try:
         with signals:  # on leaving, the signals are held until `signals.held()` ends
-            simulator.Initialize()
+            run.initialize()
             chunk = max(scenario.duration / 200.0, 0.05)
             t = 0.0
-            while t < scenario.duration and signals.pending is None:
+            while ending is None and t < scenario.duration:
+                if signals.pending is not None:  # during the build, or the last chunk
+                    ending = run.advance_to(run.time)
+                    break
                 t = t + chunk
                 if t > scenario.duration - 1e-9:  # end on the duration, not an ulp short
                     t = scenario.duration
-                result = simulator.AdvanceTo(t)
-                bar.update(context.get_time())
-                drain()
-                if signals.pending is not None:
-                    break
-                if result.reason() != SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-                    continue
-                found = parse_guard_reason(result.message())
-                if found is None:
-                    status, stopped_at = "goal", result.message()
-                else:
-                    kind, text = found
-                    status = "diverged" if kind in DIVERGED else "left_colon"
-                    stopped_early = f"stopped by the run guard at {text}"
-                break
-        if signals.pending is not None:
-            status, signal_name = "interrupted", signal.Signals(signals.pending).name
-            stopped_early = f"interrupted ({signal_name}) at t = {context.get_time():.3f} s"
-    except KeyboardInterrupt as e:  # Ctrl-C, or a termination signal (cli: Interrupted)
-        status, signal_name = "interrupted", getattr(e, "signal_name", "SIGINT")
-        stopped_early = f"interrupted ({signal_name}) at t = {context.get_time():.3f} s"
-    except (Exception, SystemExit) as e:  # Drake's errors; its failed assertions exit
-        status, error = "error", traceback.format_exc()
-        text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        stopped_early = (f"simulation error at t = {context.get_time():.3f} s: "
-                         f"{type(e).__name__}: {text}")
+                ending = run.advance_to(t)
+                bar.update(run.time)
+                spool.add(run.drain(), run.time)
+    except KeyboardInterrupt as e:  # a second signal: Ctrl-C, or the CLI's `Interrupted`
+        ending = _interrupted(getattr(e, "signal_name", "SIGINT"), run.time)
+    except (Exception, SystemExit) as e:  # e.g. a plug-in's error as the run initialises
+        ending = _error_ending(e, run.time)
     # However it ended: close what the run opened, score it, write it, with Ctrl-C and the
     # termination signals held until the files are whole.
     with signals.held():
         wall_time = time.perf_counter() - wall_start
         bar.close()
+        status = ending.status if ending is not None else "completed"
+        error = ending.traceback if ending is not None else None
+        stopped_at = ending.text if status == "goal" else None
+        stopped_early = ending.text if ending is not None and status != "goal" else None
         try:
-            drain()
+            spool.add(run.drain(), run.time)
         except Exception:  # the loggers of a diagram that failed mid-publish
             pass
-        if finish is not None:
-            try:
-                finish()
-            except Exception as e:  # e.g. a dataset writer on a full disk
-                if status in ("completed", "goal"):
-                    status, error = "error", traceback.format_exc()
-                    stopped_early = f"could not finish the run's extension: {e}"
-        close_render_worker(station)
+        try:
+            run.finish_extensions()
+        except Exception as e:  # e.g. a dataset writer on a full disk
+            if status in ("completed", "goal"):
+                status, error = "error", traceback.format_exc()
+                stopped_early = f"could not finish the run's extension: {e}"
+        run.close()
         logs = spool.joined()
         result = RunResult(metrics={}, times=logs["times"], capsule_state=logs["capsule_state"],
                            contact_load=logs["contact_load"], epm_pose=logs["epm_pose"],
-                           out_dir=out, diagram=diagram, context=context, station=station,
-                           status=status)
+                           out_dir=out, diagram=run.diagram, context=run.context,
+                           station=run.station, status=status)
+        model = capsule_model()
         result.metrics = run_metrics(
-            colon, result.times, result.capsule_state, result.contact_load, result.epm_pose,
-            capsule_radius=model.radius, capsule_length=model.length,
+            run.colon, result.times, result.capsule_state, result.contact_load,
+            result.epm_pose, capsule_radius=model.radius, capsule_length=model.length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
-            sim_time=context.get_time(), wall_time=wall_time, stopped_early=stopped_early,
+            sim_time=run.time, wall_time=wall_time, stopped_early=stopped_early,
             diverged=status == "diverged")
         result.metrics["status"] = status
-        if signal_name:
-            result.metrics["signal"] = signal_name
+        if status == "interrupted":
+            result.metrics["signal"] = ending.signal
         if stopped_at:
             result.metrics["stopped_at"] = stopped_at
         if meshcat is not None:
-            if station.HasSubsystemNamed(MARKER_SYSTEM):  # the trail up to the end
-                station.GetSubsystemByName(MARKER_SYSTEM).flush(context.get_time())
+            if run.station.HasSubsystemNamed(MARKER_SYSTEM):  # the trail up to the end
+                run.station.GetSubsystemByName(MARKER_SYSTEM).flush(run.time)
             meshcat.StopRecording()
             meshcat.PublishRecording()
         if out is not None:
-            _write_outputs(result, spool, meshcat, error, colon)
+            _write_outputs(result, spool, meshcat, error, run.colon)
     return result
 
 
@@ -339,12 +510,12 @@ def chain_extends(*extends):
     return extend
 
 
-def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=None):
+def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=None,
+                        capsule_start: RigidTransform | None = None):
     """Adds what every run simulates to `builder`: the station ("station"), the contact
     monitor ("contact_monitor": the capsule's contact load) and the run guard ("run_guard",
     io/guard.py: it ends a simulation whose state stops being physical). Returns (station,
-    colon, contact monitor). Shared by `simulate` and the Gymnasium environment
-    (app/gym_env.py), which steps the same diagram itself.
+    colon, contact monitor). `Run` builds every run's diagram with it.
 
     Raises:
         ScenarioError: the colon cannot be loaded, or the capsule does not fit where it
@@ -352,7 +523,8 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     """
     model = capsule_model()
     # The station first: it reports a colon source that cannot be loaded as a ScenarioError.
-    station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
+    station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat,
+                                                             capsule_start=capsule_start))
     colon, _ = load_colon(scenario.colon)   # cached: the station's own
     try:  # the capsule fits where it starts (an imported colon's ends may be open)
         check_start(colon, scenario.capsule.start_s, model.radius,
@@ -360,7 +532,7 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     except ValueError as e:
         close_render_worker(station)
         raise ScenarioError(f"scenario: {e}") from None
-    monitor = builder.AddNamedSystem("contact_monitor", ContactMonitor())
+    monitor = builder.AddNamedSystem(CONTACT_MONITOR, ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
     guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
                                                          scenario.guard))
@@ -481,6 +653,13 @@ class DeferredSignals:
     def __exit__(self, *exc):
         self._simulating = False
         return False
+
+    def restore(self) -> None:
+        """Puts the handlers back, dropping what was noted (nothing ran to act on it)."""
+        previous, self._previous = self._previous, {}
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        self.pending = self._later = None
 
     @contextlib.contextmanager
     def held(self):

@@ -16,10 +16,10 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
+from capsule_drake.app.run import simulator_for
 from capsule_drake.teleop.channel import ChannelConfig, PassivityConfig, TeleopChannel, \
     TeleopChannelConfig
 
@@ -114,7 +114,7 @@ def run_delay_bench(delay, passivity, target=press_and_hold, x0=-0.002,
         hand.GetOutputPort("state"), channel.GetOutputPort("energy"),
         channel.GetOutputPort("force_change"), channel.GetOutputPort("force_out"))]
     diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = simulator_for(diagram)
     context = simulator.get_mutable_context()
     hand.GetMyMutableContextFromRoot(context).SetContinuousState([x0, 0.0, 0.0])
     simulator.AdvanceTo(duration)
