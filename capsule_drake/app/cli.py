@@ -714,7 +714,7 @@ def _import_colon(args) -> int:
     return 0
 
 
-NOTEBOOKS_DIR = Path(__file__).resolve().parents[1] / "notebooks"
+NOTEBOOKS_DIR = Path(__file__).resolve().parents[2] / "notebooks"
 
 
 def _notebooks(args) -> int:
