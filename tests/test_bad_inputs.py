@@ -497,6 +497,49 @@ def test_force_replaces_a_previous_mcap_log_only(tmp_path, capsys):
     assert "MCAP log: " in capsys.readouterr().out
 
 
+# --- A user's lumen detector that fails in eval-lumen ------------------------------------
+
+EVAL = ["eval-lumen", "--frames", "1", "--colons", "1", "--seed", "20", "--quiet",
+        "--renderer", "raycast", "--lens", "fisheye", "--conditions", "nominal",
+        "--detector", "core"]
+FAILING_DETECTORS = [
+    ("raises", r"lumen detector plugins\.detectors:raises raised ZeroDivisionError: the "
+               r"detector divided by zero on frame 0 of 1 \(raycast, fisheye, nominal: \w+ "
+               r"view, colon seed 20, s = [\d.]+ cm\); the traceback is in .*error\.txt"),
+    ("returns_none", r"plugins\.detectors:returns_none returned None, which is not a result: "
+                     r"a detector reports no lumen with visible False .* on frame 0 of 1 "
+                     r"\(raycast, fisheye, nominal"),
+    ("returns_nan", r"plugins\.detectors:returns_nan returned nan \(float\), not a result "
+                    r".* on frame 0 of 1"),
+    ("nan_pixel", r"plugins\.detectors:nan_pixel returned pixel = \[nan, nan\] with visible "
+                  r"True: a lumen it sees needs a finite \(u, v\), on frame 0 of 1"),
+    ("wrong_shape", r"plugins\.detectors:wrong_shape returned pixel = \[10, 20, 1\] "
+                    r"of shape \(3,\), not a pair \(u, v\), on frame 0"),
+]
+
+
+@pytest.mark.parametrize("detector,culprit", FAILING_DETECTORS,
+                         ids=[d for d, _ in FAILING_DETECTORS])
+def test_a_users_detector_that_fails_is_one_line_and_keeps_the_scores(detector, culprit,
+                                                                     tmp_path, capsys):
+    # The built-in detector is scored first, then the user's fails on the first frame: one
+    # line naming it, the frame and what it did; what was scored is written; exit 1.
+    out = tmp_path / "eval"
+    code = cli_main(EVAL + ["--detector", f"plugins.detectors:{detector}", "--out", str(out)])
+    _assert_one_line(code, capsys.readouterr().err, culprit)
+    assert code == 1
+    results = json.loads((out / "results.json").read_text())
+    assert list(results) == ["core"] and results["core"]["raycast_fisheye"]["nominal"][
+        "frames"] == 1
+    assert f"Stopped: lumen detector plugins.detectors:{detector}" in (
+        out / "tables.md").read_text()
+    if detector == "raises":  # the user's traceback, for the user
+        details = (out / "error.txt").read_text()
+        assert "Traceback" in details and "the detector divided by zero" in details
+    else:
+        assert not (out / "error.txt").exists()
+
+
 def _start(tmp_path, duration="60", preexec_fn=None):
     out = tmp_path / "run"
     process = subprocess.Popen(CLI + ["run", "--duration", duration, "--no-recording",

@@ -33,8 +33,9 @@ from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
-                                                 condition_frames, condition_table, evaluate,
-                                                 finite_or_none, meets, mixed_sheet)
+                                                 DetectorError, condition_frames,
+                                                 condition_table, evaluate, finite_or_none,
+                                                 meets, mixed_sheet)
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
@@ -46,6 +47,8 @@ LOOPBACK = "127.0.0.1"
 BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
                      "runs-as-finished.csv")
 IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json")
+# What eval-lumen writes besides its contact sheets (error.txt: a detector's traceback).
+EVAL_OUTPUTS = ("results.json", "tables.md", "error.txt")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -623,44 +626,27 @@ def _eval_lumen(args) -> int:
     if wanted is not None and (not wanted or any(c not in known for c in wanted)):
         raise ScenarioError(f"--conditions: expected 'all' or a comma-separated list of "
                             f"{', '.join(known)}; got {args.conditions!r}")
-    out_dir = _output_folder(args, "eval_lumen", "eval", outputs=())
+    out_dir = _output_folder(args, "eval_lumen", "eval", outputs=EVAL_OUTPUTS)
     results, tables = {}, []
-    for renderer in renderers:
-        conditions = [c for c in (wanted or known)
-                      if c in IMAGE_CONDITIONS or renderer == "raycast"]
-        if not conditions:
-            continue
-        for lens in lenses:
-            path = f"{renderer}, {lens}"
-
-            def progress(done, path=path):
-                if args.quiet:
-                    return
-                if sys.stderr.isatty():
-                    print(f"\r{path}: rendered {done} / {args.frames} poses",
-                          end="\n" if done == args.frames else "", file=sys.stderr,
-                          flush=True)
-                elif done % max(1, args.frames // 5) == 0 or done == args.frames:
-                    print(f"{path}: rendered {done} / {args.frames} poses", file=sys.stderr)
-
-            config = CameraConfig(lens=LensConfig(
-                model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
-            frames = condition_frames(args.frames, args.colons, args.seed, renderer,
-                                      conditions, config, args.wall_fraction,
-                                      progress=progress)
-            for name, detector in detectors.items():
-                summaries = {c: evaluate(f, detector).summary() for c, f in frames.items()}
-                results.setdefault(name, {})[f"{renderer}_{lens}"] = summaries
-                table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
-                                                   f"{args.seed}-{args.seed + args.colons - 1}"
-                                                   f", {args.frames} poses)")
-                tables.append(table)
-                print(table + "\n", flush=True)
-                safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
-                cv2.imwrite(str(out_dir / f"{safe}_{renderer}_{lens}_sheet.png"),
-                            cv2.cvtColor(mixed_sheet(frames, detector), cv2.COLOR_RGB2BGR))
-    (out_dir / "results.json").write_text(json.dumps(finite_or_none(results), indent=2))
-    (out_dir / "tables.md").write_text("\n\n".join(tables) + "\n")
+    try:
+        for renderer in renderers:
+            conditions = [c for c in (wanted or known)
+                          if c in IMAGE_CONDITIONS or renderer == "raycast"]
+            if conditions:
+                for lens in lenses:
+                    _eval_path(args, detectors, renderer, lens, conditions, out_dir, results,
+                               tables)
+    except DetectorError as e:
+        # What was scored before the failure is kept; the user's traceback beside it.
+        where = f"what was scored before it is in {out_dir}/ (results.json, tables.md)"
+        if e.details is not None:
+            _write_eval_file(out_dir / "error.txt", e.details)
+            where = f"the traceback is in {out_dir}/error.txt; " + where
+        tables.append(f"Stopped: {e}")
+        _write_eval_results(out_dir, results, tables)
+        print(f"capsule-sim: error: {e}; {where}", file=sys.stderr)
+        return 1
+    _write_eval_results(out_dir, results, tables)
     failing = [f"{name} {path} {condition}" for name, paths in results.items()
                for path, summaries in paths.items() for condition, summary in summaries.items()
                if not meets(summary)]
@@ -668,6 +654,61 @@ def _eval_lumen(args) -> int:
           f" the targets (median <= 1.5 %, p90 <= 4 %, detected >= 95 %, false positives "
           f"<= 10 %); tables.md, results.json and contact sheets in {out_dir}/")
     return 0
+
+
+def _eval_path(args, detectors, renderer, lens, conditions, out_dir, results, tables):
+    """eval-lumen on one image path (renderer, lens): renders the frames, scores each
+    detector on them (its summaries into `results`, its table into `tables`, as they are
+    made: a detector that fails leaves what came before) and saves its contact sheet."""
+    path = f"{renderer}, {lens}"
+
+    def progress(done):
+        if args.quiet:
+            return
+        if sys.stderr.isatty():
+            print(f"\r{path}: rendered {done} / {args.frames} poses",
+                  end="\n" if done == args.frames else "", file=sys.stderr, flush=True)
+        elif done % max(1, args.frames // 5) == 0 or done == args.frames:
+            print(f"{path}: rendered {done} / {args.frames} poses", file=sys.stderr)
+
+    config = CameraConfig(lens=LensConfig(
+        model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
+    frames = condition_frames(args.frames, args.colons, args.seed, renderer, conditions,
+                              config, args.wall_fraction, progress=progress)
+    for name, detector in detectors.items():
+        summaries = results.setdefault(name, {}).setdefault(f"{renderer}_{lens}", {})
+        for condition, of_condition in frames.items():
+            summaries[condition] = evaluate(of_condition, detector, name,
+                                            f"{path}, {condition}").summary()
+        table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
+                                           f"{args.seed}-{args.seed + args.colons - 1}, "
+                                           f"{args.frames} poses)")
+        tables.append(table)
+        print(table + "\n", flush=True)
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+        sheet = cv2.cvtColor(mixed_sheet(frames, detector, name=name, where=path),
+                             cv2.COLOR_RGB2BGR)
+        sheet_path = out_dir / f"{safe}_{renderer}_{lens}_sheet.png"
+        if not cv2.imwrite(str(sheet_path), sheet):
+            raise WriteError(f"{sheet_path}: could not write the contact sheet")
+
+
+def _write_eval_file(path: Path, text: str) -> None:
+    try:
+        write_atomic(path, text)
+    except OSError as e:
+        raise WriteError(f"{path.parent}: could not write {path.name} "
+                         f"({e.strerror or e})") from None
+
+
+def _write_eval_results(out_dir: Path, results: dict, tables: list[str]) -> None:
+    """results.json (only the scores made: a detector path or condition not reached is
+    absent) and tables.md."""
+    kept = {name: {path: summaries for path, summaries in paths.items() if summaries}
+            for name, paths in results.items()}
+    _write_eval_file(out_dir / "results.json",
+                     json.dumps(finite_or_none({k: v for k, v in kept.items() if v}), indent=2))
+    _write_eval_file(out_dir / "tables.md", "\n\n".join(tables) + "\n")
 
 
 def _run(args) -> int:
