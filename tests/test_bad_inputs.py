@@ -21,10 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from mcap.writer import Writer as McapWriter
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app import outputs
+from capsule_drake.app.mcap_log import Ros2McapFile
 from capsule_drake.app.outputs import load_logs
 from tube_set import straight_tube
 
@@ -172,6 +174,48 @@ PLUGINS = [
                                "{detector: 'nosuch_mod:f'}}}"), r"no module 'nosuch_mod'"),
 ]
 
+# Output paths, all checked together before anything is built (app/outputs.py's
+# plan_outputs): {out} is the test's own --out folder (not made beforehand).
+OUTPUT_PATHS = [
+    ("--mcap the run's scenario.yaml", RUN + ["--out", "{tmp}/previous_run", "--force",
+                                              "--mcap", "{tmp}/previous_run/scenario.yaml"],
+     r"previous_run/scenario\.yaml: scenario\.yaml in --out .* own outputs"),
+    ("--mcap the run's logs.npz", RUN + ["--out", "{tmp}/empty_folder",
+                                         "--mcap", "{tmp}/empty_folder/logs.npz"],
+     r"logs\.npz in --out .* own outputs"),
+    ("--mcap the --out folder", RUN + ["--out", "{out}", "--mcap", "{out}"],
+     r"--mcap .*out: is the --out folder"),
+    ("--out inside --mcap's path", RUN + ["--out", "{out}/inner", "--mcap", "{out}"],
+     r"--out .*out/inner: lies inside --mcap's path"),
+    ("--mcap an unrelated file, --force", RUN + ["--mcap", "{tmp}/binary.yaml", "--force"],
+     r"binary\.yaml: file exists and is not an MCAP log written by capsule-sim"),
+    ("--mcap another program's MCAP, --force", RUN + ["--mcap", "{tmp}/foreign.mcap",
+                                                      "--force"],
+     r"foreign\.mcap: file exists and is not an MCAP log written by capsule-sim"),
+    ("--mcap a named pipe, --force", RUN + ["--mcap", "{tmp}/fifo.yaml", "--force"],
+     r"fifo\.yaml: not a regular file \(a named pipe\)"),
+    ("--mcap /dev/full, --force", RUN + ["--mcap", "/dev/full", "--force"],
+     r"/dev/full: not a regular file \(a character device\)"),
+    ("--mcap a link to an MCAP, --force", RUN + ["--mcap", "{tmp}/link.mcap", "--force"],
+     r"link\.mcap: is a symbolic link \(to .*ours\.mcap\)"),
+    ("--mcap a dangling link", RUN + ["--mcap", "{tmp}/dangling.mcap"],
+     r"dangling\.mcap: is a symbolic link"),
+    ("--force on a folder named metrics.json", RUN + ["--out", "{tmp}/odd_run", "--force"],
+     r"odd_run: its metrics\.json is a folder, not a previous run's output"),
+    ("--out holds the scenario file, --force", ["run", "{tmp}/scenario_here/scenario.yaml"]
+     + RUN[1:] + ["--out", "{tmp}/scenario_here", "--force"],
+     r"--out .*scenario_here: would replace .*scenario\.yaml, which this command reads"),
+    ("record --mcap a dataset file", ["record", "--duration", "0.1", "--quiet", "--out",
+                                      "{tmp}/empty_dataset", "--mcap",
+                                      "{tmp}/empty_dataset/frames.csv"],
+     r"frames\.csv in --out .* own outputs"),
+    ("record --seeds --mcap", ["record", "--seeds", "0-1", "--duration", "0.1", "--quiet",
+                               "--mcap", "{tmp}/seeds.mcap"], r"--mcap: not with --seeds"),
+    ("import over its own mesh", ["import-colon", "{tmp}/own_mesh/wall.obj", "--out",
+                                  "{tmp}/own_mesh", "--force", "--quiet"],
+     r"--out .*own_mesh: would replace .*wall\.obj, which this command reads"),
+]
+
 IMPORT = [
     ("mesh missing", ["import-colon", "{tmp}/none.obj", "--out", "{tmp}/m1", "--quiet"],
      r"none\.obj: no such file"),
@@ -194,7 +238,7 @@ IMPORT = [
                                    "{tmp}/previous_run", "--quiet"], r"folder exists and holds"),
 ]
 
-CASES = SCENARIO_VALUES + SCENARIO_FILES + FLAGS + PLUGINS + IMPORT
+CASES = SCENARIO_VALUES + SCENARIO_FILES + FLAGS + PLUGINS + OUTPUT_PATHS + IMPORT
 
 
 def _tube(length=0.3, radius=0.02, rings=60, around=32):
@@ -248,11 +292,30 @@ def bad_files(tmp_path_factory):
     trimesh.PointCloud(rng.normal(size=(100, 3))).export(tmp / "cloud.ply")
     _tube().apply_scale(1000.0).export(tmp / "tube_mm.obj")
     (tmp / "empty.obj").write_text("")
+    # Output paths: empty folders, an MCAP of this simulator's and one of another program's,
+    # links, a folder with a folder where a run's file goes, inputs inside an --out folder.
+    (tmp / "empty_folder").mkdir()
+    (tmp / "empty_dataset").mkdir()
+    ours = Ros2McapFile(tmp / "ours.mcap")
+    ours.write("/tf", "tf2_msgs/msg/TFMessage", {"transforms": []}, 0)
+    ours.close()
+    with open(tmp / "foreign.mcap", "wb") as f:
+        writer = McapWriter(f)
+        writer.start(profile="ros2", library="another-recorder")
+        writer.finish()
+    (tmp / "link.mcap").symlink_to(tmp / "ours.mcap")
+    (tmp / "dangling.mcap").symlink_to(tmp / "nowhere.mcap")
+    (tmp / "odd_run" / "metrics.json").mkdir(parents=True)
+    (tmp / "odd_run" / "metrics.json" / "notes.txt").write_text("mine")
+    (tmp / "scenario_here").mkdir()
+    (tmp / "scenario_here" / "scenario.yaml").write_text("Default: {duration: 0.1}\n")
+    (tmp / "own_mesh").mkdir()
+    (tmp / "own_mesh" / "wall.obj").write_bytes((tmp / "tube.obj").read_bytes())
     return tmp
 
 
-def _argv(args, tmp):
-    return [a.replace("{tmp}", str(tmp)) for a in args]
+def _argv(args, tmp, out=None):
+    return [a.replace("{tmp}", str(tmp)).replace("{out}", str(out)) for a in args]
 
 
 def _error_lines(err: str) -> list[str]:
@@ -273,12 +336,13 @@ def _assert_one_line(code, err, culprit):
 # Cases that could hang if their check regressed run in a subprocess with a time limit.
 HANG_PRONE = {"device /dev/zero", "named pipe", "nesting 20000 deep", "alias bomb",
               "alias bomb file", "100000 px camera", "teleop --delay 1e9", "log_period 1e-7",
-              "duration inf", "--duration inf"}
+              "duration inf", "--duration inf", "--mcap a named pipe, --force",
+              "--mcap /dev/full, --force"}
 
 
 @pytest.mark.parametrize("name,args,culprit", CASES, ids=[c[0] for c in CASES])
 def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, capsys):
-    argv = _argv(args, bad_files)
+    argv = _argv(args, bad_files, tmp_path / "out")
     if argv[0] in ("run", "teleop", "record") and "--out" not in argv:
         argv += ["--out", str(tmp_path / "out")]
     if name in HANG_PRONE:
@@ -296,6 +360,15 @@ def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, ca
     out = tmp_path / "out"
     if out.exists() and any(out.iterdir()):
         assert (out / "metrics.json").is_file() and (out / "logs.npz").is_file()
+    if name in {c[0] for c in OUTPUT_PATHS}:  # refused before anything was made or changed
+        assert not out.exists()
+        assert (bad_files / "previous_run" / "metrics.json").read_text() == "{}"
+        assert not any((bad_files / "empty_folder").iterdir())
+        assert not any((bad_files / "empty_dataset").iterdir())
+        assert (bad_files / "binary.yaml").stat().st_size == 4096
+        assert (bad_files / "odd_run" / "metrics.json" / "notes.txt").read_text() == "mine"
+        assert "duration" in (bad_files / "scenario_here" / "scenario.yaml").read_text()
+        assert (bad_files / "own_mesh" / "wall.obj").stat().st_size > 1000
 
 
 def test_there_are_at_least_60_cases():
@@ -381,6 +454,90 @@ def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkey
         # Everything before the recording is whole; no partial file is left.
         assert names == ["logs.npz", "metrics.json", "scenario.yaml"], names
         assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
+
+
+def _file_size_limit(size):
+    """A child's preexec_fn: files it writes may not grow past `size` bytes (a write beyond
+    fails with EFBIG: Python ignores SIGXFSZ), a disk that fills without root or a mount."""
+    import resource
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+
+def test_an_mcap_log_that_cannot_be_written_is_reported_as_failed(tmp_path):
+    # The run's own files (logs.npz ~12 kB for 1 s) fit under 20 kB; the MCAP log with the
+    # IMU's messages (~35 kB) does not: finishing it fails. It must not be reported as
+    # written: one line naming it, exit 1, the run's outputs on disk.
+    out, mcap = tmp_path / "run", tmp_path / "run.mcap"
+    done = subprocess.run(CLI + ["run", "--duration", "1", "--no-recording", "--quiet",
+                                 "--scenario-text", "{capsule: {imu: {}}}", "--out", str(out),
+                                 "--mcap", str(mcap)],
+                          cwd=REPO, capture_output=True, text=True, timeout=300,
+                          preexec_fn=_file_size_limit(20_000))
+    _assert_one_line(done.returncode, done.stderr, re.escape(f"--mcap {mcap}: could not write "
+                                                             "the MCAP log (File too large)"))
+    assert done.returncode == 1
+    assert "MCAP log:" not in done.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "error" and "MCAP" in metrics["stopped_early"]
+    assert load_logs(out)["times"][-1] == pytest.approx(1.0)
+
+
+def test_force_replaces_a_previous_mcap_log_only(tmp_path, capsys):
+    mcap = tmp_path / "run.mcap"
+    args = RUN[:-1] + ["0.05", "--mcap", str(mcap)]
+    assert cli_main(args + ["--out", str(tmp_path / "a")]) == 0
+    first = mcap.read_bytes()
+    capsys.readouterr()
+    code = cli_main(args + ["--out", str(tmp_path / "b")])
+    _assert_one_line(code, capsys.readouterr().err,
+                     r"run\.mcap: file exists \(an MCAP log written by capsule-sim\); choose "
+                     r"another name, or add --force")
+    assert mcap.read_bytes() == first and not (tmp_path / "b").exists()
+    assert cli_main(args + ["--out", str(tmp_path / "c"), "--force"]) == 0
+    assert "MCAP log: " in capsys.readouterr().out
+
+
+# --- A user's lumen detector that fails in eval-lumen ------------------------------------
+
+EVAL = ["eval-lumen", "--frames", "1", "--colons", "1", "--seed", "20", "--quiet",
+        "--renderer", "raycast", "--lens", "fisheye", "--conditions", "nominal",
+        "--detector", "core"]
+FAILING_DETECTORS = [
+    ("raises", r"lumen detector plugins\.detectors:raises raised ZeroDivisionError: the "
+               r"detector divided by zero on frame 0 of 1 \(raycast, fisheye, nominal: \w+ "
+               r"view, colon seed 20, s = [\d.]+ cm\); the traceback is in .*error\.txt"),
+    ("returns_none", r"plugins\.detectors:returns_none returned None, which is not a result: "
+                     r"a detector reports no lumen with visible False .* on frame 0 of 1 "
+                     r"\(raycast, fisheye, nominal"),
+    ("returns_nan", r"plugins\.detectors:returns_nan returned nan \(float\), not a result "
+                    r".* on frame 0 of 1"),
+    ("nan_pixel", r"plugins\.detectors:nan_pixel returned pixel = \[nan, nan\] with visible "
+                  r"True: a lumen it sees needs a finite \(u, v\), on frame 0 of 1"),
+    ("wrong_shape", r"plugins\.detectors:wrong_shape returned pixel = \[10, 20, 1\] "
+                    r"of shape \(3,\), not a pair \(u, v\), on frame 0"),
+]
+
+
+@pytest.mark.parametrize("detector,culprit", FAILING_DETECTORS,
+                         ids=[d for d, _ in FAILING_DETECTORS])
+def test_a_users_detector_that_fails_is_one_line_and_keeps_the_scores(detector, culprit,
+                                                                     tmp_path, capsys):
+    # The built-in detector is scored first, then the user's fails on the first frame: one
+    # line naming it, the frame and what it did; what was scored is written; exit 1.
+    out = tmp_path / "eval"
+    code = cli_main(EVAL + ["--detector", f"plugins.detectors:{detector}", "--out", str(out)])
+    _assert_one_line(code, capsys.readouterr().err, culprit)
+    assert code == 1
+    results = json.loads((out / "results.json").read_text())
+    assert list(results) == ["core"] and results["core"]["raycast_fisheye"]["nominal"][
+        "frames"] == 1
+    assert f"Stopped: lumen detector plugins.detectors:{detector}" in (
+        out / "tables.md").read_text()
+    if detector == "raises":  # the user's traceback, for the user
+        details = (out / "error.txt").read_text()
+        assert "Traceback" in details and "the detector divided by zero" in details
+    else:
+        assert not (out / "error.txt").exists()
 
 
 def _start(tmp_path, duration="60", preexec_fn=None):

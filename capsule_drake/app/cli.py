@@ -23,18 +23,19 @@ from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.app.dataset_docs import SPLIT_RULE, split_counts, split_of_seed, splits_readme
-from capsule_drake.app.mcap_log import add_mcap_logger, check_mcap_path, expected_mcap_bytes
+from capsule_drake.app.mcap_log import add_mcap_logger, expected_mcap_bytes
 from capsule_drake.app.record import record, with_all_sensors
-from capsule_drake.app.outputs import (RUN_OUTPUTS, OutputError, claim_folder, new_run_folder,
-                                      write_atomic)
+from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUTS,
+                                      OutputError, plan_outputs, write_atomic)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
                                                 run_suite, segment_table, summary,
                                                 task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
-                                                 condition_frames, condition_table, evaluate,
-                                                 finite_or_none, meets, mixed_sheet)
+                                                 DetectorError, condition_frames,
+                                                 condition_table, evaluate, finite_or_none,
+                                                 meets, mixed_sheet)
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
@@ -46,6 +47,8 @@ LOOPBACK = "127.0.0.1"
 BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
                      "runs-as-finished.csv")
 IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json")
+# What eval-lumen writes besides its contact sheets (error.txt: a detector's traceback).
+EVAL_OUTPUTS = ("results.json", "tables.md", "error.txt")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -255,14 +258,6 @@ def _mcap_argument(parser):
                              "Foxglove: MCAP logs\")")
 
 
-def _mcap_path(args, scenario):
-    """--mcap's file, checked before the run (exit 2 on a bad path), or None."""
-    if args.mcap is None:
-        return None
-    return check_mcap_path(args.mcap, replace=getattr(args, "force", None),
-                           expected_bytes=expected_mcap_bytes(scenario))
-
-
 def _mcap_extend(path, scenario):
     """simulate's `extend` that adds the MCAP logger, or None."""
     if path is None:
@@ -270,12 +265,32 @@ def _mcap_extend(path, scenario):
     return lambda builder, station: add_mcap_logger(builder, station, scenario, path).close
 
 
-def _report_mcap(result):
+def _report_mcap(result) -> str | None:
+    """Prints where the MCAP log is; or, when writing it failed, prints nothing and returns
+    the failure (one line: `_finish` reports it)."""
     diagram = result.diagram
-    if diagram is not None and diagram.HasSubsystemNamed("mcap_logger"):
-        log = diagram.GetSubsystemByName("mcap_logger").log
-        print(f"MCAP log: {log.messages} ROS 2 messages in {log.path} (open it in Foxglove, "
-              "or `ros2 bag info` it)")
+    if diagram is None or not diagram.HasSubsystemNamed("mcap_logger"):
+        return None
+    log = diagram.GetSubsystemByName("mcap_logger").log
+    if log.error is not None:
+        return f"--mcap {log.error}"
+    print(f"MCAP log: {log.messages} ROS 2 messages in {log.path} (open it in Foxglove, "
+          "or `ros2 bag info` it)")
+    return None
+
+
+def _finish(result, mcap_failure: str | None) -> int:
+    """The run's stop, if it stopped early, and a failed MCAP log, on stderr (one line each;
+    a run that stopped because the MCAP could not be written: one line); the exit status
+    (`_exit_code`, and at least 1 when the MCAP log failed)."""
+    stopped = result.metrics.get("stopped_early") or ""
+    if mcap_failure is None or mcap_failure.removeprefix("--mcap ") not in stopped:
+        _report_stop(result)
+    code = _exit_code(result)
+    if mcap_failure is not None:
+        print(f"capsule-sim: error: {mcap_failure}", file=sys.stderr)
+        code = code or 1
+    return code
 
 
 def _out_arguments(parser, default: str, force: bool = True):
@@ -289,17 +304,29 @@ def _out_arguments(parser, default: str, force: bool = True):
                                  "run's outputs there")
 
 
-def _output_folder(args, parent: str, name: str, outputs=RUN_OUTPUTS) -> Path:
-    """The folder a command writes into: --out (refused if it holds files, unless --force),
-    or a new folder parent/name-<date-time> that no other run uses."""
-    if args.out is not None:
-        existed = args.out.exists()
-        folder = claim_folder(args.out, getattr(args, "force", None), outputs=outputs)
-    else:
-        existed, folder = False, new_run_folder(parent, name)
-    if not existed:
+def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: float = 0.0,
+          prefixes=(), inputs=()):
+    """Every output path of the command, checked together before anything is built or run
+    (app/outputs.py's `plan_outputs`): --out (refused if it holds files, unless --force) or
+    a new folder parent/name-<date-time>, the --mcap file, and the `inputs` it reads."""
+    return plan_outputs(args.out, getattr(args, "force", None), parent=parent, name=name,
+                        outputs=outputs, prefixes=prefixes, mcap=getattr(args, "mcap", None),
+                        mcap_bytes=mcap_bytes, inputs=inputs)
+
+
+def _claim(plan) -> Path:
+    """The planned folder, made (or a previous run's outputs removed from it, --force)."""
+    folder = plan.claim()
+    if not plan.existed:
         _created_folders.append(folder)
     return folder
+
+
+def _output_folder(args, parent: str, name: str, outputs=RUN_OUTPUTS) -> Path:
+    """The folder a command writes into: --out (refused if it holds files, unless --force),
+    or a new folder parent/name-<date-time> that no other run uses; checked (`_plan`), then
+    made."""
+    return _claim(_plan(args, parent, name, outputs))
 
 
 # Output folders this command created: removed again if it fails before writing into them.
@@ -442,17 +469,17 @@ def _record(args) -> int:
     if args.split is not None:
         raise ScenarioError("--split: only with --seeds (it splits the seeds recorded)")
     scenario = _load(args)
-    mcap = _mcap_path(args, with_all_sensors(scenario))
-    out_dir = _output_folder(args, "datasets", args.scenario or "Default")
-    result = record(scenario, out_dir, progress=not args.quiet, mcap=mcap,
+    plan = _plan(args, "datasets", args.scenario or "Default", DATASET_OUTPUTS,
+                 mcap_bytes=expected_mcap_bytes(with_all_sensors(scenario)),
+                 inputs=[args.scenario_file])
+    out_dir = _claim(plan)
+    result = record(scenario, out_dir, progress=not args.quiet, mcap=plan.mcap,
                     scenario_name=args.scenario or "Default")
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
     m = result.metrics
     print(f"recorded {frames} frames over {m.get('sim_time_s', 0.0):.2f} s into {out_dir}/ "
           f"(README.md there describes every file)")
-    _report_mcap(result)
-    _report_stop(result)
-    return _exit_code(result)
+    return _finish(result, _report_mcap(result))
 
 
 def _split_fractions(text: str) -> tuple[float, float, float]:
@@ -469,6 +496,9 @@ def _split_fractions(text: str) -> tuple[float, float, float]:
 
 def _record_seeds(args) -> int:
     """One dataset per colon seed into --out/seed_XXXX/, with splits.csv and README.md."""
+    if args.mcap is not None:
+        raise ScenarioError("--mcap: not with --seeds (an MCAP log holds one recording; "
+                            "record a seed on its own to log it)")
     seeds = _seeds(args.seeds, "--seeds")
     fractions = _split_fractions(args.split or "0.7,0.15,0.15")
     name = args.scenario or "Default"
@@ -484,9 +514,10 @@ def _record_seeds(args) -> int:
         return scenario
 
     scenario_of(seeds[0])  # a bad scenario: one line before anything is written
-    out_dir = _output_folder(args, "datasets", f"{name}-seeds")
+    out_dir = _claim(_plan(args, "datasets", f"{name}-seeds", SEEDS_OUTPUTS,
+                           prefixes=(SEED_PREFIX,), inputs=[args.scenario_file]))
     width = max(4, len(str(max(seeds))))
-    folders = {seed: f"seed_{seed:0{width}d}" for seed in seeds}
+    folders = {seed: f"{SEED_PREFIX}{seed:0{width}d}" for seed in seeds}
     splits = {seed: split_of_seed(seed, fractions) for seed in seeds}
 
     def write_splits(recorded):
@@ -545,9 +576,9 @@ def _teleop(args) -> int:
     if live and scenario.simulator.target_realtime_rate == 0.0:
         # A person at the device: paced to the wall clock.
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
-    mcap = _mcap_path(args, scenario)
-
-    out_dir = _output_folder(args, "runs", f"teleop-{teleop.operator}")
+    plan = _plan(args, "runs", f"teleop-{teleop.operator}",
+                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file])
+    out_dir = _claim(plan)
     meshcat = _meshcat(args.host or LOOPBACK, args.port if teleop.operator == "browser" else 0,
                        announce=live)
 
@@ -560,17 +591,16 @@ def _teleop(args) -> int:
 
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,
                       live_meshcat=live,
-                      extend=chain_extends(announce, _mcap_extend(mcap, scenario)))
+                      extend=chain_extends(announce, _mcap_extend(plan.mcap, scenario)))
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline in "
               f"{m['sim_time_s']:.1f} s (x{m['real_time_factor']:.2f} real time); peak "
               f"contact force {m['peak_contact_force_N']:.2f} N; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
-    _report_mcap(result)
-    _report_stop(result)
+    mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json, recording.html)")
-    return _exit_code(result)
+    return _finish(result, mcap_failure)
 
 
 def _eval_lumen(args) -> int:
@@ -596,44 +626,27 @@ def _eval_lumen(args) -> int:
     if wanted is not None and (not wanted or any(c not in known for c in wanted)):
         raise ScenarioError(f"--conditions: expected 'all' or a comma-separated list of "
                             f"{', '.join(known)}; got {args.conditions!r}")
-    out_dir = _output_folder(args, "eval_lumen", "eval", outputs=())
+    out_dir = _output_folder(args, "eval_lumen", "eval", outputs=EVAL_OUTPUTS)
     results, tables = {}, []
-    for renderer in renderers:
-        conditions = [c for c in (wanted or known)
-                      if c in IMAGE_CONDITIONS or renderer == "raycast"]
-        if not conditions:
-            continue
-        for lens in lenses:
-            path = f"{renderer}, {lens}"
-
-            def progress(done, path=path):
-                if args.quiet:
-                    return
-                if sys.stderr.isatty():
-                    print(f"\r{path}: rendered {done} / {args.frames} poses",
-                          end="\n" if done == args.frames else "", file=sys.stderr,
-                          flush=True)
-                elif done % max(1, args.frames // 5) == 0 or done == args.frames:
-                    print(f"{path}: rendered {done} / {args.frames} poses", file=sys.stderr)
-
-            config = CameraConfig(lens=LensConfig(
-                model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
-            frames = condition_frames(args.frames, args.colons, args.seed, renderer,
-                                      conditions, config, args.wall_fraction,
-                                      progress=progress)
-            for name, detector in detectors.items():
-                summaries = {c: evaluate(f, detector).summary() for c, f in frames.items()}
-                results.setdefault(name, {})[f"{renderer}_{lens}"] = summaries
-                table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
-                                                   f"{args.seed}-{args.seed + args.colons - 1}"
-                                                   f", {args.frames} poses)")
-                tables.append(table)
-                print(table + "\n", flush=True)
-                safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
-                cv2.imwrite(str(out_dir / f"{safe}_{renderer}_{lens}_sheet.png"),
-                            cv2.cvtColor(mixed_sheet(frames, detector), cv2.COLOR_RGB2BGR))
-    (out_dir / "results.json").write_text(json.dumps(finite_or_none(results), indent=2))
-    (out_dir / "tables.md").write_text("\n\n".join(tables) + "\n")
+    try:
+        for renderer in renderers:
+            conditions = [c for c in (wanted or known)
+                          if c in IMAGE_CONDITIONS or renderer == "raycast"]
+            if conditions:
+                for lens in lenses:
+                    _eval_path(args, detectors, renderer, lens, conditions, out_dir, results,
+                               tables)
+    except DetectorError as e:
+        # What was scored before the failure is kept; the user's traceback beside it.
+        where = f"what was scored before it is in {out_dir}/ (results.json, tables.md)"
+        if e.details is not None:
+            _write_eval_file(out_dir / "error.txt", e.details)
+            where = f"the traceback is in {out_dir}/error.txt; " + where
+        tables.append(f"Stopped: {e}")
+        _write_eval_results(out_dir, results, tables)
+        print(f"capsule-sim: error: {e}; {where}", file=sys.stderr)
+        return 1
+    _write_eval_results(out_dir, results, tables)
     failing = [f"{name} {path} {condition}" for name, paths in results.items()
                for path, summaries in paths.items() for condition, summary in summaries.items()
                if not meets(summary)]
@@ -643,12 +656,67 @@ def _eval_lumen(args) -> int:
     return 0
 
 
+def _eval_path(args, detectors, renderer, lens, conditions, out_dir, results, tables):
+    """eval-lumen on one image path (renderer, lens): renders the frames, scores each
+    detector on them (its summaries into `results`, its table into `tables`, as they are
+    made: a detector that fails leaves what came before) and saves its contact sheet."""
+    path = f"{renderer}, {lens}"
+
+    def progress(done):
+        if args.quiet:
+            return
+        if sys.stderr.isatty():
+            print(f"\r{path}: rendered {done} / {args.frames} poses",
+                  end="\n" if done == args.frames else "", file=sys.stderr, flush=True)
+        elif done % max(1, args.frames // 5) == 0 or done == args.frames:
+            print(f"{path}: rendered {done} / {args.frames} poses", file=sys.stderr)
+
+    config = CameraConfig(lens=LensConfig(
+        model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
+    frames = condition_frames(args.frames, args.colons, args.seed, renderer, conditions,
+                              config, args.wall_fraction, progress=progress)
+    for name, detector in detectors.items():
+        summaries = results.setdefault(name, {}).setdefault(f"{renderer}_{lens}", {})
+        for condition, of_condition in frames.items():
+            summaries[condition] = evaluate(of_condition, detector, name,
+                                            f"{path}, {condition}").summary()
+        table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
+                                           f"{args.seed}-{args.seed + args.colons - 1}, "
+                                           f"{args.frames} poses)")
+        tables.append(table)
+        print(table + "\n", flush=True)
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+        sheet = cv2.cvtColor(mixed_sheet(frames, detector, name=name, where=path),
+                             cv2.COLOR_RGB2BGR)
+        sheet_path = out_dir / f"{safe}_{renderer}_{lens}_sheet.png"
+        if not cv2.imwrite(str(sheet_path), sheet):
+            raise WriteError(f"{sheet_path}: could not write the contact sheet")
+
+
+def _write_eval_file(path: Path, text: str) -> None:
+    try:
+        write_atomic(path, text)
+    except OSError as e:
+        raise WriteError(f"{path.parent}: could not write {path.name} "
+                         f"({e.strerror or e})") from None
+
+
+def _write_eval_results(out_dir: Path, results: dict, tables: list[str]) -> None:
+    """results.json (only the scores made: a detector path or condition not reached is
+    absent) and tables.md."""
+    kept = {name: {path: summaries for path, summaries in paths.items() if summaries}
+            for name, paths in results.items()}
+    _write_eval_file(out_dir / "results.json",
+                     json.dumps(finite_or_none({k: v for k, v in kept.items() if v}), indent=2))
+    _write_eval_file(out_dir / "tables.md", "\n\n".join(tables) + "\n")
+
+
 def _run(args) -> int:
     # A live page is paced to the wall clock.
     scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
-    mcap = _mcap_path(args, scenario)
-
-    out_dir = _output_folder(args, "runs", args.scenario or "Default")
+    plan = _plan(args, "runs", args.scenario or "Default",
+                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file])
+    out_dir = _claim(plan)
     meshcat = None
     if args.meshcat:
         meshcat = _meshcat(args.host or LOOPBACK, args.port, announce=True)
@@ -656,7 +724,7 @@ def _run(args) -> int:
         meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       progress=not args.quiet, live_meshcat=args.meshcat,
-                      extend=_mcap_extend(mcap, scenario))
+                      extend=_mcap_extend(plan.mcap, scenario))
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
@@ -667,10 +735,10 @@ def _run(args) -> int:
               f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
-    _report_mcap(result)
-    _report_stop(result)
+    mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
           f"{', recording.html' if meshcat is not None else ''})")
+    code = _finish(result, mcap_failure)
     if args.meshcat:
         print("serving Meshcat; Ctrl-C to quit", file=sys.stderr)
         try:
@@ -678,7 +746,7 @@ def _run(args) -> int:
                 time.sleep(1.0)
         except KeyboardInterrupt:
             pass
-    return _exit_code(result)
+    return code
 
 
 def _import_colon(args) -> int:
@@ -692,7 +760,7 @@ def _import_colon(args) -> int:
         raise ScenarioError(f"--scale must be > 0, got {args.scale}")
     if not 1000 <= args.max_faces <= 10_000_000:
         raise ScenarioError(f"--max-faces must be 1000-10000000, got {args.max_faces}")
-    claim_folder(args.out, args.force, outputs=IMPORT_OUTPUTS)
+    _claim(plan_outputs(args.out, args.force, outputs=IMPORT_OUTPUTS, inputs=[args.mesh]))
     try:
         wall = import_colon_mesh(args.mesh, args.scale, args.max_faces, args.reverse,
                                  progress=say)
@@ -776,6 +844,7 @@ def main(argv=None, noted=None) -> int:
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 1 if isinstance(e, WriteError) else 2
     except OutputError as e:
+        _remove_unused_folders()
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:

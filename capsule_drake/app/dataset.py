@@ -52,6 +52,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
+from capsule_drake.app.outputs import OutputError
+
 # How long after a sample time the writer reads (s): just after the sensors' updates at that
 # time (Drake publishes before updating at the same time).
 READ_DELAY = 1e-6
@@ -143,6 +145,16 @@ def read_depth_png(path, full_scale: float = 0.2) -> np.ndarray:
     return depth
 
 
+def _write_image(path: Path, image: np.ndarray) -> None:
+    """cv2.imwrite, raising OSError when it fails (it only returns False)."""
+    try:
+        written = cv2.imwrite(str(path), image)
+    except cv2.error as e:
+        raise OSError(f"{path}: could not write the image ({e})") from None
+    if not written:
+        raise OSError(f"{path}: could not write the image (disk full or not writable?)")
+
+
 def quaternion_xyzw(R: RotationMatrix) -> tuple:
     """(x, y, z, w) of a rotation, w >= 0 (Drake's canonical sign)."""
     q = R.ToQuaternion()
@@ -191,12 +203,17 @@ class DatasetWriter(LeafSystem):
         self._plant_step = float(plant_step)
         self._plant_step_first = bool(plant_step_first)
         self._out = Path(out_dir)
-        (self._out / "Frames").mkdir(parents=True, exist_ok=True)
-        for name, text in (texts or {}).items():
-            (self._out / name).write_text(text)
         self._mask = None if mask is None else np.asarray(mask, dtype=bool)
-        if self._mask is not None:
-            cv2.imwrite(str(self._out / "mask.png"), np.where(self._mask, 255, 0).astype(np.uint8))
+        try:  # before the run: a folder that cannot take the files is one line, exit 2
+            (self._out / "Frames").mkdir(parents=True, exist_ok=True)
+            for name, text in (texts or {}).items():
+                (self._out / name).write_text(text)
+            if self._mask is not None:
+                _write_image(self._out / "mask.png",
+                             np.where(self._mask, 255, 0).astype(np.uint8))
+        except OSError as e:
+            raise OutputError(f"{self._out}: cannot write the dataset "
+                              f"({e.strerror or e})") from None
         self._depth_full_scale = float(depth_full_scale)
         self._lumen_truth = lumen_truth
         self._rgb = self.DeclareAbstractInputPort("rgb", AbstractValue.Make(ImageRgba8U()))
@@ -204,15 +221,13 @@ class DatasetWriter(LeafSystem):
                                                     AbstractValue.Make(ImageDepth32F()))
         self._frame_time = self.DeclareVectorInputPort("frame_time", 1)
         self._frame_pose = self.DeclareVectorInputPort("frame_pose", 12)
-        self._files = {
-            "position": open(self._out / "SavedPosition.txt", "w"),
-            "rotation": open(self._out / "SavedRotationQuaternion.txt", "w"),
-            "frames": open(self._out / "frames.csv", "w"),
-        }
-        self._write("frames", "index,time_s")
+        self._files = {}
+        self._open("position", "SavedPosition.txt")
+        self._open("rotation", "SavedRotationQuaternion.txt")
+        self._open("frames", "frames.csv", "index,time_s")
         if lumen_truth is not None:
-            self._files["lumen"] = open(self._out / "lumen_truth.csv", "w")
-            self._write("lumen", "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
+            self._open("lumen", "lumen_truth.csv",
+                       "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
         self._frames_written = 0
         self._last_frame_time = None
         # Just after the frame's delivery: at the tick itself a publish runs before the
@@ -222,8 +237,8 @@ class DatasetWriter(LeafSystem):
         self._stream_ports = {}
         for stream in streams:
             port = self.DeclareVectorInputPort(stream.name, stream.size)
-            self._files[stream.name] = open(self._out / f"{stream.name}.csv", "w")
-            self._write(stream.name, ",".join(["time_s", *stream.columns]))
+            self._open(stream.name, f"{stream.name}.csv",
+                       ",".join(["time_s", *stream.columns]))
             delay = READ_DELAY if stream.after_update else 0.0
             self.DeclarePeriodicPublishEvent(
                 stream.period, delay, lambda context, stream=stream, port=port, delay=delay:
@@ -233,6 +248,18 @@ class DatasetWriter(LeafSystem):
     @property
     def frames_written(self) -> int:
         return self._frames_written
+
+    def _open(self, key: str, name: str, header: str | None = None):
+        """Opens `name` for writing (and writes its header line), before the run: a file
+        that cannot be written is one line (OutputError), the files opened so far closed."""
+        try:
+            self._files[key] = open(self._out / name, "w")
+            if header is not None:
+                self._write(key, header)
+        except OSError as e:
+            self.close()
+            raise OutputError(f"{self._out / name}: cannot write the dataset "
+                              f"({e.strerror or e})") from None
 
     def _write(self, key: str, line: str):
         f = self._files[key]
@@ -263,12 +290,12 @@ class DatasetWriter(LeafSystem):
         frame_time = state_time(frame_time, self._plant_step, after_plant_update=False)
         index = self._frames_written
         rgb = self._rgb.Eval(context).data[:, :, :3]
-        cv2.imwrite(str(self._out / "Frames" / f"FrameBuffer_{index:04d}.png"),
-                    cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        _write_image(self._out / "Frames" / f"FrameBuffer_{index:04d}.png",
+                     cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         depth = np.array(self._depth.Eval(context).data[:, :, 0], dtype=np.float64)
         mask = self._mask if self._mask is not None else np.ones(depth.shape, dtype=bool)
-        cv2.imwrite(str(self._out / "Frames" / f"Depth_{index:04d}.png"),
-                    encode_depth(depth, mask, self._depth_full_scale))
+        _write_image(self._out / "Frames" / f"Depth_{index:04d}.png",
+                     encode_depth(depth, mask, self._depth_full_scale))
         pose = np.asarray(self._frame_pose.Eval(context), dtype=float)
         X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
         p = X_WC.translation()

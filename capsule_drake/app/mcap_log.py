@@ -51,9 +51,11 @@ file (its last chunk, index and footer) however the run ended.
 
 import contextlib
 import dataclasses
+import errno
 import math
 import os
 import signal
+import stat
 import threading
 from pathlib import Path
 
@@ -74,7 +76,7 @@ from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
 from capsule_drake.app.dataset import READ_DELAY, sample_tick, state_time
-from capsule_drake.app.outputs import OutputError
+from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsule_mcap
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
                                             vector3)
@@ -134,41 +136,20 @@ def _quaternion_of(R: RotationMatrix) -> np.ndarray:
 
 
 def check_mcap_path(path, replace: bool | None = False, expected_bytes: float = 0.0) -> Path:
-    """The file `--mcap` names, checked before anything is simulated: its folder exists and
-    can be written, the path is not a folder, an existing file is refused unless `replace`
-    (None: the command has no --force to offer), and the disk has room for `expected_bytes`.
+    """The file `--mcap` names, checked before anything is simulated (app/outputs.py's
+    `check_file_output`): a regular file or a new one, not a link, in a folder that exists
+    and can be written, with room for `expected_bytes`; an existing file is refused unless
+    `replace` (None: the command has no --force to offer) and it is an MCAP log this
+    simulator wrote. The command line checks it with its other outputs (`plan_outputs`).
     Raises OutputError (one line)."""
-    text = str(path)
-    if not text.strip():
-        raise OutputError("--mcap: empty path (give a file, e.g. --mcap run.mcap)")
-    path = Path(path)
-    folder = path.parent
-    if path.is_dir():
-        raise OutputError(f"--mcap {path}: is a folder; give a file name, e.g. {path / 'run.mcap'}")
-    if not folder.is_dir():
-        raise OutputError(f"--mcap {path}: folder {folder} does not exist")
-    if path.exists() and not replace:
-        raise OutputError(f"--mcap {path}: file exists; choose another name"
-                          + (", or add --force to replace it" if replace is not None else ""))
-    probe = folder / f".{path.name}.write-check"
-    try:
-        probe.write_bytes(b"capsule-sim")
-        probe.unlink()
-        if path.exists():
-            with open(path, "ab"):
-                pass
-    except OSError as e:
-        raise OutputError(f"--mcap {path}: cannot write there ({e.strerror or e})") from None
-    try:
-        stat = os.statvfs(folder)
-        free = stat.f_bavail * stat.f_frsize
-    except OSError:
-        free = math.inf
-    if free < expected_bytes:
-        raise OutputError(f"--mcap {path}: {free / 1e6:.0f} MB free, but the log will take up "
-                          f"to about {expected_bytes / 1e6:.0f} MB; free some space or write it "
-                          "elsewhere")
-    return path
+    return check_file_output(path, "--mcap", replace=replace, previous=is_capsule_mcap,
+                             previous_name="an MCAP log written by capsule-sim",
+                             expected_bytes=expected_bytes)
+
+
+class McapWriteError(OSError):
+    """Writing the MCAP log failed (a full disk, an I/O error, a file size limit): one line
+    naming the file; the file is left as far as it was written."""
 
 
 @contextlib.contextmanager
@@ -192,7 +173,10 @@ class Ros2McapFile:
     the channel with the QoS rosbag2 replays it with; messages are gathered into chunks
     (`chunk_size` bytes, compressed) that are written as they fill.
 
-    The file is created at the first message; `close()` finishes it (idempotent).
+    The file is created at the first message; `close()` finishes it (idempotent). A write
+    that fails (at a message, or when the file is finished, flushed and synced) raises
+    McapWriteError once, naming the file, and leaves `error` set; the file is closed and
+    later messages are refused.
     """
 
     def __init__(self, path, compression: str = "zstd", chunk_size: int = 1 << 20):
@@ -206,17 +190,29 @@ class Ros2McapFile:
         self._channels = {}   # topic -> (channel id, encoder, type name)
         self.messages = 0
         self.closed = False
+        self.error: str | None = None  # why writing failed (one line), or None
 
     def _open(self):
-        stream = open(self.path, "wb")
+        # Not through a symbolic link, and without blocking on a named pipe (no reader:
+        # ENXIO); only a regular file is written (the command line checked the path, but
+        # it may have changed since).
+        flags = (os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK
+                 | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(self.path, flags, 0o666)
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise OSError(errno.EINVAL, "not a regular file")
+        os.set_blocking(fd, True)
+        stream = os.fdopen(fd, "wb")
         try:
             writer = Writer(stream, chunk_size=self._chunk_size, compression=self._compression)
-            writer.start(profile=Profile.ROS2, library="capsule_drake")
+            writer.start(profile=Profile.ROS2, library=MCAP_LIBRARY)
             # rosbag2 reads the channels' QoS with the metadata format its "rosbag2" record
             # names; an empty one means version 8 and before: integer policies (ros2_messages).
             writer.add_metadata("rosbag2", {"serialized_metadata": ""})
         except BaseException:
-            stream.close()
+            with contextlib.suppress(OSError):
+                stream.close()
             raise
         self._stream, self._writer = stream, writer
 
@@ -238,30 +234,58 @@ class Ros2McapFile:
     def write(self, topic: str, type_name: str, message: dict, log_time_ns: int,
               latched: bool = False):
         """Encodes `message` (a dict of the type's fields) and adds it to `topic`."""
-        if self.closed:
+        if self.closed or self.error is not None:
             raise RuntimeError(f"{self.path}: the MCAP log is closed")
-        channel = self._channels.get(topic) or self._channel(topic, type_name, latched)
-        channel_id, encoder, known_type = channel
-        if known_type != type_name:
-            raise ValueError(f"topic {topic} carries {known_type}, not {type_name}")
-        self._writer.add_message(channel_id, log_time=log_time_ns, data=encoder(message),
-                                 publish_time=log_time_ns, sequence=self.messages)
+        try:
+            channel = self._channels.get(topic) or self._channel(topic, type_name, latched)
+            channel_id, encoder, known_type = channel
+            if known_type != type_name:
+                raise ValueError(f"topic {topic} carries {known_type}, not {type_name}")
+            self._writer.add_message(channel_id, log_time=log_time_ns, data=encoder(message),
+                                     publish_time=log_time_ns, sequence=self.messages)
+        except OSError as e:
+            raise self._failed(e) from None
         self.messages += 1
 
+    def _failed(self, e: OSError) -> McapWriteError:
+        """Notes a failed write, closes the file (dropping what is unwritten) and returns
+        the error to raise."""
+        if self.error is None:
+            reason = e.strerror or str(e)
+            self.error = (f"{self.path}: could not write the MCAP log ({reason}) after "
+                          f"{self.messages} messages; the file is incomplete")
+        stream, self._writer, self._stream = self._stream, None, None
+        if stream is not None:
+            with contextlib.suppress(OSError):  # its flush fails again; the file is closed
+                stream.close()
+        return McapWriteError(self.error)
+
     def close(self):
-        """Writes the last chunk, the summary and the footer, and closes the file, which is
-        closed even if finishing it fails. Idempotent: later calls do nothing."""
+        """Writes the last chunk, the summary and the footer, flushes and syncs the file
+        and closes it, which is closed even if finishing it fails (McapWriteError, once).
+        Idempotent: later calls do nothing, as does a close after a write that failed."""
         if self.closed:
             return
         self.closed = True
+        if self.error is not None:
+            return
         writer, stream = self._writer, self._stream
-        self._writer = self._stream = None
         try:
             if writer is not None:
                 writer.finish()
-        finally:
             if stream is not None:
-                stream.close()
+                stream.flush()
+                os.fsync(stream.fileno())
+        except OSError as e:
+            raise self._failed(e) from None
+        finally:
+            self._writer = None
+            if self._stream is not None:
+                self._stream = None
+                try:
+                    stream.close()
+                except OSError as e:
+                    raise self._failed(e) from None
 
 
 # --- What is logged: one stream per source, each read by its own periodic event ------------

@@ -13,20 +13,48 @@ the run goes, and complete on every way a run can end.
   either.
 - `write_atomic` writes through a temporary file and a rename: a full disk leaves the
   previous file or none, never a truncated one.
+- `plan_outputs` is the one place where a command's output paths are checked together,
+  before anything is built or run: the folder (--out, or a new one), the file --mcap
+  names, and the input files the command reads. It refuses a path that is not a regular
+  file or a folder (a device, a named pipe, a socket), a symbolic link where a file is to
+  be written, a file that is not a previous output of this simulator (even with --force),
+  a folder that cannot be created or written, and any two outputs (or an output and an
+  input) that are the same file. Only then does `OutputPlan.claim` create the folder or
+  remove a previous run's outputs from it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import shutil
+import stat
+import struct
 import time
 from pathlib import Path
 
 import numpy as np
 
-# What a run writes into its folder (a previous run's are removed by --force).
-RUN_OUTPUTS = ("metrics.json", "scenario.yaml", "logs.npz", "recording.html", "logs.parts")
+# What a run writes into its folder (a previous run's are removed by --force); error.txt
+# only after an error inside the simulation.
+RUN_OUTPUTS = ("metrics.json", "scenario.yaml", "logs.npz", "recording.html", "logs.parts",
+               "error.txt")
+# Of those, the folders (the others are files).
+OUTPUT_FOLDERS = ("logs.parts", "Frames")
+# What `capsule-sim record` writes into a dataset folder (app/dataset.py), besides a run's.
+DATASET_OUTPUTS = ("README.md", "camera.yaml", "sensors.yaml", "mask.png", "Frames",
+                   "SavedPosition.txt", "SavedRotationQuaternion.txt", "frames.csv",
+                   "lumen_truth.csv", "imu.csv", "ahrs.csv", "magnetometer.csv",
+                   "ground_truth.csv") + RUN_OUTPUTS
+# What `record --seeds` writes into its folder: these and one dataset folder per seed,
+# named SEED_PREFIX + the seed.
+SEEDS_OUTPUTS = ("splits.csv", "README.md")
+SEED_PREFIX = "seed_"
+# The start of an MCAP file (the magic, then the header record: opcode 1, its length, the
+# profile and library strings) and the library this simulator's MCAP files name there.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+MCAP_LIBRARY = "capsule_drake"
 # Bytes of one logged sample: time, capsule state (13), contact load, EPM pose (6), as float64.
 SAMPLE_BYTES = 8 * (1 + 13 + 1 + 6)
 # A Meshcat recording: the scene's meshes (~16 MB for the procedural colon), then the
@@ -73,41 +101,294 @@ def claim_folder(folder: Path | str, force: bool | None = False, what: str = "--
     An existing folder that holds anything is refused (a previous run's outputs would be
     overwritten, or mixed with the new ones); with `force`, a previous run's outputs
     (`outputs`) are removed first, and other files are left alone. `force` None: the
-    command has no --force (a dataset is never replaced).
+    command has no --force (a dataset is never replaced). `plan_outputs`, then `claim`.
     """
-    if str(folder) == "":
-        raise OutputError(f"{what}: empty path (give a folder, e.g. {what} runs/mine)")
-    folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
-        raise OutputError(f"{what} {folder}: exists and is not a folder")
-    if folder.is_dir():
+    return plan_outputs(folder, force, outputs=outputs, what=what).claim()
+
+
+@dataclasses.dataclass
+class OutputPlan:
+    """Every path a command will write, checked together by `plan_outputs`.
+
+    folder: the folder the user named (--out), or None: a new folder parent/name-<date-time>.
+    mcap: the MCAP file (--mcap), or None. existed: whether `folder` existed before.
+    """
+
+    folder: Path | None
+    parent: Path
+    name: str
+    force: bool | None
+    outputs: tuple[str, ...]
+    what: str = "--out"
+    mcap: Path | None = None
+    existed: bool = False
+
+    def claim(self) -> Path:
+        """Creates the folder (or a new one), or with --force removes a previous run's
+        outputs from it; returns it. Raises OutputError."""
+        if self.folder is None:
+            return new_run_folder(self.parent, self.name)
+        folder = self.folder
+        if self.existed:
+            for name in self.outputs if self.force else ():
+                path = folder / name
+                try:
+                    if name in OUTPUT_FOLDERS and path.is_dir() and not path.is_symlink():
+                        shutil.rmtree(path)
+                    elif os.path.lexists(path):
+                        path.unlink()
+                except OSError as e:
+                    raise OutputError(f"{self.what} {folder}: cannot remove the previous "
+                                      f"{name} ({_reason(e)})") from None
+            return folder
         try:
-            entries = sorted(p.name for p in folder.iterdir())
+            folder.mkdir(parents=True)
         except OSError as e:
-            raise OutputError(f"{what} {folder}: cannot read the folder ({_reason(e)})") from None
-        if entries and not force:
-            shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
-            raise OutputError(f"{what} {folder}: folder exists and holds {shown}; choose "
-                              "another folder" + ("" if force is None else
-                                                  ", or add --force to replace a previous "
-                                                  "run's outputs there"))
-        for name in outputs if force else ():
-            path = folder / name
-            try:
-                if path.is_dir() and not path.is_symlink():
-                    shutil.rmtree(path)
-                elif path.exists() or path.is_symlink():
-                    path.unlink()
-            except OSError as e:
-                raise OutputError(f"{what} {folder}: cannot remove the previous {name} "
-                                  f"({_reason(e)})") from None
+            raise OutputError(f"{self.what} {folder}: cannot create the output folder "
+                              f"({_reason(e)})") from None
         return folder
+
+
+def plan_outputs(out: Path | str | None, force: bool | None = False, *,
+                 parent: Path | str = "runs", name: str = "run",
+                 outputs: tuple[str, ...] = RUN_OUTPUTS, prefixes: tuple[str, ...] = (),
+                 mcap: Path | str | None = None, mcap_bytes: float = 0.0,
+                 inputs=(), what: str = "--out") -> OutputPlan:
+    """Checks every output path of a command before anything is made, built or run, and
+    returns the plan (`OutputPlan.claim` then makes the folder). Raises OutputError (one
+    line naming the path) on the first problem:
+
+    - the folder `out` (`what`, e.g. --out; None: a new folder parent/name-<date-time>) is
+      not a folder, holds files (unless `force`, and then only a previous run's `outputs`
+      are removed, each of the kind this simulator writes: a regular file, or one of
+      OUTPUT_FOLDERS), or cannot be created or written;
+    - the `mcap` file (`check_file_output`) is not a regular file, is a symbolic link, is an
+      existing file that is not an MCAP log of this simulator (even with `force`), or its
+      folder is missing or cannot be written, or has no room for `mcap_bytes`;
+    - two outputs are the same path: the MCAP is the folder, or one of `outputs` (or a name
+      starting with one of `prefixes`, e.g. a dataset's seed_ folders) in it, or the folder
+      lies inside the MCAP's path;
+    - an output would replace one of `inputs` (files the command reads: the scenario file, a
+      mesh).
+
+    `force` None: the command has no --force.
+    """
+    plan = OutputPlan(None, Path(parent), name, force, tuple(outputs), what)
+    if out is not None:
+        plan.folder, plan.existed = _check_folder(out, force, what, plan.outputs)
+    folder = plan.folder.resolve() if plan.folder is not None else None
+    if mcap is not None:
+        if not str(mcap).strip():
+            raise OutputError("--mcap: empty path (give a file, e.g. --mcap run.mcap)")
+        path = _resolved_file(Path(mcap))
+        if folder is not None:
+            if path == folder:
+                raise OutputError(f"--mcap {mcap}: is the {what} folder; give a file name")
+            if folder.is_relative_to(path):
+                raise OutputError(f"{what} {out}: lies inside --mcap's path {mcap}")
+            if path.is_relative_to(folder):
+                first = path.relative_to(folder).parts[0]
+                if _planned(first, plan.outputs, prefixes):
+                    raise OutputError(f"--mcap {mcap}: {first} in {what} {out} is one of "
+                                      "this command's own outputs; give the MCAP log another "
+                                      "name")
+        plan.mcap = check_file_output(mcap, "--mcap", replace=force,
+                                      previous=is_capsule_mcap,
+                                      previous_name="an MCAP log written by capsule-sim",
+                                      expected_bytes=mcap_bytes, planned_folder=folder)
+    for source in inputs:
+        if source is None or not Path(source).is_file():
+            continue
+        read = Path(source).resolve()
+        if plan.mcap is not None and read == _resolved_file(plan.mcap):
+            raise OutputError(f"--mcap {mcap}: is {source}, which this command reads")
+        if folder is not None and read.is_relative_to(folder):
+            first = read.relative_to(folder).parts[0]
+            if _planned(first, plan.outputs, prefixes):
+                raise OutputError(f"{what} {out}: would replace {source}, which this command "
+                                  f"reads; copy it elsewhere or choose another {what}")
+    return plan
+
+
+def _planned(name: str, outputs, prefixes) -> bool:
+    """Whether a folder's entry `name` is one a command writes there (its outputs, the
+    temporary files of `write_atomic` and `check_room`)."""
+    return (name in outputs or any(name.startswith(p) for p in prefixes)
+            or (name.startswith(".") and name.endswith((".partial", ".write-check"))))
+
+
+def _resolved_file(path: Path) -> Path:
+    """`path` with its folder's symbolic links resolved (the file itself is not a link)."""
+    return Path(path).parent.resolve() / Path(path).name
+
+
+def _kind(mode: int) -> str:
+    """What kind of file `mode` is, in words."""
+    for test, kind in ((stat.S_ISREG, "a file"), (stat.S_ISDIR, "a folder"),
+                       (stat.S_ISLNK, "a symbolic link"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def _lstat(path: Path, what: str) -> os.stat_result | None:
+    """os.lstat, or None when nothing is there."""
     try:
-        folder.mkdir(parents=True)
+        return os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
     except OSError as e:
-        raise OutputError(f"{what} {folder}: cannot create the output folder "
-                          f"({_reason(e)})") from None
-    return folder
+        raise OutputError(f"{what} {path}: cannot be examined ({_reason(e)})") from None
+
+
+def _unwritable(folder: Path) -> str | None:
+    """Why new files cannot be made in the existing folder `folder`, or None."""
+    if os.access(folder, os.W_OK | os.X_OK):
+        return None
+    try:
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            return "Read-only file system"
+    except OSError:
+        pass
+    return "Permission denied"
+
+
+def _check_folder(out, force: bool | None, what: str,
+                  outputs: tuple[str, ...]) -> tuple[Path, bool]:
+    """(the folder `out`, whether it exists), refused with OutputError as `plan_outputs`
+    says; nothing is changed on disk."""
+    if str(out) == "":
+        raise OutputError(f"{what}: empty path (give a folder, e.g. {what} runs/mine)")
+    folder = Path(out)
+    info = _lstat(folder, what)
+    if info is not None and stat.S_ISLNK(info.st_mode) and not folder.exists():
+        raise OutputError(f"{what} {folder}: a symbolic link to {os.readlink(folder)}, "
+                          "which does not exist")
+    if info is not None and not folder.is_dir():
+        raise OutputError(f"{what} {folder}: exists and is not a folder "
+                          f"({_kind(os.stat(folder).st_mode)})")
+    if info is None:
+        ancestor = folder.parent
+        while _lstat(ancestor, what) is None and ancestor != ancestor.parent:
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise OutputError(f"{what} {folder}: cannot create the output folder ({ancestor} "
+                              "is not a folder)")
+        reason = _unwritable(ancestor)
+        if reason:
+            raise OutputError(f"{what} {folder}: cannot create the output folder ({reason}: "
+                              f"{ancestor})")
+        return folder, False
+    try:
+        entries = sorted(p.name for p in folder.iterdir())
+    except OSError as e:
+        raise OutputError(f"{what} {folder}: cannot read the folder ({_reason(e)})") from None
+    if entries and not force:
+        shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
+        raise OutputError(f"{what} {folder}: folder exists and holds {shown}; choose "
+                          "another folder" + ("" if force is None else
+                                              ", or add --force to replace a previous "
+                                              "run's outputs there"))
+    for name in outputs if entries else ():
+        entry = _lstat(folder / name, what)
+        if entry is None:
+            continue
+        expected = stat.S_ISDIR if name in OUTPUT_FOLDERS else stat.S_ISREG
+        if not expected(entry.st_mode):
+            raise OutputError(f"{what} {folder}: its {name} is {_kind(entry.st_mode)}, not a "
+                              "previous run's output; refusing to remove it (move it away "
+                              f"or choose another {what})")
+    reason = _unwritable(folder)
+    if reason:
+        raise OutputError(f"{what} {folder}: cannot write to the output folder ({reason})")
+    return folder, True
+
+
+def is_capsule_mcap(path: Path | str) -> bool:
+    """Whether `path` starts as an MCAP file this simulator writes: the MCAP magic, then a
+    header record naming MCAP_LIBRARY (so --force never replaces another program's log, or
+    a file that is no MCAP at all)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return False
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+            return False
+        head = f.read(512)
+    start = len(MCAP_MAGIC)
+    if not head.startswith(MCAP_MAGIC) or len(head) < start + 13 or head[start] != 1:
+        return False
+    at = start + 9                                # opcode, then the record's length
+    (profile,) = struct.unpack_from("<I", head, at)
+    at += 4 + profile
+    if at + 4 > len(head):
+        return False
+    (library,) = struct.unpack_from("<I", head, at)
+    return head[at + 4:at + 4 + library] == MCAP_LIBRARY.encode()
+
+
+def check_file_output(path, what: str, replace: bool | None = False, previous=None,
+                      previous_name: str = "a previous output", expected_bytes: float = 0.0,
+                      planned_folder: Path | None = None) -> Path:
+    """The file `path` (named by the flag `what`) that a command will write, checked before
+    anything is run; returns it as a Path. Refused with OutputError (one line):
+
+    - an empty path, a folder, a symbolic link, anything not a regular file (a device, a
+      named pipe: writing one could block forever or go nowhere);
+    - an existing file unless `replace` (None: the command has no --force to offer), and
+      even then unless `previous(path)` says it is a previous output of this kind
+      (`previous_name`; no `previous`: none is replaced);
+    - a folder that does not exist (unless it is `planned_folder`, which the command
+      creates first) or cannot be written, or has less than `expected_bytes` free.
+    """
+    text = str(path)
+    if not text.strip():
+        raise OutputError(f"{what}: empty path (give a file, e.g. {what} run.mcap)")
+    path = Path(path)
+    info = _lstat(path, what)
+    if info is not None:
+        if stat.S_ISLNK(info.st_mode):
+            raise OutputError(f"{what} {path}: is a symbolic link (to {os.readlink(path)}); "
+                              "give the path of a file, not of a link")
+        if stat.S_ISDIR(info.st_mode):
+            raise OutputError(f"{what} {path}: is a folder; give a file name, e.g. "
+                              f"{path / 'run.mcap'}")
+        if not stat.S_ISREG(info.st_mode):
+            raise OutputError(f"{what} {path}: not a regular file ({_kind(info.st_mode)}); "
+                              "give the name of a file to write")
+        if previous is None or not previous(path):
+            raise OutputError(f"{what} {path}: file exists and is not {previous_name}; "
+                              "it is never replaced (not even with --force): choose "
+                              "another name")
+        if not replace:
+            raise OutputError(f"{what} {path}: file exists ({previous_name}); choose another "
+                              "name" + (", or add --force to replace it"
+                                        if replace is not None else ""))
+        if not os.access(path, os.W_OK):
+            raise OutputError(f"{what} {path}: cannot write there (Permission denied)")
+    folder = path.parent
+    if not folder.is_dir():
+        if planned_folder is not None and folder.resolve() == planned_folder:
+            return path  # the command's output folder, made before anything is written
+        if os.path.lexists(folder):
+            raise OutputError(f"{what} {path}: {folder} is not a folder")
+        raise OutputError(f"{what} {path}: folder {folder} does not exist")
+    reason = _unwritable(folder)
+    if reason:
+        raise OutputError(f"{what} {path}: cannot write there ({reason})")
+    try:
+        st = os.statvfs(folder)
+        free = st.f_bavail * st.f_frsize
+    except OSError:
+        free = float("inf")
+    if free < expected_bytes:
+        raise OutputError(f"{what} {path}: {free / 1e6:.0f} MB free, but the file will take "
+                          f"up to about {expected_bytes / 1e6:.0f} MB; free some space or "
+                          "write it elsewhere")
+    return path
 
 
 def run_output_bytes(duration: float, log_period: float, recording: bool) -> float:

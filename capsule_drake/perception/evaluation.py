@@ -15,6 +15,7 @@ visible unless outside the field or hidden behind nearer tissue.
 
 import dataclasses
 import time
+import traceback
 
 import cv2
 import numpy as np
@@ -25,6 +26,7 @@ from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 from capsule_drake.perception import photometry
+from capsule_drake.perception.lumen import detection_problem
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 from capsule_drake.perception.views import camera_scene
@@ -305,13 +307,47 @@ def finite_or_none(value):
     return value
 
 
-def evaluate(frames: list[Frame], detector) -> EvalResult:
-    """Runs `detector(rgb, field_mask)` on every frame and scores it against the truth."""
+class DetectorError(Exception):
+    """A detector failed on a frame: it raised (`details` holds the traceback) or returned
+    a value that breaks the detector contract (perception/lumen.py's `load_detector`). The
+    message is one line naming the detector, the value or error, and the frame."""
+
+    def __init__(self, message: str, details: str | None = None):
+        super().__init__(message)
+        self.details = details
+
+
+def describe_frame(frames: list[Frame], index: int, where: str = "") -> str:
+    """"frame 3 of 40 (vtk, fisheye, noise: lumen view, colon seed 100, s = 41.2 cm)"."""
+    frame = frames[index]
+    return (f"frame {index} of {len(frames)} ({where + ': ' if where else ''}{frame.kind} "
+            f"view, colon seed {frame.colon_seed}, s = {100 * frame.s:.1f} cm)")
+
+
+def evaluate(frames: list[Frame], detector, name: str = "detector",
+             where: str = "") -> EvalResult:
+    """Runs `detector(rgb, field_mask)` on every frame and scores it against the truth.
+
+    Raises DetectorError (naming the detector `name`, and the frame: its index, `where`
+    (e.g. the image path and condition), its kind, colon and place) when the detector
+    raises, or returns something that breaks the detector contract (None, NaN, a pixel
+    that is not (u, v), ...: `detection_problem`)."""
     detections, milliseconds, errors = [], [], []
-    for frame in frames:
+    for index, frame in enumerate(frames):
         start = time.perf_counter()
-        detection = detector(frame.rgb, frame.field)
+        try:
+            detection = detector(frame.rgb, frame.field)
+        except Exception as e:
+            text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+            raise DetectorError(
+                f"lumen detector {name} raised {type(e).__name__}"
+                f"{': ' + text if text else ''} on {describe_frame(frames, index, where)}",
+                "".join(traceback.format_exception(e))) from e
         milliseconds.append(1e3 * (time.perf_counter() - start))
+        problem = detection_problem(detection, frame.rgb.shape)
+        if problem is not None:
+            raise DetectorError(f"lumen detector {name} {problem}, on "
+                                f"{describe_frame(frames, index, where)}")
         detections.append(detection)
         pixel = np.asarray(getattr(detection, "pixel", [np.nan, np.nan]), dtype=float)
         if frame.truth_visible and detection.visible and np.all(np.isfinite(pixel)):
@@ -357,10 +393,12 @@ def annotated_sheet(result: EvalResult, count: int = 16, columns: int = 4) -> np
     return np.vstack(rows)
 
 
-def mixed_sheet(frames_by_condition: dict, detector, count: int = 24) -> np.ndarray:
+def mixed_sheet(frames_by_condition: dict, detector, count: int = 24,
+                name: str = "detector", where: str = "") -> np.ndarray:
     """A contact sheet whose i-th frame comes from the i-th condition in turn (so one sheet
-    shows them all), annotated as `annotated_sheet`."""
+    shows them all), annotated as `annotated_sheet`. Raises DetectorError as `evaluate`."""
     names = list(frames_by_condition)
     chosen = [frames_by_condition[names[i % len(names)]][i]
               for i in range(min(count, min(len(f) for f in frames_by_condition.values())))]
-    return annotated_sheet(evaluate(chosen, detector), count, 6)
+    return annotated_sheet(evaluate(chosen, detector, name,
+                                    f"{where + ', ' if where else ''}contact sheet"), count, 6)

@@ -165,6 +165,56 @@ class LumenDetection:
 Detector = Callable[[np.ndarray, "np.ndarray | None"], LumenDetection]
 
 
+def _shown(value, width: int = 60) -> str:
+    """A value as a user would recognise it, cut to about `width` characters."""
+    if isinstance(value, np.ndarray) and value.ndim == 1 and value.size <= 6:
+        text = "[" + ", ".join(f"{x:.6g}" for x in value.tolist()) + "]"
+    elif isinstance(value, np.ndarray):
+        text = f"an array of shape {value.shape}"
+    else:
+        text = repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def detection_problem(result, shape) -> str | None:
+    """Why `result`, a detector's return for an image of `shape` (H, W[, C]), breaks the
+    detector contract (`load_detector`), in a phrase naming the value; None if it keeps it."""
+    if result is None:
+        return ("returned None, which is not a result: a detector reports no lumen with "
+                "visible False (LumenDetection.nothing(rgb.shape))")
+    missing = [a for a in ("visible", "pixel", "confidence") if not hasattr(result, a)]
+    if missing:
+        return (f"returned {_shown(result)} ({type(result).__name__}), not a result with "
+                "visible, pixel and confidence (a LumenDetection)")
+    visible = result.visible
+    if not (isinstance(visible, (bool, np.bool_)) or (
+            isinstance(visible, (int, np.integer)) and visible in (0, 1))):
+        return f"returned visible = {_shown(visible)}, not True or False"
+    try:
+        pixel = np.asarray(result.pixel, dtype=float)
+    except (TypeError, ValueError):
+        return f"returned pixel = {_shown(result.pixel)}, not a pair of numbers (u, v)"
+    if pixel.shape != (2,):
+        return (f"returned pixel = {_shown(result.pixel)} of shape {pixel.shape}, not a "
+                "pair (u, v)")
+    if visible and not np.all(np.isfinite(pixel)):
+        return (f"returned pixel = {_shown(pixel)} with visible True: a lumen it sees needs "
+                "a finite (u, v)")
+    confidence = result.confidence
+    try:
+        number = float(confidence)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if isinstance(confidence, (bool, np.bool_)) or not 0.0 <= number <= 1.0:
+        return f"returned confidence = {_shown(confidence)}, not a number in [0, 1]"
+    region = getattr(result, "region", None)
+    if region is not None and np.shape(region) != tuple(shape[:2]):
+        return (f"returned a region of shape {np.shape(region)}, not the image's "
+                f"{tuple(shape[:2])}")
+    return None
+
+
 def dark_biased_threshold(values: np.ndarray, gradients: np.ndarray | None = None,
                           dark_bias: float = 1.0) -> int:
     """Threshold t (0-255) maximising ((L - t) / L)^dark_bias * eta(t) / g(t) over all levels
@@ -434,7 +484,16 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
     dark-class detectors of the seed and of STORM), or "package.module:function" naming a
     user's function with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool or
     None) -> LumenDetection (or an object with visible, pixel, confidence and, optionally,
-    region). Raises ValueError with one line if it cannot be found."""
+    region). Raises ValueError with one line if it cannot be found.
+
+    The contract of a detector's result (`detection_problem` checks it): `visible` a bool;
+    `pixel` (u, v), finite when visible (NaN when not); `confidence` a number in [0, 1];
+    `region`, if any, None or (H, W). "No lumen" is a result with visible False
+    (`LumenDetection.nothing(rgb.shape)`); None, NaN or any other value is not a result.
+    `capsule-sim eval-lumen` stops at a result that breaks the contract (one line naming
+    the value and the frame, exit status 1), as at a detector that raises; the lumen
+    tracker in a simulation counts either as a failure and reports no lumen for that
+    frame."""
     if name == "core":
         return core_detector(params)
     if name == "gaussian":
