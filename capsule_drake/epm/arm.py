@@ -172,7 +172,10 @@ class EpmArmController(LeafSystem):
     status: [command raised to the clearance (0/1), command pulled within reach (0/1),
     unreachable (0/1: the IK placement misses the guarded command by more than
     `unreachable_tolerance`), placement error of the joint command (m), its moment-axis
-    error (rad), IK failures so far, non-finite commands so far].
+    error (rad), IK failures so far, non-finite commands so far]. In a station the EPM's
+    guard (epm/guard.py) comes first: it raises the command and holds on a non-finite one
+    itself (counted on epm.guard_counts), so the raised flag is 1 only after a pull within
+    reach (onto a higher floor) and no non-finite command arrives.
 
     Args:
         arm_plant: a MultibodyPlant holding only the arm (base welded at the station's
@@ -399,6 +402,7 @@ class ArmMount:
         parts.export(path.get_output_port(), "epm.command")
         return path
 
-    def command_input(self, builder, parts):
-        """The controller's pose command input [p_WE, m_hat_W]."""
+    def carrier_input(self, builder, parts):
+        """The controller's pose command input [p_WE, m_hat_W], from the EPM's guard
+        (drivers connect to `EpmParts.command_input`)."""
         return self.controller.GetInputPort("epm_command")

@@ -1,8 +1,13 @@
 """The EPM in a station: its carrier (stage or arm), where it starts, and its pose.
 
 `add_epm_models` (before the plant is finalised) adds the carrier's model; `add_epm_mount`
-(after) starts it where its driver begins and adds `epm_pose` ([p_WE, m_hat_W] from the
-plant). The driver (epm.driver in the scenario) is a block of its own that commands it.
+(after) starts it where its driver begins and puts the EPM's guard (`epm_guard`) before it;
+`add_epm_pose` adds `epm_pose` ([p_WE, m_hat_W] from the plant). The driver (epm.driver in
+the scenario) is a block of its own that commands it: a pose-command driver connects to
+`parts.epm.command_input(builder, parts)`, the guard's input, whose safe command goes on to
+the carrier, so that no driver's command (a user's plug-in, an !External input) reaches the
+carrier unguarded. A path driver (!AlongColon, !HoldAbove) drives the carrier's joints with
+its trajectory, built on the clearance floor (epm/poses.py), and sends no pose command.
 """
 
 from __future__ import annotations
@@ -15,7 +20,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.epm.arm import Arm, ArmMount
-from capsule_drake.epm.guard import EpmGuard, floor_guard
+from capsule_drake.epm.guard import (EpmCommandGuard, EpmGuard, command_workspace,
+                                    floor_guard)
 from capsule_drake.epm.paths import stage_trajectory
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import KinematicStageMount, StageMount
@@ -34,6 +40,18 @@ class EpmParts:
     guard: EpmGuard          # the clearance floor (lowest_centre_height(x, y, m_hat))
     trajectory: object = None      # stage joint trajectory the EPM starts on
     start_command: np.ndarray = None   # [p_WE, m_hat_W] at the start
+    command_guard: object = None   # the EpmCommandGuard every pose command passes through
+    driven: bool = False           # a pose-command driver is connected (command_input)
+
+    def command_input(self, builder, parts):
+        """The input a pose-command driver connects its [p_WE, m_hat_W] to: the guard's,
+        whose safe command goes to the carrier. One driver per EPM (a second one raises)."""
+        if self.driven:
+            raise RuntimeError("the EPM already has a pose-command driver")
+        self.driven = True
+        builder.Connect(self.command_guard.GetOutputPort("epm_command"),
+                        self.mount.carrier_input(builder, parts))
+        return self.command_guard.GetInputPort("epm_command")
 
 
 def add_epm_models(parts, config):
@@ -51,12 +69,19 @@ def add_epm_models(parts, config):
 
 def add_epm_mount(builder, parts, config):
     """After Finalize: the carrier starts where the driver's path begins (or over the
-    capsule's start); sets parts.epm.trajectory and parts.epm.start_command."""
+    capsule's start), and the guard (`epm_guard`, EpmCommandGuard: the clearance floor of
+    parts.epm.guard, the workspace around the colon) waits for a pose command; exports
+    epm.guard_counts (guard.GUARD_COUNTS). Sets parts.epm.trajectory, start_command and
+    command_guard."""
     epm = parts.epm
     epm.trajectory = stage_trajectory(config.driver, parts.colon, parts.start_s,
                                       config.magnet, config.clearance)
     epm.start_command = stage_to_pose(epm.trajectory.value(epm.trajectory.start_time()).ravel())
     epm.mount.connect(builder, parts, epm.trajectory)
+    epm.command_guard = builder.AddNamedSystem("epm_guard", EpmCommandGuard(
+        epm.guard, command_workspace(parts.colon), epm.start_command,
+        period=parts.plant.time_step()))
+    parts.export(epm.command_guard.GetOutputPort("counts"), "epm.guard_counts")
 
 
 def add_epm_pose(builder, parts):

@@ -45,7 +45,8 @@ class HoldAbove:
 @dataclasses.dataclass
 class External:
     """The EPM follows the station's input port `epm.command` ([p_WE (3), m_hat_W (3)]),
-    connected by whoever builds around the station (a script, a notebook, an environment)."""
+    connected by whoever builds around the station (a script, a notebook, an environment),
+    through the EPM's guard (epm/guard.py) as every driver's command."""
 
 
 def check_path(path) -> None:
@@ -88,7 +89,8 @@ def add_path_driver(builder, parts, config):
 
 @block(External)
 def add_external_driver(builder, parts, config):
-    """Exports the carrier's pose command input as the station's `epm.command` input."""
-    port = parts.epm.mount.command_input(builder, parts)
+    """Exports the EPM's pose command input (its guard's, before the carrier) as the
+    station's `epm.command` input."""
+    port = parts.epm.command_input(builder, parts)
     builder.ExportInput(port, "epm.command")
     return port

@@ -6,8 +6,8 @@ its command within a few milliseconds moves the EPM so, while the capsule takes 
 second to follow. With `kinematic: false` the stage is models/epm_stage.sdf in the plant, its
 five joints PD-servoed (implicit in SAP) and the 6.2 kg magnet's dynamics simulated.
 
-A path driver sends the stage a joint trajectory; a pose-command driver goes through
-`PoseToStage`.
+A path driver sends the stage a joint trajectory; a pose-command driver goes through the
+EPM's guard (epm/guard.py) and `PoseToStage`.
 """
 
 import dataclasses
@@ -225,8 +225,9 @@ class KinematicStageMount:
         self._drive(builder, parts, path.get_output_port())
         return path
 
-    def command_input(self, builder, parts):
-        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
+    def carrier_input(self, builder, parts):
+        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`), from the
+        EPM's guard (drivers connect to `EpmParts.command_input`); exports
         epm.desired_state."""
         stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(
             self._q0, period=parts.plant.time_step()))
@@ -290,8 +291,9 @@ class StageMount:
         parts.export(path.get_output_port(), "epm.desired_state")
         return path
 
-    def command_input(self, builder, parts):
-        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`); exports
+    def carrier_input(self, builder, parts):
+        """The input a pose command [p_WE, m_hat_W] goes to (`epm_stage_command`), from the
+        EPM's guard (drivers connect to `EpmParts.command_input`); exports
         epm.desired_state."""
         stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(
             self._q0, period=parts.plant.time_step()))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.epm.guard import GUARD_COUNTS
 from capsule_drake.epm.poses import skin_gap
 
 
@@ -61,9 +62,22 @@ OUTCOMES = ("final_s_m", "max_s_m", "advance_m", "stop_segment", "peak_contact_f
             "max_wall_excursion_m", "time_of_max_wall_excursion_s", "min_epm_capsule_distance_m")
 
 
+def guard_metrics(counts) -> dict:
+    """The EPM guard's counts (the station's `epm.guard_counts`, GUARD_COUNTS) as metrics:
+    epm_commands (the pose commands it received), epm_commands_raised (raised to the
+    clearance floor), epm_commands_clamped (centre pulled into the workspace),
+    epm_commands_rejected (not finite: the last safe command held)."""
+    counts = np.asarray(counts, dtype=float).ravel()
+    if counts.shape != (len(GUARD_COUNTS),):
+        raise ValueError(f"epm.guard_counts has {counts.size} values, not {len(GUARD_COUNTS)} "
+                         f"({', '.join(GUARD_COUNTS)})")
+    return {"epm_commands" if name == "commands" else f"epm_commands_{name}": int(value)
+            for name, value in zip(GUARD_COUNTS, counts)}
+
+
 def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_radius,
                 capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None,
-                diverged=False):
+                diverged=False, epm_guard_counts=None):
     """Metrics of one run as a JSON-ready dict.
 
     Args:
@@ -81,6 +95,8 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         diverged: the run guard found the simulation no longer physical: the outcomes
             (OUTCOMES: how far the capsule got, its contact, its excursion) are null, since
             numbers from such a run mean nothing.
+        epm_guard_counts: the station's `epm.guard_counts` at the end of the run, or None;
+            given, its counts are reported (`guard_metrics`), whatever the run's status.
 
     Samples whose capsule state is not finite (or whose quaternion is far from unit length,
     as in a diverging run) are left out.
@@ -97,9 +113,10 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
               "colon_length_m": float(colon.centerline.s[-1]),
               "scenario_start_s_m": float(start_s), "stopped_early": stopped_early,
               "diverged": bool(diverged)}
+    guarded = guard_metrics(epm_guard_counts) if epm_guard_counts is not None else {}
     if len(times) == 0:
         return {**timing, **{key: None for key in OUTCOMES}, "start_s_m": None,
-                "min_epm_skin_gap_m": None}
+                "min_epm_skin_gap_m": None, **guarded}
     R_WC, p_WC = capsule_poses(capsule_state)
     s, _, _ = colon.centerline.closest(p_WC)
     excursion = wall_excursion(colon, R_WC, p_WC, capsule_surface_points_C(capsule_radius,
@@ -128,6 +145,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         "stopped_early": stopped_early,
         "diverged": bool(diverged),
     }
+    metrics.update(guarded)
     if diverged:
         metrics.update({key: None for key in OUTCOMES})
     return metrics

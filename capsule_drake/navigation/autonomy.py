@@ -632,7 +632,7 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
     builder.Connect(ray, follower.GetInputPort("lumen_ray"))
     builder.Connect(visible, follower.GetInputPort("lumen_visible"))
     command = follower.GetOutputPort("epm_command")
-    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    builder.Connect(command, parts.epm.command_input(builder, parts))
     parts.export(command, "epm.command")
     parts.export_outputs(follower, name, ("heading", "status"))
     return follower

@@ -9,6 +9,11 @@ world frame), and may have any of these input ports, connected by name:
 and `lumen_truth_ray`, `lumen_truth_visible` (the lumen truth, as a ray in the camera
 frame; needs the camera). A user's lumen detector plugs into the tracker instead:
 `capsule: {lumen_tracker: {detector: "package.module:function"}}`.
+
+The command passes the EPM's guard on its way to the carrier, as every driver's does
+(epm/guard.py): raised to the clearance floor (`floor_height`), its centre kept within the
+workspace around the colon, a command that is not finite replaced by the last safe one; the
+station's `epm.guard_counts` counts each. `epm.command` is the navigator's own command.
 """
 
 
@@ -117,6 +122,6 @@ def add_plugin(builder, parts, config: Plugin):
         raise ScenarioError(f"scenario: epm.driver: navigator {name!r} has no output port "
                             "'epm_command'")
     command = system.GetOutputPort("epm_command")
-    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    builder.Connect(command, parts.epm.command_input(builder, parts))
     parts.export(command, "epm.command")
     return system

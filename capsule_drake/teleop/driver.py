@@ -236,6 +236,6 @@ def add_teleop(builder, parts, teleop: Teleop):
     builder.ExportOutput(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
     builder.ExportOutput(mapping.GetOutputPort("heading"), "teleop.heading")
     command = mapping.GetOutputPort("epm_command")
-    builder.Connect(command, parts.epm.mount.command_input(builder, parts))
+    builder.Connect(command, parts.epm.command_input(builder, parts))
     parts.export(command, "epm.command")
     return mapping
