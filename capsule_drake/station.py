@@ -17,6 +17,8 @@ Exported in every station:
                            the arm's [q (7), v (7)]
     epm.desired_state      the carrier's commanded joint state
     epm.F_W                spatial force on the EPM at its centre, world frame [torque; force]
+    epm.guard_counts       the EPM guard's counts [commands, raised, clamped, rejected]:
+                           every pose command passes the guard (epm/guard.py)
     body_poses, contact_results, query_object   the plant's and scene graph's
 and with some drivers epm.command (the pose command, an output; an input with !External)
 and epm.status (the arm's controller's report).

@@ -735,6 +735,7 @@ def _run(args) -> int:
               f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    _report_epm_guard(m)
     mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
           f"{', recording.html' if meshcat is not None else ''})")
@@ -747,6 +748,17 @@ def _run(args) -> int:
         except KeyboardInterrupt:
             pass
     return code
+
+
+def _report_epm_guard(metrics) -> None:
+    """One line when the EPM guard (epm/guard.py) had to change the driver's commands."""
+    changed = {name: metrics.get(f"epm_commands_{name}", 0)
+               for name in ("raised", "clamped", "rejected")}
+    if any(changed.values()):
+        print(f"EPM guard: of {metrics.get('epm_commands', 0)} pose commands, "
+              f"{changed['raised']} raised to the clearance, {changed['clamped']} clamped "
+              f"to the workspace, {changed['rejected']} rejected (not finite: the last safe "
+              f"one held)")
 
 
 def _import_colon(args) -> int:

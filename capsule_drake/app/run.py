@@ -337,6 +337,15 @@ class Run:
             log.Clear()
         return chunk
 
+    def epm_guard_counts(self) -> np.ndarray | None:
+        """The EPM guard's counts now (the station's `epm.guard_counts`: epm/guard.py
+        GUARD_COUNTS), or None if they cannot be read (a diagram that failed mid-step)."""
+        try:
+            return np.array(self.station.GetOutputPort("epm.guard_counts").Eval(
+                self.station.GetMyContextFromRoot(self.context)))
+        except Exception:
+            return None
+
     def finish_extensions(self) -> None:
         """Runs the extensions' close hook (once); its error is raised."""
         finish, self._finish = self._finish, None
@@ -461,7 +470,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             result.epm_pose, capsule_radius=model.radius, capsule_length=model.length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
             sim_time=run.time, wall_time=wall_time, stopped_early=stopped_early,
-            diverged=status == "diverged")
+            diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts())
         result.metrics["status"] = status
         if status == "interrupted":
             result.metrics["signal"] = ending.signal
