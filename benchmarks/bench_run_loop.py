@@ -13,11 +13,21 @@ setting the launchers use (bench_realtime.ALLOCATOR unless GLIBC_TUNABLES is set
     guard, the loggers and their spool, the signal watch, progress, metrics), its
     real-time factor from the run's own metrics.json (`sim_time_s / wall_time_s`, from the
     first step to the last, the first second included).
-Prints both per pair, their medians and the run's share of the bench's factor.
+Prints both per pair, their medians and the run's share of the bench's factor. Then, in this
+process and in CPU time (so that other load on the machine weighs on every variant alike),
+what each part of the loop costs, variant by variant, interleaved `--pairs` times over the
+same `sim-seconds` after one second of settling:
+  - station: the station alone on a bare Simulator (bench_realtime's measurement);
+  - + guard, monitor: `Run` without loggers or signal watch (the contact monitor and the run
+    guard beside the station, scenario.simulator applied);
+  - + loggers: the three loggers every run has (capsule state, contact load, EPM pose);
+  - + signal watch: the simulator's per-step monitor that notices a Ctrl-C;
+  - + chunks: `simulate`'s stepping, 200 chunks a run, each drained into the spool.
 """
 
 import argparse
 import json
+import time
 import os
 import platform
 import statistics
@@ -30,6 +40,11 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 from bench_realtime import ALLOCATOR, cpu_name  # noqa: E402
+
+from capsule_drake.app.outputs import LogSpool
+from capsule_drake.app.run import DeferredSignals, Run, simulator_for
+from capsule_drake.scenario import load_scenario
+from capsule_drake.station import make_station
 
 
 def bench_factor(scenario: str, sim_seconds: float, env) -> float:
@@ -48,6 +63,54 @@ def run_factor(scenario: str, sim_seconds: float, env) -> float:
                        capture_output=True, text=True, env=env, check=True, cwd=REPO)
         metrics = json.loads((out / "metrics.json").read_text())
     return metrics["sim_time_s"] / metrics["wall_time_s"]
+
+
+def loop_breakdown(scenario_name: str, sim_seconds: float, pairs: int) -> dict:
+    """CPU-time real-time factors of the loop's variants (module docstring)."""
+    scenario = load_scenario(name=scenario_name,
+                             override=f"{{duration: {1.0 + sim_seconds!r}}}")
+    end = 1.0 + sim_seconds
+
+    def station_alone():
+        simulator = simulator_for(make_station(scenario))
+        simulator.Initialize()
+        simulator.AdvanceTo(1.0)
+        start = time.process_time()
+        simulator.AdvanceTo(end)
+        return sim_seconds / (time.process_time() - start)
+
+    def run(log: bool, signals: bool, chunks: bool):
+        with Run(scenario, log=log, signals=DeferredSignals() if signals else None) as loop:
+            spool = LogSpool(None)
+
+            def drain():
+                if log:
+                    spool.add(loop.drain(), loop.time)
+            loop.initialize()
+            loop.advance_to(1.0)
+            drain()
+            chunk = max(scenario.duration / 200.0, 0.05)
+            start = time.process_time()
+            if chunks:
+                t = 1.0
+                while t < end - 1e-9:
+                    t = min(t + chunk, end)
+                    loop.advance_to(t)
+                    drain()
+            else:
+                loop.advance_to(end)
+            return sim_seconds / (time.process_time() - start)
+
+    variants = {"station": station_alone,
+                "+ guard, monitor": lambda: run(False, False, False),
+                "+ loggers": lambda: run(True, False, False),
+                "+ signal watch": lambda: run(True, True, False),
+                "+ chunks": lambda: run(True, True, True)}
+    factors = {name: [] for name in variants}
+    for _ in range(pairs):
+        for name, variant in variants.items():
+            factors[name].append(variant())
+    return factors
 
 
 def main():
@@ -70,6 +133,13 @@ def main():
     b, r = statistics.median(bench), statistics.median(run)
     print(f"median: bench_realtime x{b:.2f}, capsule-sim run x{r:.2f}: the run at "
           f"{100.0 * r / b:.1f} % of the bench's real-time factor")
+    print("the loop's parts, CPU-time real-time factors (median; runs):")
+    factors = loop_breakdown(args.scenario, args.sim_seconds, args.pairs)
+    base = statistics.median(factors["station"])
+    for name, values in factors.items():
+        median = statistics.median(values)
+        print(f"  {name:<18} x{median:.2f} ({100.0 * median / base:5.1f} %; "
+              f"{', '.join(f'{x:.2f}' for x in values)})")
 
 
 if __name__ == "__main__":
