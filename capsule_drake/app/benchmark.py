@@ -628,11 +628,14 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
 def _run_dask(tasks, workers, address, display, finish, run_timeout):
     from dask.distributed import Client, LocalCluster, wait as wait_for
     from distributed import KilledWorker
+    import dask
     cluster = None
     if address is None:
-        # This machine only: the scheduler and workers would run whatever they are sent.
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, host="127.0.0.1")
+        # This machine only: the scheduler and workers would run whatever they are sent. A
+        # run whose worker dies is not tried again (it would crash the next one too).
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, host="127.0.0.1")
     try:
         try:
             client = Client(address or cluster)
@@ -653,14 +656,18 @@ def _run_dask(tasks, workers, address, display, finish, run_timeout):
             futures = {client.submit(_run_task_reporting_to_dask, task, k, pure=False): k
                        for k, task in enumerate(tasks)}
             while futures:
-                done, _ = wait_for(list(futures), timeout=1.0, return_when="FIRST_COMPLETED")
+                try:
+                    done, _ = wait_for(list(futures), timeout=1.0,
+                                       return_when="FIRST_COMPLETED")
+                except TimeoutError:  # none finished within the second
+                    done = ()
                 for future in done:
                     k = futures.pop(future)
                     if future.status == "finished":
                         finish(k, future.result())
                         continue
                     error = future.exception()
-                    reason = (f"crashed: {_first_line(error)}"
+                    reason = ("crashed: the Dask worker running it died"
                               if isinstance(error, KilledWorker)
                               else f"raised {_first_line(error)}")
                     finish(k, failed_result(tasks[k], reason,
