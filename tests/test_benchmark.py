@@ -1,6 +1,8 @@
 """The navigation benchmark: a user's navigator through the plug-in interface on two colons
 (locally and on a two-worker Dask cluster, the same table, each run's progress shown as it
-goes), how a run ended (the time limit or a stall), and its one-line errors."""
+goes), how a run ended (the time limit or a stall), and its one-line errors; a suite that
+survives its runs (one that crashes its process, one that hangs), a signal, and its own
+death, leaving no process behind."""
 
 import contextlib
 import csv
@@ -188,7 +190,9 @@ def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_pat
     monkeypatch.chdir(tmp_path)
     for argv, message in ((["--seeds", "x"], "--seeds 'x': expected"),
                           (["--navigators", "wander"], "navigator 'wander' is not one of"),
-                          (["--scenario", "Nowhere"], "Nowhere")):
+                          (["--scenario", "Nowhere"], "Nowhere"),
+                          (["--run-timeout", "0"], "--run-timeout must be > 0"),
+                          (["--run-timeout", "nan"], "--run-timeout must be > 0")):
         assert main(["benchmark", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err

@@ -427,8 +427,8 @@ EXIT_GRACE = 10.0
 
 
 def _worker_main(parent: int, fd: int) -> None:
-    """A run's process: reads (task, key) pickled from stdin, runs it, and sends on the
-    pipe `fd` ("progress", info) as it goes, then ("result", result) or ("error", text)."""
+    """A run's process: reads its Task pickled from stdin, runs it, and sends on the pipe
+    `fd` ("progress", info) as it goes, then ("result", result) or ("error", reason)."""
     channel = Connection(fd, readable=False)
 
     def watch():  # where the kernel cannot be asked to (not Linux)
