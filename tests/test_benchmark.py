@@ -1,12 +1,24 @@
 """The navigation benchmark: a user's navigator through the plug-in interface on two colons
 (locally and on a two-worker Dask cluster, the same table, each run's progress shown as it
-goes), how a run ended (the time limit or a stall), and its one-line errors."""
+goes), how a run ended (the time limit or a stall), and its one-line errors; a suite that
+survives its runs (one that crashes its process, one that hangs), a signal, and its own
+death, leaving no process behind."""
 
+import contextlib
 import csv
 import io
+import os
 import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
@@ -178,7 +190,9 @@ def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_pat
     monkeypatch.chdir(tmp_path)
     for argv, message in ((["--seeds", "x"], "--seeds 'x': expected"),
                           (["--navigators", "wander"], "navigator 'wander' is not one of"),
-                          (["--scenario", "Nowhere"], "Nowhere")):
+                          (["--scenario", "Nowhere"], "Nowhere"),
+                          (["--run-timeout", "0"], "--run-timeout must be > 0"),
+                          (["--run-timeout", "nan"], "--run-timeout must be > 0")):
         assert main(["benchmark", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
@@ -231,3 +245,214 @@ def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
     assert rate == pytest.approx(3 / 5)
     assert all(np.isnan(_detection_scores(None, data)))
     assert all(np.isnan(_detection_scores(camera, {k: data[k] for k in list(data)[:2]})))
+
+
+# ---- A suite that survives its runs: a run whose process crashes or hangs, a signal, a
+# parent killed outright. Each runs `capsule-sim benchmark` as a user would, one seed, 1 s
+# simulated per run, the camera's frames drawn by its render process (latency > 0) so that
+# every run has a process of its own and a child of that.
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMERA = "{capsule: {camera: {fps: 2.0, latency: 0.05}}}"
+CREEP, FAILS_LATER = "plugins.navigators:creep", "plugins.navigators:fails_later"
+CRASHES, HANGS = "plugins.misbehaving:crashes", "plugins.misbehaving:hangs"
+
+
+class _Suite:
+    """`capsule-sim benchmark` in a process of its own, every process below it recorded
+    (pid and start time) as it goes, its stdout and stderr in files."""
+
+    def __init__(self, folder: Path, navigators, *flags):
+        self.out = folder / "out"
+        self.stdout, self.stderr = folder / "stdout.txt", folder / "stderr.txt"
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+        with open(self.stdout, "w") as out, open(self.stderr, "w") as err:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "capsule_drake.app.cli", "benchmark", "--seeds", "0",
+                 "--navigators", ",".join(navigators), "--duration", "1",
+                 "--scenario-text", CAMERA, "--out", str(self.out), *flags],
+                stdout=out, stderr=err, stdin=subprocess.DEVNULL, env=env, cwd=folder)
+        self.seen: dict[int, psutil.Process] = {}
+        self.commands: dict[int, str] = {}
+        self._done = threading.Event()
+        self._watcher = threading.Thread(target=self._watch, daemon=True)
+        self._watcher.start()
+
+    def _watch(self):
+        parent = psutil.Process(self.process.pid)
+        while not self._done.is_set():
+            try:
+                children = parent.children(recursive=True)
+            except psutil.NoSuchProcess:
+                return
+            for child in children:
+                self.seen.setdefault(child.pid, child)
+                if not self.commands.get(child.pid):
+                    with contextlib.suppress(psutil.Error):
+                        self.commands[child.pid] = " ".join(child.cmdline())
+            time.sleep(0.1)
+
+    def render_processes(self):
+        """The camera render processes seen below the suite (its runs' children)."""
+        return [pid for pid, command in list(self.commands.items())
+                if "capsule_drake.capsule.render_process" in command]
+
+    def rows_as_finished(self):
+        path = self.out / "runs-as-finished.csv"
+        if not path.exists():
+            return []
+        with open(path) as f:
+            return list(csv.DictReader(f))
+
+    def wait_for(self, condition, timeout: float, what: str):
+        end = time.monotonic() + timeout
+        while not condition():
+            assert self.process.poll() is None, f"the suite ended before {what}: {self.err()}"
+            assert time.monotonic() < end, f"no {what} within {timeout:.0f} s: {self.err()}"
+            time.sleep(0.2)
+
+    def finish(self, timeout: float) -> int:
+        try:
+            return self.process.wait(timeout=timeout)
+        finally:
+            self._done.set()
+            self._watcher.join()
+
+    def left_behind(self, grace: float = 3.0):
+        """The processes that were below the suite and are still alive `grace` s after it
+        ended (zombies waiting for init count as gone)."""
+        end = time.monotonic() + grace
+        while True:
+            alive = []
+            for process in self.seen.values():
+                with contextlib.suppress(psutil.Error):
+                    if process.is_running() and process.status() != psutil.STATUS_ZOMBIE:
+                        alive.append(process)
+            if not alive or time.monotonic() > end:
+                return [(p.pid, p.cmdline()) for p in alive]
+            time.sleep(0.2)
+
+    def clean_up(self):
+        """Kills whatever is left (a test that failed must not leave a hung suite)."""
+        self._done.set()
+        targets = list(self.seen.values())
+        if self.process.poll() is None:
+            targets.insert(0, self.process)
+        for process in targets:
+            with contextlib.suppress(psutil.Error, ProcessLookupError):
+                process.kill()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.process.wait(timeout=10)
+
+    def err(self) -> str:
+        return self.stderr.read_text()
+
+    def rows(self):
+        with open(self.out / "runs.csv") as f:
+            return list(csv.DictReader(f))
+
+
+@pytest.fixture
+def suites():
+    started = []
+    yield lambda *args: started.append(_Suite(*args)) or started[-1]
+    for suite in started:
+        suite.clean_up()
+
+
+@pytest.mark.slow
+def test_a_run_that_crashes_or_hangs_is_a_failed_row_and_the_suite_goes_on(tmp_path, suites):
+    # Before: the crash ended the suite (exit 70, BrokenProcessPool) with none of the runs
+    # saved, and the hang held it for ever.
+    # The limit is generous: on two cores shared with other work, a good run took up to 70 s
+    # (measured: 20 s to start Python and Drake, 40 s to build the station, three at once).
+    suite = suites(tmp_path, [HANGS, CREEP, FAILS_LATER, CRASHES], "--workers", "3",
+                   "--run-timeout", "120")
+    assert suite.finish(timeout=600) == 1, suite.err()
+    rows = suite.rows()
+    assert [row["navigator"] for row in rows] == [HANGS, CREEP, FAILS_LATER, CRASHES]
+    hang, creep, fails_later, crash = rows
+    assert [row["status"] for row in rows] == ["failed", "finished", "finished", "failed"]
+    assert hang["error"] == "timed out after 120 s" and 120 <= float(hang["wall_time_s"]) < 150
+    assert crash["error"] == "crashed: worker exited with signal 9 (SIGKILL)"
+    # The good runs as they would be alone; an error inside the simulation is a finished
+    # run, as before.
+    assert creep["error"] == "" and float(creep["sim_time_s"]) == pytest.approx(1.0)
+    assert creep["stuck_in"].startswith("time limit (rectum, at ")
+    assert fails_later["stuck_in"] == ("simulation error: ZeroDivisionError: the navigator "
+                                       "divided by zero")
+    assert float(fails_later["sim_time_s"]) == pytest.approx(0.5)
+    assert sorted(row["navigator"] for row in suite.rows_as_finished()) == sorted(
+        row["navigator"] for row in rows)
+    for name in ("summary.csv", "progress.png", "segments.png", "results.json"):
+        assert (suite.out / name).exists(), name
+    err = suite.err()
+    assert "Traceback" not in err and err.splitlines()[-1] == (
+        f"capsule-sim: 2 of 4 runs failed (the error column says why): {HANGS} seed 0, "
+        f"{CRASHES} seed 0")
+    assert suite.render_processes()  # each run had its camera's render process
+    assert suite.left_behind() == []
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_hang_keeps_the_finished_rows_and_leaves_no_process(tmp_path, suites):
+    # Before: "interrupted", and the suite went on waiting for the hung run (a second
+    # Ctrl-C too).
+    # The default limit, 303 s for 1 s simulated, leaves the hung run to the Ctrl-C.
+    suite = suites(tmp_path, [HANGS, CREEP, FAILS_LATER, CRASHES], "--workers", "3")
+    suite.wait_for(lambda: len(suite.rows_as_finished()) == 3, 300, "three finished runs")
+    time.sleep(1.0)
+    suite.process.send_signal(signal.SIGINT)
+    assert suite.finish(timeout=30) == 130, suite.err()
+    assert suite.err().splitlines()[-1] == "capsule-sim: interrupted (SIGINT)"
+    rows = suite.rows()
+    assert [row["navigator"] for row in rows] == [CREEP, FAILS_LATER, CRASHES]
+    assert [row["status"] for row in rows] == ["finished", "finished", "failed"]
+    assert (suite.out / "results.json").exists() and (suite.out / "summary.csv").exists()
+    assert len(suite.render_processes()) >= 1
+    assert suite.left_behind() == []
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_runs_at_once_and_keeps_the_finished_row(tmp_path, suites):
+    # Before: SIGTERM waited for the running run (here for ever) and then dropped its row.
+    suite = suites(tmp_path, [HANGS, CREEP], "--workers", "2")
+    suite.wait_for(lambda: len(suite.rows_as_finished()) == 1, 300, "a finished run")
+    suite.process.send_signal(signal.SIGTERM)
+    assert suite.finish(timeout=30) == 143, suite.err()
+    assert [row["navigator"] for row in suite.rows()] == [CREEP]
+    assert suite.left_behind() == []
+
+
+@pytest.mark.slow
+def test_a_suite_killed_outright_leaves_no_process_behind(tmp_path, suites):
+    suite = suites(tmp_path, [HANGS], "--workers", "1")
+    # Its run hangs in the simulation, beside the camera's render process.
+    suite.wait_for(lambda: suite.render_processes() and "s simulated" in suite.err(), 300,
+                   "hung run")
+    time.sleep(1.0)
+    suite.process.kill()
+    suite.finish(timeout=10)
+    assert suite.left_behind(grace=20.0) == []
+
+
+@pytest.mark.slow
+def test_an_unreachable_dask_scheduler_is_one_line(tmp_path):
+    pytest.importorskip("distributed", reason="dask.distributed is not installed")
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, PYTHONPATH=str(ROOT), DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT="2s")
+    for address, message in ((f"127.0.0.1:{port}", "cannot reach a Dask scheduler at "),
+                              ("nonsense:::", "cannot reach a Dask scheduler at ")):
+        out = tmp_path / f"out-{port}-{len(address)}"
+        done = subprocess.run(
+            [sys.executable, "-m", "capsule_drake.app.cli", "benchmark", "--seeds", "0",
+             "--navigators", "autonomy-truth", "--duration", "1", "--engine", "dask",
+             "--address", address, "--out", str(out), "--quiet"],
+            capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("capsule-sim: error: --address: ") \
+            and message in lines[0], done.stderr
+        assert not out.exists()  # nothing was run, nothing written

@@ -28,9 +28,10 @@ from capsule_drake.app.record import record, with_all_sensors
 from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUTS,
                                       OutputError, plan_outputs, write_atomic)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
-from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
-                                                run_suite, segment_table, summary,
-                                                task_scenario, write_outputs)
+from capsule_drake.app.benchmark import (COLUMNS, FAILED, EngineError, NotedSignals,
+                                                RowWriter, Task, default_run_timeout,
+                                                format_table, run_suite, segment_table,
+                                                summary, task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
                                                  DetectorError, condition_frames,
@@ -172,6 +173,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--scenario-text", default="", metavar="YAML",
                        help="YAML layered on every run's scenario")
     bench.add_argument("--workers", type=int, default=2, help="parallel runs (default 2)")
+    bench.add_argument("--run-timeout", type=float, metavar="S",
+                       help="wall seconds a run may take before it is stopped and marked "
+                            "failed (default 300 + 3 x --duration)")
     bench.add_argument("--engine", choices=("local", "dask"), default="local",
                        help="local process pool, or a Dask cluster (default local)")
     bench.add_argument("--address", metavar="HOST:PORT",
@@ -408,6 +412,10 @@ def _benchmark(args) -> int:
         raise ScenarioError(f"--duration must be > 0 and <= 1e5 s, got {args.duration}")
     if not 1 <= args.workers <= 64:
         raise ScenarioError(f"--workers must be 1-64, got {args.workers}")
+    run_timeout = (default_run_timeout(args.duration) if args.run_timeout is None
+                   else args.run_timeout)
+    if not (np.isfinite(run_timeout) and 0 < run_timeout <= 1e7):
+        raise ScenarioError(f"--run-timeout must be > 0 and <= 1e7 s, got {run_timeout}")
     tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
@@ -424,8 +432,42 @@ def _benchmark(args) -> int:
     out_dir = _output_folder(args, "runs", "benchmark", outputs=BENCHMARK_OUTPUTS)
     # Rows as the runs finish, in the order they finish; runs.csv is written at the end.
     partial = RowWriter(out_dir / "runs-as-finished.csv")
-    results = run_suite(tasks, workers=args.workers, engine=args.engine,
-                        address=args.address, progress=not args.quiet, on_result=partial)
+    finished = []
+
+    def keep(result):
+        partial(result)
+        finished.append(result)
+
+    try:
+        results = run_suite(tasks, workers=args.workers, engine=args.engine,
+                            address=args.address, progress=not args.quiet, on_result=keep,
+                            run_timeout=run_timeout)
+    except EngineError as e:
+        partial.path.unlink(missing_ok=True)
+        raise ScenarioError(f"--address: {e}") from None
+    except KeyboardInterrupt:
+        # The runs have been stopped: the table and outputs of those that finished.
+        order = {(task.navigator, task.seed): k for k, task in enumerate(tasks)}
+        finished.sort(key=lambda r: order.get((r["row"]["navigator"], r["row"]["seed"]), 0))
+        with NotedSignals():  # a second signal waits until the files are whole
+            _benchmark_outputs(finished, out_dir)
+        raise
+    with NotedSignals() as signals:
+        _benchmark_outputs(results, out_dir)
+    signals.raise_noted()
+    failed = [r["row"] for r in results if r["row"].get("status") == FAILED]
+    if failed:
+        print(f"capsule-sim: {len(failed)} of {len(results)} runs failed (the error column "
+              f"says why): {', '.join(f'{r['navigator']} seed {r['seed']}' for r in failed)}",
+              file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _benchmark_outputs(results, out_dir) -> None:
+    """The benchmark's tables on stdout and its files in `out_dir`."""
+    if not results:
+        print(f"no run finished; wrote {out_dir / 'runs-as-finished.csv'}")
+        return
     print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
     print()
     rows = summary(results)
@@ -436,7 +478,6 @@ def _benchmark(args) -> int:
     print(format_table(rows, list(rows[0])))
     paths = write_outputs(results, out_dir)
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}")
-    return 0
 
 
 def _scenario_arguments(parser):
