@@ -4,6 +4,8 @@ Delaunay triangulations, metres and millimetres): the centreline within 2 mm of 
 everywhere, ends included, and stable; what is not one tube refused in one line; the
 capsule's start checked inside the lumen and away from open ends."""
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -237,3 +239,238 @@ def test_every_shipped_scenario_starts_inside_its_colon():
         scenario = load_scenario(name=name)
         colon, _ = load_colon(scenario.colon)
         check_start(colon, scenario.capsule.start_s, radius, length)
+
+
+# --- Where the capsule rests -------------------------------------------------------------
+
+def _colon(mesh, folder, name, scale=1.0):
+    """The ImportedColon of `mesh` (in units of `scale` m), imported through a file."""
+    from capsule_drake.anatomy.imported import ImportedColon, import_colon_mesh, write_import
+
+    path = folder / f"{name}.stl"
+    mesh.export(path)
+    write_import(import_colon_mesh(path, scale), folder / name)
+    return ImportedColon.load(folder / name)
+
+
+@pytest.fixture(scope="module")
+def lying_folder(tmp_path_factory):
+    """The README's example: a capped cylinder 30 cm long and 4 cm wide, lying along y, in
+    millimetres (tube_set.lying_cylinder), imported: its folder."""
+    from tube_set import lying_cylinder
+
+    folder = tmp_path_factory.mktemp("lying")
+    _colon(lying_cylinder(), folder, "lying", 0.001)
+    return folder / "lying"
+
+
+@pytest.fixture(scope="module")
+def standing_folder(tmp_path_factory):
+    """An open straight tube standing along z (tube_set.straight_tube), 30 cm x 4 cm,
+    imported: its folder."""
+    from tube_set import straight_tube
+
+    folder = tmp_path_factory.mktemp("standing")
+    _colon(straight_tube(), folder, "standing")
+    return folder / "standing"
+
+
+@pytest.fixture(scope="module")
+def lying(lying_folder):
+    from capsule_drake.anatomy.imported import ImportedColon
+
+    return ImportedColon.load(lying_folder)
+
+
+@pytest.fixture(scope="module")
+def standing(standing_folder):
+    from capsule_drake.anatomy.imported import ImportedColon
+
+    return ImportedColon.load(standing_folder)
+
+
+def _state(p, axis=(0.0, 1.0, 0.0), v=(0.0, 0.0, 0.0)):
+    """A capsule state [q_WB (wxyz), p, w, v] with its axis along `axis` (y or z)."""
+    half = np.sqrt(0.5)
+    q = [half, -half, 0.0, 0.0] if axis[1] else [1.0, 0.0, 0.0, 0.0]  # z turned to y, or z
+    return np.concatenate([q, p, [0.0, 0.0, 0.0], v])
+
+
+def test_rest_problem_says_what_a_settled_capsule_does(lying, standing):
+    """A capsule lying on the floor or the roof of the lying tube, or against its closed
+    end, rests; one through the wall, past an end, moving, or NaN does not, in a clause."""
+    from capsule_drake.anatomy.start_check import rest_problem
+
+    radius, length = _capsule()
+    cl = lying.centerline
+    s = 0.1
+    y = cl.point_at(s)[1]
+    sign = np.sign(cl.tangent_at(s)[1])     # arc length runs along +y or -y
+    floor = 0.02 - radius - 0.0003          # pressed 0.3 mm into the wall
+    assert rest_problem(lying, _state([0.0, y, -floor]), radius, length) is None
+    assert rest_problem(lying, _state([0.0, y, floor]), radius, length) is None
+    # The tip against the closed cap at s = 0 (1 mm in: the compliant contact).
+    y0 = cl.point_at(0.0)[1] + sign * (0.5 * length - 0.001)
+    assert rest_problem(lying, _state([0.0, y0, -floor]), radius, length) is None
+    deep = rest_problem(lying, _state([0.0, y, -(floor + 0.0033)]), radius, length)
+    assert re.fullmatch(r"went 3\.\d mm into the wall at s = 0\.(09|1[01])\d m", deep), deep
+    cases = {
+        "was still moving at 0.30 m/s at s = 0.100 m": _state([0.0, y, -floor],
+                                                               v=[0.0, 0.3, 0.0]),
+        "was thrown out of the colon (its state became NaN or infinite)":
+            _state([0.0, np.nan, 0.0]),
+        "left the colon through its closed end at s = 0": _state(cl.point_at(0.0)
+                                                                  - sign * np.array([0, 0.01, 0])),
+    }
+    for words, state in cases.items():
+        assert rest_problem(lying, state, radius, length) == words
+    # Half out of the open top of the standing tube (s = 0 there), and wholly out of it.
+    top = standing.centerline.point_at(0.0)
+    assert top[2] == pytest.approx(0.3)
+    out = rest_problem(standing, _state(top + [0, 0, 0.005], axis=(0, 0, 1)), radius, length)
+    assert out.startswith("left the colon through its open end at s = 0")
+    out = rest_problem(standing, _state(top - [0, 0, 0.01], axis=(0, 0, 1)), radius, length)
+    assert out == "sticks out 5.7 mm past the colon's open end at s = 0.000 m"
+
+
+def test_start_candidates_are_level_places_and_closed_ends_first(lying, tmp_path):
+    """After the start asked for: in a valley, its bottom; in a capped tube standing on
+    end, its closed ends; then starts spread along the colon, none closer than 2 cm to
+    another. (A tube standing on end with open ends has only the spread starts.)"""
+    import trimesh
+
+    from capsule_drake.anatomy.start_check import CANDIDATE_SPACING, start_candidates
+    from tube_set import arc_tube
+
+    radius, length = _capsule()
+    valley = _colon(arc_tube(step=0.01, around=24), tmp_path, "valley")  # R 0.3, +-0.8 rad
+    candidates = start_candidates(valley, 0.05, radius, length)
+    assert candidates[0] == 0.05 and len(candidates) == 6
+    assert candidates[1] == pytest.approx(0.3 * 0.8, abs=0.003)  # the bottom, level
+    on_end = _colon(trimesh.creation.cylinder(radius=20.0, height=300.0, sections=64),
+                    tmp_path, "on_end", 0.001)
+    candidates = start_candidates(on_end, 0.05, radius, length)
+    half = 0.5 * length
+    assert candidates[:3] == pytest.approx([0.05, half, 0.3 - half], abs=1e-6)
+    gaps = np.abs(np.subtract.outer(candidates, candidates))[np.triu_indices(6, 1)]
+    assert gaps.min() >= CANDIDATE_SPACING
+
+
+def test_pick_start_keeps_a_start_that_rests_moves_one_that_does_not_or_says_why(lying):
+    """With a stand-in for the settling: the start asked for, if the capsule rests there;
+    else the first candidate where it does, with a one-line note; else one line saying
+    what happened at each start tried (the same thing at several said once)."""
+    from capsule_drake.anatomy.start_check import pick_start, start_candidates
+
+    radius, length = _capsule()
+    cl = lying.centerline
+    floor = 0.02 - radius - 0.0003
+
+    def resting(s):
+        return _state(cl.point_at(s) - [0.0, 0.0, floor])
+
+    def moving(s):
+        return _state(cl.point_at(s) - [0.0, 0.0, floor], v=[0.0, 0.2, 0.0])
+
+    assert pick_start(lying, 0.05, radius, length, resting) == (0.05, None)
+    candidates = start_candidates(lying, 0.05, radius, length)
+    settled = []
+
+    def only_the_third(s):
+        settled.append(s)
+        return resting(s) if s == candidates[2] else moving(s)
+
+    start, note = pick_start(lying, 0.05, radius, length, only_the_third)
+    assert start == candidates[2] and settled == candidates[:3]
+    assert note == ("capsule.start_s 0.05 m: let settle there, the capsule was still moving "
+                    f"at 0.20 m/s at s = 0.050 m; it starts at s = {start:.3f} m instead, "
+                    "where it rests")
+
+    def thrown(s):
+        if s == 0.05:
+            raise np.linalg.LinAlgError("Eigenvalues did not converge")
+        return moving(s)
+
+    with pytest.raises(ValueError) as error:
+        pick_start(lying, 0.05, radius, length, thrown)
+    message = str(error.value)
+    assert "\n" not in message and message.startswith(
+        "capsule.start_s 0.05 m: the capsule rests at none of the 6 starts let settle in "
+        "this colon: at s = 0.050 m it was thrown out of the colon (its settling failed: "
+        "Eigenvalues did not converge); at s = ")
+    assert message.count("was still moving") == 5
+    with pytest.raises(ValueError, match="stick out of the colon's closed end at s = 0"):
+        pick_start(lying, 0.01, radius, length, resting)  # check_start first
+
+
+def settled_state(scenario):
+    """The capsule's state after `capsule.settle` s of the scenario's physics alone, as the
+    station settles a start (station.settled_start: no sensors, no driver, the EPM held on
+    the kinematic stage where the run starts it, a 0.5 ms step)."""
+    import copy
+
+    from pydrake.systems.analysis import Simulator
+
+    from capsule_drake.anatomy import load_colon
+    from capsule_drake.epm.paths import External, stage_trajectory
+    from capsule_drake.epm.poses import stage_to_pose
+    from capsule_drake.epm.stage import Stage
+    from capsule_drake.scenario import CapsuleConfig
+    from capsule_drake.station import SETTLE_STEP, make_station
+
+    physics = copy.deepcopy(scenario)
+    physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s, ipm=scenario.capsule.ipm)
+    physics.pseudo_force = None
+    physics.epm.mount, physics.epm.driver = Stage(), External()
+    physics.plant.time_step = SETTLE_STEP
+    colon, _ = load_colon(scenario.colon)
+    epm_start = stage_to_pose(stage_trajectory(
+        scenario.epm.driver, colon, scenario.capsule.start_s, scenario.epm.magnet,
+        scenario.epm.clearance).value(0.0).ravel())
+    diagram = make_station(physics)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.GetInputPort("epm.command").FixValue(context, epm_start)
+    simulator.AdvanceTo(scenario.capsule.settle)
+    return diagram.GetOutputPort("capsule.state").Eval(context).copy()
+
+
+def _settle(folder):
+    """`pick_start`'s settle(s) for the Default scenario on the import in `folder`."""
+    import dataclasses
+
+    from capsule_drake.anatomy.start_check import REST_SETTLE
+    from capsule_drake.scenario import load_scenario
+
+    scenario = load_scenario(override=f"{{colon: {{source: {folder}}}}}")
+
+    def settle(s):
+        capsule = dataclasses.replace(scenario.capsule, start_s=s, settle=REST_SETTLE)
+        return settled_state(dataclasses.replace(scenario, capsule=capsule))
+    return settle
+
+
+@pytest.mark.slow
+def test_the_capsule_rests_on_the_lying_tubes_roof_and_nowhere_in_the_standing_one(
+        lying, lying_folder, standing, standing_folder):
+    """Let settle (the scenario's physics at 0.5 ms): in the README's lying tube the
+    Default EPM, 11 cm above the axis, lifts the capsule onto the roof and holds it there
+    at rest, so its start is kept (from the centreline, in the run, the lift was a 2.2 m/s
+    throw: the run guard stopped it at 0.01 s). The open tube standing on end has no level
+    place and no closed end: at every start tried the capsule is pulled out of its top
+    (or, far from the EPM, falls out of its bottom); one line says so, and why."""
+    from capsule_drake.anatomy.start_check import pick_start
+
+    radius, length = _capsule()
+    settle = _settle(lying_folder)
+    assert pick_start(lying, 0.05, radius, length, settle) == (0.05, None)
+    state = settle(0.05)
+    assert state[6] == pytest.approx(0.02 - radius, abs=0.001)  # on the roof
+    assert np.linalg.norm(state[10:13]) < 0.01
+    with pytest.raises(ValueError) as error:
+        pick_start(standing, 0.05, radius, length, _settle(standing_folder))
+    message = str(error.value)
+    assert "\n" not in message and message.startswith(
+        "capsule.start_s 0.05 m: the capsule rests at none of the 6 starts let settle")
+    assert "left the colon through its open end at s = 0" in message
+    assert message.endswith("a mesh made along its z axis stands on end)")

@@ -48,6 +48,37 @@ def straight_tube(length=0.3, radius=0.02, rings=60, around=32, start=0.0):
     return trimesh.Trimesh(vertices, faces, process=False)
 
 
+def arc_tube(bend_radius=0.3, angle=0.8, radius=0.02, step=0.004, around=32):
+    """An open tube along a circular arc in the vertical x-z plane, lowest at its middle (a
+    valley): its centreline at angle a (from -`angle` to +`angle`, rad) is
+    (R sin a, 0, R (1 - cos a)), R = `bend_radius`, so it slopes by |a| and its arc length
+    from the first end is R (a + `angle`)."""
+    a = np.linspace(-angle, angle, int(np.ceil(2 * angle * bend_radius / step)) + 1)
+    centre = np.column_stack([bend_radius * np.sin(a), np.zeros_like(a),
+                              bend_radius * (1.0 - np.cos(a))])
+    normal = np.column_stack([-np.sin(a), np.zeros_like(a), np.cos(a)])  # toward the bend's axis
+    binormal = np.tile([0.0, 1.0, 0.0], (len(a), 1))
+    theta = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    vertices = (centre[:, None, :] + radius * (np.cos(theta)[None, :, None] * normal[:, None, :]
+                                               + np.sin(theta)[None, :, None]
+                                               * binormal[:, None, :])).reshape(-1, 3)
+    faces = []
+    for i in range(len(a) - 1):
+        for j in range(around):
+            k, n = i * around + j, i * around + (j + 1) % around
+            faces += [[k, n, k + around], [n, n + around, k + around]]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def lying_cylinder(length=300.0, diameter=40.0, sections=64):
+    """trimesh's capped cylinder (its ends closed by discs), turned from standing along z to
+    lying along y (the patient's head-foot axis), in millimetres: a segmentation of a
+    straight colon 30 cm long and 4 cm wide as a scan's STL would hold it."""
+    mesh = trimesh.creation.cylinder(radius=0.5 * diameter, height=length, sections=sections)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0]))
+    return mesh
+
+
 @dataclasses.dataclass(frozen=True)
 class TubeSpec:
     """How to make one tube (lengths in metres)."""
