@@ -4,6 +4,7 @@ Delaunay triangulations, metres and millimetres): the centreline within 2 mm of 
 everywhere, ends included, and stable; what is not one tube refused in one line; the
 capsule's start checked inside the lumen and away from open ends."""
 
+import dataclasses
 import re
 
 import numpy as np
@@ -12,6 +13,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from capsule_drake.anatomy.importer import MeshImportError
+from capsule_drake.anatomy.start_check import REST_SETTLE
+from capsule_drake.app.run import settled_state
+from capsule_drake.scenario import load_scenario
 from tube_set import (TUBES, centreline_errors, densify, make_tube, perturbed, y_branch)
 
 FAST = ("plain_open", "ripple_hemi_mm", "small_coarse")
@@ -403,45 +407,8 @@ def test_pick_start_keeps_a_start_that_rests_moves_one_that_does_not_or_says_why
         pick_start(lying, 0.01, radius, length, resting)  # check_start first
 
 
-def settled_state(scenario):
-    """The capsule's state after `capsule.settle` s of the scenario's physics alone, as the
-    station settles a start (station.settled_start: no sensors, no driver, the EPM held on
-    the kinematic stage where the run starts it, a 0.5 ms step)."""
-    import copy
-
-    from pydrake.systems.analysis import Simulator
-
-    from capsule_drake.anatomy import load_colon
-    from capsule_drake.epm.paths import External, stage_trajectory
-    from capsule_drake.epm.poses import stage_to_pose
-    from capsule_drake.epm.stage import Stage
-    from capsule_drake.scenario import CapsuleConfig
-    from capsule_drake.station import SETTLE_STEP, make_station
-
-    physics = copy.deepcopy(scenario)
-    physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s, ipm=scenario.capsule.ipm)
-    physics.pseudo_force = None
-    physics.epm.mount, physics.epm.driver = Stage(), External()
-    physics.plant.time_step = SETTLE_STEP
-    colon, _ = load_colon(scenario.colon)
-    epm_start = stage_to_pose(stage_trajectory(
-        scenario.epm.driver, colon, scenario.capsule.start_s, scenario.epm.magnet,
-        scenario.epm.clearance).value(0.0).ravel())
-    diagram = make_station(physics)
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    diagram.GetInputPort("epm.command").FixValue(context, epm_start)
-    simulator.AdvanceTo(scenario.capsule.settle)
-    return diagram.GetOutputPort("capsule.state").Eval(context).copy()
-
-
 def _settle(folder):
     """`pick_start`'s settle(s) for the Default scenario on the import in `folder`."""
-    import dataclasses
-
-    from capsule_drake.anatomy.start_check import REST_SETTLE
-    from capsule_drake.scenario import load_scenario
-
     scenario = load_scenario(override=f"{{colon: {{source: {folder}}}}}")
 
     def settle(s):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import json
 import signal
 import sys
@@ -24,8 +25,8 @@ from pydrake.systems.analysis import (ApplySimulatorConfig, Simulator, Simulator
 from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.anatomy import load_colon
-from capsule_drake.anatomy.start_check import check_start
+from capsule_drake.anatomy import ColonSourceError, load_colon
+from capsule_drake.anatomy.start_check import REST_SETTLE, check_start, pick_start
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.epm.paths import External, stage_trajectory
 from capsule_drake.epm.poses import stage_to_pose
@@ -151,12 +152,19 @@ def simulator_for(diagram, config: SimulatorConfig | None = None, random_seed: i
 
 
 def settled_start(scenario: Scenario) -> RigidTransform:
-    """Where the capsule comes to rest when let settle (capsule.settle), the first stage of
-    such a run: the scenario's physics alone (its colon, contact, magnets; no sensors, no
-    driver) simulated for `capsule.settle` seconds at SETTLE_STEP, the capsule starting on
-    the centreline and the EPM held, on the kinematic stage, at the pose the run starts it
-    at. The run then starts there, at rest. Cached: runs of the same physics settle once
-    per process."""
+    """Where the capsule comes to rest when let settle (capsule.settle): the pose of
+    `settled_state`. The run then starts there, at rest."""
+    state = settled_state(scenario)
+    return RigidTransform(Quaternion(state[:4] / np.linalg.norm(state[:4])), state[4:7])
+
+
+def settled_state(scenario: Scenario) -> np.ndarray:
+    """The capsule's state [q_WB (wxyz), p_WB, w_WB, v_WB] after it was let settle
+    (capsule.settle), the first stage of such a run: the scenario's physics alone (its
+    colon, contact, magnets; no sensors, no driver) simulated for `capsule.settle` seconds
+    at SETTLE_STEP, the capsule starting on the centreline and the EPM held, on the
+    kinematic stage, at the pose the run starts it at. Cached: runs of the same physics
+    settle once per process."""
     physics = copy.deepcopy(scenario)
     physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s,
                                     ipm=scenario.capsule.ipm)
@@ -174,12 +182,48 @@ def settled_start(scenario: Scenario) -> RigidTransform:
         context = simulator.get_mutable_context()
         diagram.GetInputPort("epm.command").FixValue(context, epm_start)
         simulator.AdvanceTo(scenario.capsule.settle)
-        state = diagram.GetOutputPort("capsule.state").Eval(context)
         if len(_SETTLED) >= 16:
             _SETTLED.clear()
-        _SETTLED[key] = RigidTransform(Quaternion(state[:4] / np.linalg.norm(state[:4])),
-                                       state[4:7])
-    return _SETTLED[key]
+        _SETTLED[key] = np.array(diagram.GetOutputPort("capsule.state").Eval(context))
+    return _SETTLED[key].copy()
+
+
+def start_where_it_rests(scenario: Scenario) -> Scenario:
+    """The scenario with the capsule starting where it rests, on a colon that is not the
+    procedural one (an imported mesh, the ex vivo segment): such a colon lies as its mesh
+    was made, and the centreline at capsule.start_s may be no place to start (the README's
+    imported tube: the EPM 11 cm above its axis threw the capsule onto the roof at 2.2 m/s).
+    The import's start check (anatomy/start_check.py `pick_start`) lets the capsule settle
+    at capsule.start_s and, if it does not rest there, at up to five other starts, and
+    keeps the first where it rests; the run then starts settled there (capsule.settle at
+    least REST_SETTLE). A procedural colon's scenario is returned as it is.
+
+    Raises:
+        ScenarioError: the capsule rests at none of the starts (one line, what happened at
+            each).
+    """
+    if scenario.colon.source == "procedural":
+        return scenario
+    try:
+        colon, _ = load_colon(scenario.colon)
+    except ColonSourceError as e:
+        raise ScenarioError(f"scenario: {e}") from None
+    model = capsule_model()
+    settle = max(scenario.capsule.settle, REST_SETTLE)
+
+    def settled(start_s):
+        capsule = dataclasses.replace(scenario.capsule, start_s=start_s, settle=settle)
+        return settled_state(dataclasses.replace(scenario, capsule=capsule))
+
+    try:
+        start_s, note = pick_start(colon, scenario.capsule.start_s, model.radius,
+                                   model.length + 2.0 * model.radius, settled)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {e}") from None
+    if note:
+        print(f"capsule-sim: note: {note}", file=sys.stderr)
+    capsule = dataclasses.replace(scenario.capsule, start_s=start_s, settle=settle)
+    return dataclasses.replace(scenario, capsule=capsule)
 
 
 _SETTLED: dict = {}
@@ -401,6 +445,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             the run went stays on disk).
     """
     out = Path(out_dir) if out_dir is not None else None
+    scenario = start_where_it_rests(scenario)   # what scenario.yaml and the metrics say
     if out is not None:  # before the build, which can take a while
         prepare_folder(out, scenario, meshcat is not None)
     signals = DeferredSignals()
