@@ -75,6 +75,7 @@ from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
+from capsule_drake.lifetime import id_values
 from capsule_drake.app.dataset import READ_DELAY, sample_tick, state_time
 from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsule_mcap
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
@@ -319,7 +320,8 @@ class _PosesStream(_Stream):
                  timing: PlantTiming = PlantTiming()):
         self.period = period
         self.timing = timing
-        self._geometries = set(capsule_geometries)
+        # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
+        self._geometries = id_values(capsule_geometries)
         self._epm_index = epm_body_index
         self.inputs = {"capsule.state": 13, "epm.pose": 6,
                        "contact_results": AbstractValue.Make(ContactResults())}

@@ -42,6 +42,7 @@ from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
 from capsule_drake.anatomy import colon_assets
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
+from capsule_drake.lifetime import weak_method
 from capsule_drake.perception import Lens, LensConfig
 from capsule_drake.perception.lumen_truth import add_lumen_truth
 from capsule_drake.scene import block
@@ -567,7 +568,8 @@ class CapsuleCamera(LeafSystem):
         if self._lazy_depth:
             self._depth_port = self.DeclareAbstractOutputPort(
                 "depth_image", lambda: AbstractValue.Make(ImageDepth32F(W, H)),
-                self._calc_lazy_depth, {self.discrete_state_ticket(self._frame_pose_index)})
+                weak_method(self._calc_lazy_depth),
+                {self.discrete_state_ticket(self._frame_pose_index)})
         else:
             self._depth_port = self.DeclareStateOutputPort("depth_image", self._depth_index)
         self._frame_info_port = self.DeclareStateOutputPort("frame_info", self._info_index)

@@ -22,6 +22,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.capsule.imu import add_random_sources
 from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.lifetime import id_values
 from capsule_drake.physics.contact_monitor import capsule_contact_force_W
 from capsule_drake.scene import block
 from capsule_drake.schema import MAX_RATE, need_range
@@ -65,13 +66,14 @@ class ContactForceSensor(LeafSystem):
     3-vector (a random input: seed the diagram's random context).
 
     Args:
-        capsule_geometries: the capsule's collision GeometryIds.
+        capsule_geometries: the capsule's collision GeometryIds, or their values.
         config: a ContactSensorConfig.
     """
 
     def __init__(self, capsule_geometries, config: ContactSensorConfig):
         super().__init__()
-        self._geometries = set(capsule_geometries)
+        # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
+        self._geometries = id_values(capsule_geometries)
         self._config = dataclasses.replace(config)
         self._results = self.DeclareAbstractInputPort(
             "contact_results", AbstractValue.Make(ContactResults()))

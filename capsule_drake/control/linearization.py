@@ -28,6 +28,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.control.analysis import hold_against_gravity
+from capsule_drake.lifetime import weak_method
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.physics.contact import add_damped_capsule_joint
 from capsule_drake.physics.magnetics import dipole_force, dipole_torque
@@ -68,7 +69,7 @@ def EpmWrench_(T):
             self.DeclareAbstractOutputPort(
                 "applied_spatial_force",
                 lambda: AbstractValue.Make([ExternallyAppliedSpatialForce_[T]()]),
-                self._calc)
+                weak_method(self._calc))
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, *other._args, converter=converter)

@@ -22,6 +22,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 
 from capsule_drake.epm.poses import stage_joint_positions, stage_to_pose
+from capsule_drake.lifetime import weak_method
 from capsule_drake.models import model_url
 from capsule_drake.schema import need_range
 
@@ -149,7 +150,8 @@ class EpmFrame(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
         self.DeclareAbstractOutputPort(
-            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc,
+            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
+            weak_method(self._calc),
             prerequisites_of_calc={self.discrete_state_ticket(self._sample)})
 
     def _update(self, context, discrete_state):

@@ -7,6 +7,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageDepth32F
 
 from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.lifetime import CacheRef, weak_method
 
 
 def lumen_target(colon, p_WC, z_WC, lookahead: float):
@@ -90,12 +91,12 @@ class LumenTruth(LeafSystem):
         self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
         self._depth_port = self.DeclareAbstractInputPort(
             "depth", AbstractValue.Make(ImageDepth32F()))
-        self._cache = self.DeclareCacheEntry(
+        self._cache = CacheRef(self, self.DeclareCacheEntry(
             description="lumen truth",
             value_producer=ValueProducer(
                 allocate=AbstractValue.Make((np.zeros(2), 0.0, np.zeros(4))).Clone,
-                calc=self._calc_truth),
-            prerequisites_of_calc={self._state_port.ticket(), self._depth_port.ticket()})
+                calc=weak_method(self._calc_truth)),
+            prerequisites_of_calc={self._state_port.ticket(), self._depth_port.ticket()}))
         self.DeclareVectorOutputPort("lumen_pixel", 2, self._calc_pixel,
                                      {self._cache.ticket()})
         self.DeclareVectorOutputPort("lumen_visible", 1, self._calc_visible,

@@ -7,6 +7,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import LeafSystem
 
+from capsule_drake.lifetime import id_values
+
 
 class ContactMonitor(LeafSystem):
     """Sums the magnitudes of all contact forces in the plant's ContactResults.
@@ -28,12 +30,13 @@ class ContactMonitor(LeafSystem):
     capsule's collision geometries were given; zero otherwise.
 
     Args:
-        capsule_geometries: the capsule's collision GeometryIds (optional).
+        capsule_geometries: the capsule's collision GeometryIds, or their values (optional).
     """
 
     def __init__(self, capsule_geometries=()):
         super().__init__()
-        self._capsule = set(capsule_geometries)
+        # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
+        self._capsule = id_values(capsule_geometries)
         self._contact_results_port = self.DeclareAbstractInputPort(
             "contact_results", AbstractValue.Make(ContactResults()))
         self._contact_load_port = self.DeclareVectorOutputPort(
@@ -56,38 +59,42 @@ class ContactMonitor(LeafSystem):
 
 
 def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
-    """The net contact force (N, world frame) on the body of `capsule_geometries` (a set of
-    GeometryIds) in a plant's ContactResults: hydroelastic and point contacts alike."""
+    """The net contact force (N, world frame) on the body of `capsule_geometries` (its
+    GeometryIds, or their values: `lifetime.id_values`) in a plant's ContactResults:
+    hydroelastic and point contacts alike."""
+    capsule_geometries = id_values(capsule_geometries)
     total = np.zeros(3)
     for i in range(results.num_hydroelastic_contacts()):
         info = results.hydroelastic_contact_info(i)
         surface = info.contact_surface()
         force = info.F_Ac_W().translational()  # on the body of geometry M
-        if surface.id_M() in capsule_geometries:
+        if surface.id_M().get_value() in capsule_geometries:
             total += force
-        elif surface.id_N() in capsule_geometries:
+        elif surface.id_N().get_value() in capsule_geometries:
             total -= force
     for i in range(results.num_point_pair_contacts()):
         info = results.point_pair_contact_info(i)
         pair = info.point_pair()
-        if pair.id_B in capsule_geometries:  # contact_force() acts on body B
+        if pair.id_B.get_value() in capsule_geometries:  # contact_force() acts on body B
             total += info.contact_force()
-        elif pair.id_A in capsule_geometries:
+        elif pair.id_A.get_value() in capsule_geometries:
             total -= info.contact_force()
     return total
 
 
 def capsule_contact_wrench_W(results, capsule_geometries, p_WBo) -> tuple[np.ndarray, np.ndarray]:
-    """(torque, force) of the contact on the body of `capsule_geometries` about its point
-    p_WBo (N m, N; world frame): each hydroelastic contact's spatial force acts at its
-    surface's centroid, each point contact's force at its contact point."""
+    """(torque, force) of the contact on the body of `capsule_geometries` (its GeometryIds,
+    or their values) about its point p_WBo (N m, N; world frame): each hydroelastic
+    contact's spatial force acts at its surface's centroid, each point contact's force at
+    its contact point."""
+    capsule_geometries = id_values(capsule_geometries)
     torque, force = np.zeros(3), np.zeros(3)
     p_WBo = np.asarray(p_WBo, dtype=float)
     for i in range(results.num_hydroelastic_contacts()):
         info = results.hydroelastic_contact_info(i)
         surface = info.contact_surface()
-        sign = (1.0 if surface.id_M() in capsule_geometries else
-                -1.0 if surface.id_N() in capsule_geometries else 0.0)
+        sign = (1.0 if surface.id_M().get_value() in capsule_geometries else
+                -1.0 if surface.id_N().get_value() in capsule_geometries else 0.0)
         if sign:
             F = info.F_Ac_W()  # on the body of geometry M, at the centroid
             f = sign * F.translational()
@@ -96,8 +103,8 @@ def capsule_contact_wrench_W(results, capsule_geometries, p_WBo) -> tuple[np.nda
     for i in range(results.num_point_pair_contacts()):
         info = results.point_pair_contact_info(i)
         pair = info.point_pair()
-        sign = (1.0 if pair.id_B in capsule_geometries else
-                -1.0 if pair.id_A in capsule_geometries else 0.0)
+        sign = (1.0 if pair.id_B.get_value() in capsule_geometries else
+                -1.0 if pair.id_A.get_value() in capsule_geometries else 0.0)
         if sign:  # contact_force() acts on body B
             f = sign * info.contact_force()
             force += f

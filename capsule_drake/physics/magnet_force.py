@@ -17,6 +17,7 @@ from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.primitives import ZeroOrderHold
 from pydrake.systems.scalar_conversion import TemplateSystem
 
+from capsule_drake.lifetime import CacheRef, weak_method
 from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
     cylinder_pair_interaction_float,
@@ -397,15 +398,15 @@ def MagneticForce_(T):
                 self.DeclareVectorInputPort(f"{m.name}.pose", 6) if m.body_index < 0 else None
                 for m in magnets]
             self._moments = [float(np.linalg.norm(m.m_B)) for m in magnets]
-            self._cache = self.DeclareCacheEntry(
+            self._cache = CacheRef(self, self.DeclareCacheEntry(
                 description="magnet fields and wrenches",
                 value_producer=ValueProducer(
                     allocate=AbstractValue.Make(_MagnetValues([], [], [], [])).Clone,
-                    calc=calc_values,
+                    calc=weak_method(calc_values),
                 ),
                 prerequisites_of_calc={self._body_poses_port.ticket()} | {
                     port.ticket() for port in self._pose_ports if port is not None},
-            )
+            ))
             deps = {self._cache.ticket()}
             self._implicit_step = float(implicit_step) if T is float else 0.0
             if self._implicit_step > 0.0:
@@ -414,7 +415,7 @@ def MagneticForce_(T):
             self._applied_spatial_force_port = self.DeclareAbstractOutputPort(
                 "applied_spatial_force",
                 lambda: AbstractValue.Make([ExternallyAppliedSpatialForce_[T]()]),
-                calc_applied,
+                weak_method(calc_applied),
                 prerequisites_of_calc=deps,
             )
             self._B_B_ports = []
@@ -464,14 +465,14 @@ def MagneticForce_(T):
                                      if self._magnets[i].body_index in self._inertias]
             n = len(self._implicit_bodies)
             self._implicit_state = self.DeclareDiscreteState(6 * n + 1)
-            self._implicit_cache = self.DeclareCacheEntry(
+            self._implicit_cache = CacheRef(self, self.DeclareCacheEntry(
                 description="implicit magnet torques",
                 value_producer=ValueProducer(
                     allocate=AbstractValue.Make([]).Clone,
-                    calc=self._calc_implicit_torques),
+                    calc=weak_method(self._calc_implicit_torques)),
                 prerequisites_of_calc={
                     self._cache.ticket(), self._velocities_port.ticket(),
-                    self.discrete_state_ticket(self._implicit_state)})
+                    self.discrete_state_ticket(self._implicit_state)}))
             # Unrestricted, as the discrete plant's own step: the diagram computes every
             # unrestricted update from the same context (the state before the step), where
             # a discrete update would see the state after it.
