@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
-from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.plant import (ApplyMultibodyPlantConfig, MultibodyPlant,
+                                    MultibodyPlantConfig)
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
-from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import ColonParams, check_colon_params
 from capsule_drake.anatomy.course import solve_course
@@ -422,8 +422,9 @@ def validate(scenario: Scenario) -> None:
     bound(plant.penetration_allowance, "plant.penetration_allowance", "> 0", "m")
     bound(plant.stiction_tolerance, "plant.stiction_tolerance", "> 0", "m/s")
     bound(plant.sap_near_rigid_threshold, "plant.sap_near_rigid_threshold", ">= 0")
-    try:  # Drake checks its own settings when it applies them (and asserts on some)
-        AddMultibodyPlant(plant, DiagramBuilder())
+    try:  # Drake checks its own settings when it applies them (and asserts on some); on a
+        # plant of its own: one added to a builder that is never built is never freed
+        ApplyMultibodyPlantConfig(plant, MultibodyPlant(plant.time_step))
     except (RuntimeError, ValueError, SystemExit) as e:
         raise ScenarioError(f"scenario: plant: {str(e).strip().splitlines()[0]}") from None
     bound(outputs.log_period, "outputs.log_period", f">= {MIN_PERIOD:g}", "s",

@@ -82,6 +82,7 @@ added if not observed).
 
 import collections
 import dataclasses
+import gc
 import math
 
 import gymnasium
@@ -380,9 +381,16 @@ class ColonNavigationEnv(gymnasium.Env):
         if colon_seed in self._runs:
             self._runs.move_to_end(colon_seed)
             return self._runs[colon_seed]
-        while len(self._runs) >= self._max_cached:
-            _, old = self._runs.popitem(last=False)
-            old.run.close()
+        if len(self._runs) >= self._max_cached:
+            while len(self._runs) >= self._max_cached:
+                _, old = self._runs.popitem(last=False)
+                old.run.close()
+            del old
+            # A diagram lives in reference cycles (builder, systems) that only the garbage
+            # collector frees: free the evicted one before building the next (a training
+            # loop would otherwise hold up to ~20 built colons, GBs with the camera, until
+            # Python's own collection came round).
+            gc.collect()
         scenario = self._scenario_for(colon_seed)
 
         def add_contact_stats(builder, station):
@@ -410,6 +418,8 @@ class ColonNavigationEnv(gymnasium.Env):
         colon_seed = self._colons[episode % len(self._colons)]
         if options and "colon" in options:
             colon_seed = _colon_seeds([options["colon"]])[0]
+        # Let go of the last episode's run first: an evicted colon must have no holder left.
+        self._run = self._station_context = self._stats_context = None
         run = self._run_for(colon_seed)
         self._run = run
         self._noise_seed = episode % 2**32
@@ -500,11 +510,12 @@ class ColonNavigationEnv(gymnasium.Env):
         return np.array(image.data[:, :, :3], dtype=np.uint8)
 
     def close(self):
-        for entry in self._runs.values():
-            entry.run.close()
-        self._runs.clear()
+        while self._runs:   # (no loop variable left holding a run at the collection)
+            self._runs.popitem()[1].run.close()
         self._run = None
+        self._station_context = self._stats_context = None
         self._ended = True
+        gc.collect()   # the diagrams go now, not at Python's next collection
         super().close()
 
     # -- the episode: command, outputs, observations, info --------------------------------
