@@ -39,7 +39,7 @@ def wait_for_handlers(process, timeout: float = 30.0) -> None:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc (Linux)")
-@pytest.mark.parametrize("delay", [0.0, 0.1, 0.3, 0.6, 1.0, 1.5, 2.5])
+@pytest.mark.parametrize("delay", [0.0, 0.5, 1.5, 3.0])
 def test_ctrl_c_at_start_up_ends_the_command_in_one_line(tmp_path, delay):
     """SIGINT while the libraries are imported (the first second or two after the command
     starts), while the scenario loads, or while the station is built: exit 130 and one

@@ -177,6 +177,22 @@ def test_a_signal_during_the_simulation_is_noted_and_the_run_ends_at_its_next_st
     assert signal.getsignal(signal.SIGHUP) is _raise_interrupted  # handlers put back
 
 
+def test_a_signal_while_the_run_is_set_up_stops_it_at_its_start_with_its_outputs(
+        tmp_path, cli_handlers):
+    # Before: a signal noted during the build was forgotten when the simulation began, and
+    # the run went on to its end with exit 0.
+    def extend(builder, station):   # runs while the station is built
+        os.kill(os.getpid(), signal.SIGHUP)   # noted, not raised
+
+    scenario = load_scenario(override="{duration: 5.0}")
+    result = simulate(scenario, out_dir=tmp_path, progress=False, extend=extend)
+    assert result.status == "interrupted" and result.metrics["signal"] == "SIGHUP"
+    assert result.metrics["sim_time_s"] == 0.0
+    assert result.metrics["stopped_early"] == "interrupted (SIGHUP) at t = 0.000 s"
+    assert {"metrics.json", "logs.npz", "scenario.yaml"} <= {p.name for p in tmp_path.iterdir()}
+    assert signal.getsignal(signal.SIGHUP) is _raise_interrupted  # handlers put back
+
+
 def test_deferred_signals_note_one_raise_a_second_and_hold_until_written(cli_handlers):
     with DeferredSignals() as signals:
         os.kill(os.getpid(), signal.SIGTERM)       # noted, not raised

@@ -445,33 +445,35 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             the run went stays on disk).
     """
     out = Path(out_dir) if out_dir is not None else None
-    scenario = start_where_it_rests(scenario)   # what scenario.yaml and the metrics say
-    if out is not None:  # before the build, which can take a while
-        prepare_folder(out, scenario, meshcat is not None)
     signals = DeferredSignals()
+    ending, built = None, False
     try:
-        with signals:  # a signal during the build stops the run at its start
-            run = Run(scenario, meshcat=meshcat, extend=extend, stop_when=stop_when,
-                      signals=signals)
-    except BaseException as e:  # nothing was run: leave no outputs of it
-        signals.restore()
-        if out is not None and isinstance(e, (ScenarioError, KeyboardInterrupt)):
-            (out / "scenario.yaml").unlink(missing_ok=True)
-        raise
-    if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
-                               set_visualizations_while_recording=live_meshcat)
-    spool = LogSpool(out)
-    bar = Progress(scenario.duration, enabled=progress)
-    ending = None
-    wall_start = time.perf_counter()
-    try:
+        # From here on a signal is noted, not raised: the run stops at its next step, at
+        # t = 0 if the signal came while the run was being set up.
         with signals:  # on leaving, the signals are held until `signals.held()` ends
+            try:
+                scenario = start_where_it_rests(scenario)   # what scenario.yaml says
+                if out is not None:  # before the build, which can take a while
+                    prepare_folder(out, scenario, meshcat is not None)
+                run = Run(scenario, meshcat=meshcat, extend=extend, stop_when=stop_when,
+                          signals=signals)
+            except BaseException as e:  # nothing was run: leave no outputs of it
+                signals.restore()
+                if out is not None and isinstance(e, (ScenarioError, KeyboardInterrupt)):
+                    (out / "scenario.yaml").unlink(missing_ok=True)
+                raise
+            built = True
+            if meshcat is not None:
+                meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
+                                       set_visualizations_while_recording=live_meshcat)
+            spool = LogSpool(out)
+            bar = Progress(scenario.duration, enabled=progress)
+            wall_start = time.perf_counter()
             run.initialize()
             chunk = max(scenario.duration / 200.0, 0.05)
             t = 0.0
             while ending is None and t < scenario.duration:
-                if signals.pending is not None:  # during the build, or the last chunk
+                if signals.pending is not None:  # during the set-up, or the last chunk
                     ending = run.advance_to(run.time)
                     break
                 t = t + chunk
@@ -481,8 +483,12 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                 bar.update(run.time)
                 spool.add(run.drain(), run.time)
     except KeyboardInterrupt as e:  # a second signal: Ctrl-C, or the CLI's `Interrupted`
+        if not built:
+            raise
         ending = _interrupted(getattr(e, "signal_name", "SIGINT"), run.time)
     except (Exception, SystemExit) as e:  # e.g. a plug-in's error as the run initialises
+        if not built:
+            raise
         ending = _error_ending(e, run.time)
     # However it ended: close what the run opened, score it, write it, with Ctrl-C and the
     # termination signals held until the files are whole.
