@@ -107,6 +107,7 @@ def test_the_guard_system_holds_the_last_safe_command_and_counts_each_command_on
     builder = DiagramBuilder()
     guard = builder.AddSystem(EpmCommandGuard(floor_guard(skin, MAGNET, CLEARANCE), WORKSPACE,
                                               start, period=0.001))
+    guard.watch()   # as a connected driver does (EpmParts.command_input)
     diagram = builder.Build()
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()

@@ -138,7 +138,7 @@ class EpmCommandGuard(LeafSystem):
     stay 0. epm_command (out): the safe command, at once (direct feedthrough: the carrier
     sees it at the same instant as it would the driver's). counts: GUARD_COUNTS, updated
     every `period` (s; the stations use the plant's step, the finest at which the EPM can
-    act), where a command is counted once per new value.
+    act) once a driver is connected (`watch`), where a command is counted once per new value.
 
     Args:
         guard: an EpmGuard (its clearance floor; its reach is not used).
@@ -166,8 +166,16 @@ class EpmCommandGuard(LeafSystem):
             lambda context, output: output.SetFromVector(
                 context.get_discrete_state(self._state).value()[12:]),
             {self.xd_ticket()})
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self._period = float(period)
+        self._watching = False
         self._last = None   # (command bytes, safe_command's answer): commands repeat
+
+    def watch(self) -> None:
+        """Starts counting (once a driver's command is connected): no update event runs in
+        a station whose driver sends no pose command, at every plant step."""
+        if not self._watching:
+            self._watching = True
+            self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
 
     def _safe(self, command):
         key = command.tobytes()

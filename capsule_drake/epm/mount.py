@@ -49,6 +49,7 @@ class EpmParts:
         if self.driven:
             raise RuntimeError("the EPM already has a pose-command driver")
         self.driven = True
+        self.command_guard.watch()
         builder.Connect(self.command_guard.GetOutputPort("epm_command"),
                         self.mount.carrier_input(builder, parts))
         return self.command_guard.GetInputPort("epm_command")
