@@ -714,12 +714,13 @@ class DeferredSignals:
         self._simulating = False
         return False
 
-    def restore(self) -> None:
-        """Puts the handlers back, dropping what was noted (nothing ran to act on it)."""
+    def restore(self) -> dict:
+        """Puts the handlers back (and returns them, by signal), dropping what was noted."""
         previous, self._previous = self._previous, {}
         for number, handler in previous.items():
             signal.signal(number, handler)
         self.pending = self._later = None
+        return previous
 
     @contextlib.contextmanager
     def held(self):
@@ -729,9 +730,7 @@ class DeferredSignals:
         try:
             yield
         finally:
-            previous, self._previous = self._previous, {}
-            for number, handler in previous.items():
-                signal.signal(number, handler)
-            later, self._later = self._later, None
+            later = self._later
+            previous = self.restore()
             if later is not None and later in previous:
                 previous[later](later, None)
