@@ -82,11 +82,13 @@ class Colon(TubeColon):
         wall: the `HaustralWall` (folds, taeniae, rectal valves).
         abdomen: the `Abdomen` (anterior skin surface).
         target_lengths: sampled length of each segment [m] (the course matches them).
+        course: (s, points, boundaries) as solved (`write_course` keeps them with the files).
     """
 
     def __init__(self, params: ColonParams, centerline: Centerline, wall: HaustralWall,
-                 abdomen: Abdomen, target_lengths: dict[str, float]):
+                 abdomen: Abdomen, target_lengths: dict[str, float], course=None):
         self.params = params
+        self.course = course  # (s, points, boundaries) as solved, for write_course
         self.centerline = centerline
         self.wall = wall
         self.abdomen = abdomen
@@ -141,10 +143,20 @@ class Colon(TubeColon):
         return tube_chunks(self, stations, p.collision_points_around, p.collision_chunks)
 
 
-def build_colon(params: ColonParams) -> Colon:
-    """Build the colon of patient `params.seed`. Pure and deterministic."""
-    rng = np.random.default_rng(params.seed)
-    s, points, boundaries, targets = solve_course(params, rng)
+COURSE_FILE = "course.npz"
+"""The solved course, kept with a procedural colon's files: solving it takes ~1 s, and a
+process that cycles over more colons than it keeps in memory (a Gymnasium environment, a
+benchmark's process per run) would solve it again for each build."""
+
+
+def build_colon(params: ColonParams, course_file: Path | None = None) -> Colon:
+    """Build the colon of patient `params.seed`. Pure and deterministic. With `course_file`
+    (the `COURSE_FILE` of its cached files) the course is read from it when it is there
+    instead of solved again: the same numbers, bit for bit."""
+    if course_file is not None and course_file.exists():
+        s, points, boundaries, targets = read_course(course_file)
+    else:
+        s, points, boundaries, targets = solve_course(params, np.random.default_rng(params.seed))
     segment = np.clip(np.searchsorted(boundaries, s, side="right") - 1, 0,
                       len(SEGMENT_NAMES) - 1)
     radius = nominal_radius(s, boundaries, params)
@@ -154,11 +166,29 @@ def build_colon(params: ColonParams) -> Colon:
     normals = rotation_minimising_frame(points, tangents, np.array([0.0, 0.0, 1.0]))
     centerline = Centerline(s, points, normals, radius, segment, SEGMENT_NAMES)
     wall = HaustralWall(params, centerline, np.random.default_rng([params.seed, 1]))
-    return Colon(params, centerline, wall, Abdomen(params.abdomen), targets)
+    return Colon(params, centerline, wall, Abdomen(params.abdomen), targets,
+                 course=(s, points, boundaries))
+
+
+def write_course(colon: Colon, path: Path) -> None:
+    """The solved course of `colon` (what `build_colon` reads back)."""
+    names = list(colon.target_lengths)
+    np.savez(path, s=colon.course[0], points=colon.course[1], boundaries=colon.course[2],
+             target_names=np.array(names), target_lengths=np.array(
+                 [colon.target_lengths[n] for n in names]))
+
+
+def read_course(path: Path):
+    """(s, points, boundaries, targets) as `solve_course` returned them."""
+    with np.load(path) as data:
+        targets = {str(n): float(v) for n, v in zip(data["target_names"],
+                                                     data["target_lengths"])}
+        return data["s"], data["points"], data["boundaries"], targets
 
 
 def write_colon_assets(colon: Colon, directory: Path) -> ColonAssets:
-    """Write every mesh and the centreline of `colon` into `directory`."""
+    """Write every mesh, the centreline and the course of `colon` into `directory`."""
+    write_course(colon, directory / COURSE_FILE)
     mucosa = colon.params.mucosa
     return write_asset_files(
         directory, colon.collision_meshes(), colon.textured_visual_mesh(),

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pydrake.common.yaml import yaml_dump_typed
 
 from .cache import ColonAssets
-from .colon import build_colon, procedural_colon_assets
+from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .imported import imported_colon_assets
 from .params import ColonParams
 from .pieces import wall_pieces
@@ -35,7 +35,9 @@ def load_colon(params: ColonParams, cache_dir=None) -> tuple:
         if len(_LOADED) >= _KEEP:
             _LOADED.pop(next(iter(_LOADED)))
         if params.source == "procedural":
-            _LOADED[key] = (build_colon(params), procedural_colon_assets(params, cache_dir))
+            assets = procedural_colon_assets(params, cache_dir)
+            course = assets.centerline_npz.parent / COURSE_FILE
+            _LOADED[key] = (build_colon(params, course), assets)
         else:
             try:
                 _LOADED[key] = imported_colon_assets(params, cache_dir)
