@@ -10,6 +10,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from capsule_drake.anatomy import (SEGMENT_NAMES, Centerline, ColonParams, build_colon,
                                    colon_assets)
+from capsule_drake.anatomy.colon import COURSE_FILE, write_course
 from capsule_drake.anatomy.course import course_defects
 
 SEEDS = (0, 1, 2, 3)
@@ -371,3 +372,20 @@ def test_collision_mesh_follows_the_folds():
                                                            collision_axial_step=0.003))
     assert uniform > 2 * adaptive  # what uniform rings at similar cost would leave
     assert adaptive_faces < 1.5 * uniform_faces
+
+
+def test_a_colon_read_from_its_cached_course_is_the_solved_one_bit_for_bit(colon, tmp_path):
+    """The solved course kept with the colon's files (anatomy/colon.py COURSE_FILE) gives
+    back the same colon: centreline, wall and target lengths equal to the last bit; a missing
+    file means solving again."""
+    path = tmp_path / COURSE_FILE
+    write_course(colon, path)
+    again = build_colon(colon.params, path)
+    for name in ("s", "points", "normals", "radius", "segment"):
+        assert np.array_equal(getattr(again.centerline, name), getattr(colon.centerline, name))
+    s = np.linspace(0.0, colon.centerline.s[-1], 97)
+    theta = np.linspace(0.0, 2 * np.pi, 97)
+    assert np.array_equal(again.wall_radius(s, theta), colon.wall_radius(s, theta))
+    assert list(again.target_lengths.items()) == list(colon.target_lengths.items())
+    unsolved = build_colon(colon.params, tmp_path / "missing.npz")
+    assert np.array_equal(unsolved.centerline.points, colon.centerline.points)
