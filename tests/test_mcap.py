@@ -144,6 +144,7 @@ def test_channels_have_ros2_schemas(recorded):
     assert types["/capsule/magnetometer"] == "sensor_msgs/msg/MagneticField"
     assert types["/tf"] == types["/tf_static"] == "tf2_msgs/msg/TFMessage"
     assert types["/capsule/contact/wrench"] == "geometry_msgs/msg/WrenchStamped"
+    assert types["/capsule/contact/peak_pressure"] == "sensor_msgs/msg/FluidPressure"
     assert types["/capsule/lumen_tracker/pixel"] == "geometry_msgs/msg/PointStamped"
     # Every payload is what ROS 2's definitions make of it: decoded by an independent CDR
     # implementation (rosbags, with its copy of the Humble interfaces) and encoded again, it

@@ -93,6 +93,7 @@ def test_logs_are_spooled_in_parts_and_joined(tmp_path):
     for k in range(5):
         t = np.arange(10) * 0.1 + k
         spool.add({"times": t, "capsule_state": np.tile(t, (13, 1)), "contact_load": t,
+                   "contact_pressure": t,
                    "epm_pose": np.tile(t, (6, 1))}, t=k + 1.0)
     parts = sorted((tmp_path / "logs.parts").glob("part-*.npz"))
     assert len(parts) == 5

@@ -66,6 +66,13 @@ def test_default_drag_advances_30cm_inside_the_lumen(drag_run):
     assert m["max_wall_excursion_m"] < 1e-3
     assert m["min_epm_skin_gap_m"] >= 0.02 - 1e-3  # the EPM keeps its clearance
     assert np.all(np.isfinite(drag_run.capsule_state))
+    # The contact's peak pressure against the overlap that the analytic wall measures: the
+    # capsule's pressure field is E depth / R (tests/test_tissue.py), so the run's peak is
+    # E times its largest excursion over R, to the collision mesh's chords and the samples.
+    modulus = load_scenario().contact.capsule_hydroelastic_modulus
+    expected = modulus * m["max_wall_excursion_m"] / capsule_model().radius / 1000.0
+    assert m["peak_contact_pressure_kPa"] == pytest.approx(expected, rel=0.25)
+    assert 0.0 < m["time_above_ischaemia_pressure_s"] <= m["sim_time_s"]
 
 
 @pytest.mark.slow

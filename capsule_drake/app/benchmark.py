@@ -46,6 +46,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.app.run import simulate
+from capsule_drake.io.metrics import pressure_metrics
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.scenario import load_scenario
@@ -66,7 +67,8 @@ PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
-           "centring_error_deg", "detection_error_pct", "detection_rate",
+           "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
+           "detection_error_pct", "detection_rate",
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
            "epm_path_m", "coverage", "sim_time_s", "wall_time_s", "status", "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
@@ -192,9 +194,15 @@ def run_task(task: Task, progress=None) -> dict:
             "segments": colon.centerline.segment_ranges(), "worker_pid": os.getpid()}
 
 
+def _rounded(value, digits: int) -> float:
+    """`value` rounded, NaN for None (a measure the run has not got)."""
+    return round(float(value), digits) if value is not None else np.nan
+
+
 # The columns of a run the guard found diverged: not reported.
 DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
-                "peak_contact_force_N", "centring_error_deg", "detection_error_pct",
+                "peak_contact_force_N", "peak_contact_pressure_kPa", "injury_pressure_s",
+                "centring_error_deg", "detection_error_pct",
                 "detection_rate", "loc_pos_err_median_mm", "loc_pos_err_p95_mm",
                 "loc_rot_err_median_deg", "coverage")
 
@@ -208,6 +216,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     reached = np.flatnonzero(s >= length - CECUM_MARGIN)
     furthest = float(s.max()) if len(s) else 0.0
     load = result.contact_load
+    pressure = pressure_metrics(times, result.contact_pressure)
     dt = np.diff(times, append=times[-1]) if len(times) else np.zeros(0)
     epm = result.epm_pose[:3]
     centring = np.nan
@@ -235,6 +244,10 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         "stuck_in": stopped or stuck,
         "wall_contact_s": round(float(np.sum(dt[load > CONTACT_THRESHOLD])), 2),
         "peak_contact_force_N": round(float(load.max()) if load.size else 0.0, 3),
+        # The contact's peak pressure and the seconds above the injury threshold
+        # (physics/tissue.py); NaN for point contact, which has no pressure.
+        "peak_contact_pressure_kPa": _rounded(pressure["peak_contact_pressure_kPa"], 1),
+        "injury_pressure_s": _rounded(pressure["time_above_injury_pressure_s"], 2),
         "centring_error_deg": round(centring, 1) if np.isfinite(centring) else np.nan,
         "detection_error_pct": (round(detection_error, 2) if np.isfinite(detection_error)
                                 else np.nan),
@@ -871,6 +884,8 @@ def summary(results: list[dict]) -> list[dict]:
                     "time_to_cecum_s": mean("time_to_cecum_s"), "progress": mean("progress"),
                     "wall_contact_s": mean("wall_contact_s"),
                     "peak_contact_force_N": mean("peak_contact_force_N"),
+                    "peak_contact_pressure_kPa": mean("peak_contact_pressure_kPa"),
+                    "injury_pressure_s": mean("injury_pressure_s"),
                     "centring_error_deg": mean("centring_error_deg"),
                     "detection_error_pct": mean("detection_error_pct"),
                     "detection_rate": mean("detection_rate"),

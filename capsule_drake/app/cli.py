@@ -38,6 +38,7 @@ from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITI
                                                  condition_table, evaluate, finite_or_none,
                                                  meets, mixed_sheet)
 from capsule_drake.perception.lens import LensConfig
+from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
                                     scenario_names)
@@ -776,6 +777,7 @@ def _run(args) -> int:
               f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
+    _report_pressure(m)
     _report_epm_guard(m)
     mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
@@ -789,6 +791,17 @@ def _run(args) -> int:
         except KeyboardInterrupt:
             pass
     return code
+
+
+def _report_pressure(m: dict) -> None:
+    """One line on the contact's peak pressure and the time above the injury threshold
+    (physics/tissue.py), when the contact model gives a pressure."""
+    if m.get("peak_contact_pressure_kPa") is None:
+        return
+    print(f"peak contact pressure {m['peak_contact_pressure_kPa']:.0f} kPa; above "
+          f"{INJURY_PRESSURE / 1000:.0f} kPa (mucosal injury) for "
+          f"{m['time_above_injury_pressure_s']:.2f} s, above {ISCHAEMIA_PRESSURE / 1000:.1f} "
+          f"kPa (blood flow falls) for {m['time_above_ischaemia_pressure_s']:.1f} s")
 
 
 def _report_epm_guard(metrics) -> None:

@@ -7,6 +7,7 @@ writes, for whatever the scenario has (a topic whose source is switched off is a
     /tf                                tf2_msgs TFMessage           log_period; world -> capsule,epm
     /tf_static                         tf2_msgs TFMessage           once; capsule -> camera, sensors
     /capsule/contact/wrench            geometry_msgs WrenchStamped  log_period; capsule
+    /capsule/contact/peak_pressure     sensor_msgs FluidPressure Pa log_period; capsule
     /capsule/camera/image_raw          sensor_msgs Image, rgb8      each frame; camera optical
     /capsule/camera/camera_info        sensor_msgs CameraInfo       each frame
     /capsule/camera/depth/image_raw    sensor_msgs Image, 32FC1 m   each frame (render_depth)
@@ -81,7 +82,8 @@ from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsul
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
                                             vector3)
-from capsule_drake.physics.contact_monitor import capsule_contact_wrench_W
+from capsule_drake.physics.contact_monitor import (capsule_contact_wrench_W,
+                                                   peak_contact_pressure)
 
 WORLD = "world"
 CAPSULE = "capsule"
@@ -352,6 +354,12 @@ class _PosesStream(_Stream):
             "header": header(ns, CAPSULE),
             "wrench": {"force": vector3(R_WB.T @ force_W),
                        "torque": vector3(R_WB.T @ torque_W)}}, _ns(t))
+        # The contact's peak pressure (Pa; NaN for point contact, which has none): what the
+        # thresholds of mucosal injury (physics/tissue.py) are stated in.
+        log.write("/capsule/contact/peak_pressure", "sensor_msgs/msg/FluidPressure", {
+            "header": header(ns, CAPSULE),
+            "fluid_pressure": peak_contact_pressure(values["contact_results"]),
+            "variance": 0.0}, _ns(t))
 
 
 def _diagonal(variance: float) -> list[float]:

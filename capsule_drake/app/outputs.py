@@ -444,7 +444,10 @@ def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     write_atomic(path, writer=writer)
 
 
-LOG_KEYS = ("times", "capsule_state", "contact_load", "epm_pose")
+LOG_KEYS = ("times", "capsule_state", "contact_load", "contact_pressure", "epm_pose")
+"""What logs.npz holds (samples along the last axis): times (s), capsule_state (13: quaternion
+wxyz, p_WC, w, v), contact_load (N), contact_pressure (the contact's peak pressure, Pa: NaN
+for point contact), epm_pose (6: centre, moment direction)."""
 
 
 class LogSpool:
@@ -503,7 +506,8 @@ class LogSpool:
 def _joined(chunks: list[dict]) -> dict:
     if not chunks:
         return {"times": np.zeros(0), "capsule_state": np.zeros((13, 0)),
-                "contact_load": np.zeros(0), "epm_pose": np.zeros((6, 0))}
+                "contact_load": np.zeros(0), "contact_pressure": np.zeros(0),
+                "epm_pose": np.zeros((6, 0))}
     return {key: np.concatenate([c[key] for c in chunks], axis=-1) for key in LOG_KEYS}
 
 
@@ -520,7 +524,9 @@ def load_logs(folder: Path | str) -> dict[str, np.ndarray]:
     chunks = []
     for part in parts:
         with np.load(part) as data:
-            chunks.append({key: data[key] for key in LOG_KEYS})
+            # Parts of a run from before a key was logged lack it: NaN samples in its place.
+            chunks.append({key: data[key] if key in data.files else
+                           np.full(len(data["times"]), np.nan) for key in LOG_KEYS})
     return _joined(chunks)
 
 

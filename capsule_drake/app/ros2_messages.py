@@ -121,6 +121,11 @@ float64[9] angular_velocity_covariance
 geometry_msgs/Vector3 linear_acceleration
 float64[9] linear_acceleration_covariance
 """,
+    "sensor_msgs/msg/FluidPressure": """
+std_msgs/Header header
+float64 fluid_pressure
+float64 variance
+""",
     "sensor_msgs/msg/MagneticField": """
 std_msgs/Header header
 geometry_msgs/Vector3 magnetic_field

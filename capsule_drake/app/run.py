@@ -50,6 +50,7 @@ class RunResult:
     times: np.ndarray          # (K,) s
     capsule_state: np.ndarray  # (13, K)
     contact_load: np.ndarray   # (K,) N
+    contact_pressure: np.ndarray  # (K,) Pa, the contact's peak pressure (NaN: point contact)
     epm_pose: np.ndarray       # (6, K) EPM centre and moment direction
     out_dir: Path | None
     diagram: object = None     # the simulated diagram ("station" inside), its final
@@ -290,6 +291,7 @@ class Run:
             self._loggers = (
                 LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
                 LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
+                LogVectorOutput(monitor.GetOutputPort("peak_pressure"), builder, period),
                 LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
             ) if log else ()
             self._finish = extend(builder, station) if extend is not None else None
@@ -376,7 +378,8 @@ class Run:
         chunk = dict(zip(LOG_KEYS, (np.array(logs[0].sample_times()[:k]),
                                     np.array(logs[0].data()[:, :k]),
                                     np.array(logs[1].data()[0, :k]),
-                                    np.array(logs[2].data()[:, :k]))))
+                                    np.array(logs[2].data()[0, :k]),
+                                    np.array(logs[3].data()[:, :k]))))
         for log in logs:
             log.Clear()
         return chunk
@@ -512,7 +515,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         run.close()
         logs = spool.joined()
         result = RunResult(metrics={}, times=logs["times"], capsule_state=logs["capsule_state"],
-                           contact_load=logs["contact_load"], epm_pose=logs["epm_pose"],
+                           contact_load=logs["contact_load"],
+                           contact_pressure=logs["contact_pressure"], epm_pose=logs["epm_pose"],
                            out_dir=out, diagram=run.diagram, context=run.context,
                            station=run.station, status=status)
         model = capsule_model()
@@ -521,7 +525,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             result.epm_pose, capsule_radius=model.radius, capsule_length=model.length,
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
             sim_time=run.time, wall_time=wall_time, stopped_early=stopped_early,
-            diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts())
+            diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts(),
+            contact_pressure=result.contact_pressure)
         result.metrics["status"] = status
         if status == "interrupted":
             result.metrics["signal"] = ending.signal

@@ -7,6 +7,7 @@ import numpy as np
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.epm.guard import GUARD_COUNTS
 from capsule_drake.epm.poses import skin_gap
+from capsule_drake.physics.tissue import PRESSURE_THRESHOLDS, time_above
 
 
 def capsule_surface_points_C(radius: float, length: float, n_around: int = 24) -> np.ndarray:
@@ -59,7 +60,23 @@ def wall_excursion(colon, R_WC: np.ndarray, p_WC: np.ndarray, points_C: np.ndarr
 
 # What a run achieved along and against the colon: not reported for a run that diverged.
 OUTCOMES = ("final_s_m", "max_s_m", "advance_m", "stop_segment", "peak_contact_force_N",
-            "max_wall_excursion_m", "time_of_max_wall_excursion_s", "min_epm_capsule_distance_m")
+            "max_wall_excursion_m", "time_of_max_wall_excursion_s", "min_epm_capsule_distance_m",
+            "peak_contact_pressure_kPa", "time_above_injury_pressure_s",
+            "time_above_ischaemia_pressure_s")
+
+
+def pressure_metrics(times, contact_pressure) -> dict:
+    """The contact's peak pressure (kPa) over a run's samples and the seconds spent above
+    each threshold of physics/tissue.py (`time_above_<name>_pressure_s`: injury 330 kPa,
+    ischaemia 4.0 kPa). None where nothing was measured: no samples, or point contact (NaN
+    samples: it has no pressure field)."""
+    names = [f"time_above_{name}_pressure_s" for name in PRESSURE_THRESHOLDS]
+    pressure = np.asarray(contact_pressure, dtype=float) if contact_pressure is not None else None
+    if pressure is None or pressure.size == 0 or not np.any(np.isfinite(pressure)):
+        return {"peak_contact_pressure_kPa": None, **{name: None for name in names}}
+    return {"peak_contact_pressure_kPa": float(np.nanmax(pressure)) / 1000.0,
+            **{name: time_above(times, pressure, threshold)
+               for name, threshold in zip(names, PRESSURE_THRESHOLDS.values())}}
 
 
 def guard_metrics(counts) -> dict:
@@ -77,7 +94,7 @@ def guard_metrics(counts) -> dict:
 
 def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_radius,
                 capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None,
-                diverged=False, epm_guard_counts=None):
+                diverged=False, epm_guard_counts=None, contact_pressure=None):
     """Metrics of one run as a JSON-ready dict.
 
     Args:
@@ -97,6 +114,8 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
             numbers from such a run mean nothing.
         epm_guard_counts: the station's `epm.guard_counts` at the end of the run, or None;
             given, its counts are reported (`guard_metrics`), whatever the run's status.
+        contact_pressure: (K,) the contact's peak pressure (Pa; NaN for point contact), or
+            None: the pressure metrics (`pressure_metrics`) are then null.
 
     Samples whose capsule state is not finite (or whose quaternion is far from unit length,
     as in a diverging run) are left out.
@@ -108,6 +127,8 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
                   if capsule_state.size else np.zeros(len(times), dtype=bool))
     times, capsule_state = times[finite], capsule_state[:, finite]
     contact_load, epm_pose = np.asarray(contact_load)[finite], np.asarray(epm_pose)[:, finite]
+    if contact_pressure is not None:
+        contact_pressure = np.asarray(contact_pressure, dtype=float)[finite]
     timing = {"sim_time_s": float(sim_time), "wall_time_s": float(wall_time),
               "real_time_factor": sim_time / wall_time if wall_time > 0 else None,
               "colon_length_m": float(colon.centerline.s[-1]),
@@ -142,6 +163,7 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         "time_of_max_wall_excursion_s": float(times[int(np.argmax(excursion))]),
         "min_epm_skin_gap_m": float(np.min(gaps)),
         "min_epm_capsule_distance_m": float(np.min(distance)),
+        **pressure_metrics(times, contact_pressure),
         "stopped_early": stopped_early,
         "diverged": bool(diverged),
     }

@@ -23,9 +23,14 @@ class ContactMonitor(LeafSystem):
         - contact_results
         output_ports:
         - contact_load
+        - capsule_force_W
+        - peak_pressure
 
     contact_load is a 1-vector in newtons: the sum over hydroelastic contact surfaces and
     point contacts of the magnitude of each one's resultant force.
+    peak_pressure: the highest pressure (Pa) of the hydroelastic contact surfaces'
+    pressure fields, at their vertices (`peak_contact_pressure`); 0 without contact, NaN
+    when a point contact has no pressure to give.
     capsule_force_W: the net contact force on the capsule (N, world frame), when the
     capsule's collision geometries were given; zero otherwise.
 
@@ -42,6 +47,10 @@ class ContactMonitor(LeafSystem):
         self._contact_load_port = self.DeclareVectorOutputPort(
             "contact_load", 1, self._calc_contact_load)
         self.DeclareVectorOutputPort("capsule_force_W", 3, self._calc_capsule_force)
+        self.DeclareVectorOutputPort("peak_pressure", 1, self._calc_peak_pressure)
+
+    def _calc_peak_pressure(self, context, output):
+        output.SetAtIndex(0, peak_contact_pressure(self._contact_results_port.Eval(context)))
 
     def _calc_capsule_force(self, context, output):
         output.SetFromVector(capsule_contact_force_W(self._contact_results_port.Eval(context),
@@ -56,6 +65,22 @@ class ContactMonitor(LeafSystem):
         for i in range(results.num_point_pair_contacts()):
             total += np.linalg.norm(results.point_pair_contact_info(i).contact_force())
         output.SetAtIndex(0, total)
+
+
+def peak_contact_pressure(results) -> float:
+    """The highest pressure (Pa) over the hydroelastic contact surfaces of a plant's
+    ContactResults: their pressure fields at the surfaces' vertices (the field is linear
+    between them, so its maximum is at one). 0 with no contact; NaN with a point contact,
+    which has a force but no pressure."""
+    if results.num_point_pair_contacts():
+        return float("nan")
+    peak = 0.0
+    for i in range(results.num_hydroelastic_contacts()):
+        surface = results.hydroelastic_contact_info(i).contact_surface()
+        field = surface.tri_e_MN() if surface.is_triangle() else surface.poly_e_MN()
+        for v in range(surface.num_vertices()):
+            peak = max(peak, field.EvaluateAtVertex(v))
+    return peak
 
 
 def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
