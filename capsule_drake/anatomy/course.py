@@ -39,6 +39,13 @@ _SHAPE_BRACKETS = {
 }
 _SHAPE_START = {"rectum": 0.11, "sigmoid": 0.05, "descending": 0.22,
                 "transverse": 0.10, "ascending": 0.17, "cecum": 0.06}
+# Farther ends of two brackets, searched only when a segment is longer than the bracket
+# reaches (so a colon within it is solved as before): a redundant sigmoid whose loop rises
+# toward the umbilicus (to ~80 cm), a long transverse colon sagging into the pelvis (to
+# ~80 cm; anatomy/population.py samples both).
+_SHAPE_EXTENDED = {"sigmoid": 0.30, "transverse": 0.32}
+# ... and nearer ends: a short sigmoid (to ~20 cm) whose loop barely rises.
+_SHAPE_EXTENDED_LOW = {"sigmoid": -0.06}
 
 
 def _hairpin(start_center: np.ndarray, end_center: np.ndarray, radius: float,
@@ -252,6 +259,12 @@ def _solve_lengths(params: ColonParams, rng: np.random.Generator, targets):
                 return b[k + 1] - b[k] - targets[name]
 
             f_lo, f_hi = residual(lo), residual(hi)
+            if f_hi < 0.0 and name in _SHAPE_EXTENDED:
+                lo, hi = hi, _SHAPE_EXTENDED[name]
+                f_lo, f_hi = f_hi, residual(hi)
+            elif f_lo > 0.0 and name in _SHAPE_EXTENDED_LOW:
+                lo, hi = _SHAPE_EXTENDED_LOW[name], lo
+                f_lo, f_hi = residual(lo), f_lo
             if f_lo > 0.0 or f_hi < 0.0:
                 # Out of reach: take the closer end; the anatomy tests catch a bad bracket.
                 shape[name] = lo if f_lo > 0.0 else hi

@@ -18,10 +18,46 @@ Sources (numbers quoted in docs/sources.md, section 3 "Colon anatomy and tissue"
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from capsule_drake.schema import need_range
 
 SEGMENT_NAMES = ("rectum", "sigmoid", "descending", "transverse", "ascending", "cecum")
 """Segments in the order met from the anus (s = 0) to the cecal pole."""
+
+SEXES = ("any", "female", "male")
+BOWEL_HABITS = ("any", "daily", "every_2_3_days", "less_often")
+SIGMOID_VARIANTS = ("any", "normal", "redundant")
+
+
+@dataclass
+class PopulationParams:
+    """Who the patient is: fixed where given, drawn from the population where "any"."""
+
+    # "any" (drawn: women 44 % of the time, anatomy/population.py FEMALE_SHARE), "female"
+    # or "male".
+    sex: str = "any"
+    # "any" (the population's spread), "daily", "every_2_3_days" or "less_often".
+    bowel_habit: str = "any"
+    # The total length's percentile in the patient's group (0-100), or None: drawn.
+    length_percentile: float | None = None
+    # "any", "normal" (the sigmoid among the shortest 76 %) or "redundant" (the longest
+    # 24 %, anatomy/population.py REDUNDANT_SIGMOID_SHARE).
+    sigmoid: str = "any"
+
+
+def check_population_params(params: PopulationParams) -> None:
+    """Raises ValueError naming the first impossible field (as `colon.population.<f>`)."""
+    for name, allowed in (("sex", SEXES), ("bowel_habit", BOWEL_HABITS),
+                          ("sigmoid", SIGMOID_VARIANTS)):
+        value = getattr(params, name)
+        if value not in allowed:
+            raise ValueError(f"colon.population.{name} must be one of {', '.join(allowed)}, "
+                             f"got {value!r}")
+    p = params.length_percentile
+    if p is not None and not (np.isfinite(p) and 0.0 < p < 100.0):
+        raise ValueError(f"colon.population.length_percentile must be in (0, 100) or null, "
+                         f"got {p!r}")
 
 
 @dataclass
@@ -197,6 +233,10 @@ class ColonParams:
     rectal_valve_height: float = 0.008
     # Distance over which the nominal radius blends between segments [m] (U).
     radius_blend_length: float = 0.04
+    # A patient drawn from the population (anatomy/population.py): given, the segments'
+    # lengths and diameters above are replaced by the patient's of this seed; null (the
+    # default), they are used as they are.
+    population: PopulationParams | None = None
 
     # Standard deviation of the random offset of every course landmark [m] (U).
     landmark_jitter: float = 0.008
@@ -316,6 +356,11 @@ def check_colon_params(params: ColonParams) -> None:
         need_range(value, f"colon.{path}", interval, unit, why)
 
     bound("seed", SEED_RANGE, "", "a 32-bit seed")
+    if params.population is not None:
+        check_population_params(params.population)
+        need(params.source == "procedural", "population",
+             "draws a procedural colon's anatomy: it needs colon.source procedural",
+             params.source)
     bound("fold_height_scale", "[0, 2]", "", "insufflation lowers the measured folds")
     need(0 <= params.fold_height_jitter < 1, "fold_height_jitter", "must be in [0, 1)",
          params.fold_height_jitter)

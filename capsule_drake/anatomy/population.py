@@ -1,0 +1,233 @@
+"""Patients drawn from the population: a colon's segment lengths and diameters sampled from
+published statistics, for a seed, a sex, a bowel habit, a length percentile or a variant.
+
+`sample_patient(request)` returns the segments' lengths and diameters of one patient
+(`Patient`); `population_colon_params(params)` writes them into a `ColonParams`, whose
+procedural course (anatomy/course.py) then follows them. Sources and their status
+(docs/sources.md section 3.2):
+
+- Total length (anus to cecal pole, CT colonography centreline, n = 295): 150.3 +- 18.5 cm,
+  109.7-195.9; women 154.3 +- 18.1, men 147.1 +- 18.3; bowel habit daily 147.4 +- 17.9,
+  every 2-3 days 154.7 +- 18.5, less often 158.6 +- 18.3 (Utano et al. 2022, V). The extra
+  length of women and of constipated patients lies in the proximal colon (V).
+- How the length divides into segments: sigmoid 48.7 and transverse 49.2 cm in colons of
+  167 cm mean total (Hanson et al., AJR 2007, V); the median transverse colon 48 cm in women
+  and 40 cm in men (Saunders et al. 1996, V); rectosigmoid 44.0 +- 11.6 cm (Madiba et al.
+  2008, V) and sigmoid 35.5 +- 12.1 cm (Ran et al. 2012, V): a sigmoid SD of ~12 cm. The
+  other segments' shares are the textbook lengths' (U).
+- Redundant sigmoid: 24-25 % of White and Indian patients (Madiba et al. 2008, V): here the
+  longest 24 % of sigmoids.
+
+What no source at hand gives, and is assumed (U, swept in tests/test_population.py): that
+sex and bowel habit add their effects on the mean; the Dirichlet concentration of the
+segment shares (set for the sigmoid's SD of ~12 cm); the diameters' spread.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import fsolve
+from scipy.stats import norm, truncnorm
+
+from .course import solve_course
+from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, PopulationParams,
+                     check_population_params)
+
+# Utano et al. 2022 (V): total length (cm), mean and SD, overall, by sex, by bowel habit.
+LENGTH_ALL = (150.3, 18.5)
+LENGTH_BY_SEX = {"female": (154.3, 18.1), "male": (147.1, 18.3)}
+LENGTH_BY_HABIT = {"daily": (147.4, 17.9), "every_2_3_days": (154.7, 18.5),
+                   "less_often": (158.6, 18.3)}
+LENGTH_RANGE = (109.7, 195.9)
+FEMALE_SHARE = (LENGTH_ALL[0] - LENGTH_BY_SEX["male"][0]) / (
+    LENGTH_BY_SEX["female"][0] - LENGTH_BY_SEX["male"][0])
+"""Share of women that makes the sexes' means average to the overall one (0.44: derived
+from Utano's means; the cohort's own split is not in the abstract)."""
+
+# Mean share of each segment in the total length. Sigmoid and transverse from Hanson 2007
+# (48.7 and 49.2 of 167 cm, V); rectum, descending, ascending and cecum from the textbook
+# lengths (13.5, 25, 17.5, 7 of 150 cm, U), the whole normalised to 1.
+_RAW_SHARES = {"rectum": 13.5 / 150.0, "sigmoid": 48.7 / 167.0, "descending": 25.0 / 150.0,
+               "transverse": 49.2 / 167.0, "ascending": 17.5 / 150.0, "cecum": 7.0 / 150.0}
+MEAN_SHARES = {name: share / sum(_RAW_SHARES.values()) for name, share in _RAW_SHARES.items()}
+TRANSVERSE_BY_SEX = {"female": 48.0, "male": 40.0}
+"""Median transverse length (cm), Saunders et al. 1996 (V): the transverse share is scaled
+by sex around its mean so that women's is 48 / 40 of men's."""
+SHARE_SPREAD = {"rectum": 0.10, "sigmoid": 0.30, "descending": 0.12, "transverse": 0.18,
+                "ascending": 0.15, "cecum": 0.12}
+"""Relative spread (log-normal sigma) of each segment's share before the shares are
+normalised (U): the sigmoid and the transverse colon vary most (rectosigmoid length explains
+most of the total's variation, Phillips et al. 2015, V), and with the total's spread the
+sigmoid's SD is ~12 cm, as the rectosigmoid and sigmoid series report (11.6-12.2 cm)."""
+REDUNDANT_SIGMOID_SHARE = 0.24
+"""Share of patients with a redundant sigmoid (Madiba et al. 2008, V: 24 % and 25 %)."""
+DIAMETER_SPREAD = 0.08
+"""Relative SD of each segment's distended diameter around the procedural default (U:
+the sigmoid's widest point is 40 +- 7 mm, an SD of 18 %, Chung et al. 2006; the averaged
+diameter varies less)."""
+
+# The course (anatomy/course.py) has room for these segment lengths (m): what its shape
+# brackets reach, less a margin. A sampled length beyond them is a patient the course
+# cannot draw: redrawn, and counted (Patient.redraws).
+COURSE_REACH = {"rectum": (0.08, 0.165), "sigmoid": (0.20, 0.80),
+                "descending": (0.12, 0.35), "transverse": (0.33, 0.80),
+                "ascending": (0.085, 0.27), "cecum": (0.025, 0.115)}
+_MAX_REDRAWS = 200
+
+
+@dataclass
+class Patient:
+    """One sampled patient."""
+
+    sex: str
+    total_length: float                    # m, the sum of the segments
+    lengths: dict[str, float]              # m, per segment (SEGMENT_NAMES)
+    diameters: dict[str, float]            # m, per segment
+    redundant_sigmoid: bool
+    redraws: int                           # draws the course had no room for
+
+
+def length_distribution(sex: str, habit: str) -> tuple[float, float]:
+    """Mean and SD (cm) of the total length for a sex and a bowel habit ("any" for either):
+    the group's published figures; both given, the sex's mean shifted by the habit's
+    difference from the whole cohort's (additive effects: an assumption)."""
+    if sex != "any" and habit != "any":
+        mean = LENGTH_BY_SEX[sex][0] + LENGTH_BY_HABIT[habit][0] - LENGTH_ALL[0]
+        return mean, 0.5 * (LENGTH_BY_SEX[sex][1] + LENGTH_BY_HABIT[habit][1])
+    if sex != "any":
+        return LENGTH_BY_SEX[sex]
+    if habit != "any":
+        return LENGTH_BY_HABIT[habit]
+    return LENGTH_ALL
+
+
+@functools.lru_cache(maxsize=64)
+def _parent_normal(mean: float, sd: float, low: float, high: float) -> tuple[float, float]:
+    """The normal whose truncation to [low, high] has `mean` and `sd`: a published sample's
+    mean and SD are those of its truncated range, so the parent is wider."""
+    def moments(x):
+        mu, sigma = x[0], abs(x[1])
+        a, b = (low - mu) / sigma, (high - mu) / sigma
+        m, v = truncnorm.stats(a, b, loc=mu, scale=sigma, moments="mv")
+        return [float(m) - mean, float(np.sqrt(v)) - sd]
+    mu, sigma = fsolve(moments, [mean, sd], xtol=1e-10)
+    return float(mu), float(abs(sigma))
+
+
+def _truncated_normal_quantile(q: float, mean: float, sd: float, low: float,
+                               high: float) -> float:
+    """The q-quantile of the distribution on [low, high] with `mean` and `sd` (a truncated
+    normal)."""
+    mu, sigma = _parent_normal(mean, sd, low, high)
+    a, b = norm.cdf((low - mu) / sigma), norm.cdf((high - mu) / sigma)
+    return float(mu + sigma * norm.ppf(a + q * (b - a)))
+
+
+def _sigmoid_threshold(sex: str) -> float:
+    """Sigmoid length (m) above which a sigmoid counts as redundant: the population's
+    (1 - REDUNDANT_SIGMOID_SHARE) quantile for the sex, by a fixed-seed sample."""
+    rng = np.random.default_rng(20090801)
+    values = []
+    for _ in range(4000):
+        draw_sex = sex if sex != "any" else ("female" if rng.uniform() < FEMALE_SHARE
+                                             else "male")
+        total = _draw_total(rng, draw_sex, "any", None)
+        values.append(_draw_segments(rng, draw_sex, total)["sigmoid"])
+    return float(np.quantile(values, 1.0 - REDUNDANT_SIGMOID_SHARE))
+
+
+_THRESHOLDS: dict[str, float] = {}
+
+
+def _draw_total(rng, sex: str, habit: str, percentile) -> float:
+    """The total length (m): the group's truncated normal, at `percentile` if given."""
+    mean, sd = length_distribution(sex, habit)
+    q = rng.uniform() if percentile is None else percentile / 100.0
+    return _truncated_normal_quantile(q, mean, sd, *LENGTH_RANGE) / 100.0
+
+
+def _draw_segments(rng, sex: str, total: float) -> dict[str, float]:
+    """The segments' lengths (m) of a colon `total` long: the mean shares (the transverse
+    colon's by sex), each spread log-normally by SHARE_SPREAD, normalised to the total."""
+    shares = dict(MEAN_SHARES)
+    if sex != "any":   # women's transverse 48 / 40 of men's, around the mean share
+        shares["transverse"] *= TRANSVERSE_BY_SEX[sex] / np.mean(list(TRANSVERSE_BY_SEX.values()))
+    drawn = np.array([shares[n] * np.exp(SHARE_SPREAD[n] * rng.normal() - 0.5 * SHARE_SPREAD[n] ** 2)
+                      for n in SEGMENT_NAMES])
+    drawn *= total / drawn.sum()
+    return {name: float(length) for name, length in zip(SEGMENT_NAMES, drawn)}
+
+
+def _fits(lengths: dict[str, float]) -> bool:
+    return all(COURSE_REACH[n][0] <= lengths[n] <= COURSE_REACH[n][1] for n in SEGMENT_NAMES)
+
+
+def sample_patient(params: PopulationParams, seed: int, attempt: int = 0) -> Patient:
+    """The patient of `seed` with `params`' fixed traits (its own stream: [seed, 7], and
+    [seed, 7, attempt] for the later attempts of `population_colon_params`).
+
+    The total length follows its published distribution exactly: a draw whose segments the
+    course cannot draw redraws the segments only; a variant asked for (`sigmoid`) redraws
+    the total too (a redundant sigmoid comes with a longer colon), unless the length's
+    percentile is fixed."""
+    check_population_params(params)
+    rng = np.random.default_rng([seed, 7] if attempt == 0 else [seed, 7, attempt])
+    sex = params.sex if params.sex != "any" else (
+        "female" if rng.uniform() < FEMALE_SHARE else "male")
+    if sex not in _THRESHOLDS:
+        _THRESHOLDS[sex] = _sigmoid_threshold(sex)
+    threshold = _THRESHOLDS[sex]
+    total = _draw_total(rng, sex, params.bowel_habit, params.length_percentile)
+    for redraws in range(_MAX_REDRAWS):
+        lengths = _draw_segments(rng, sex, total)
+        redundant = lengths["sigmoid"] > threshold
+        wanted = {"any": True, "redundant": redundant, "normal": not redundant}[params.sigmoid]
+        if wanted and _fits(lengths):
+            break
+        if not wanted and params.length_percentile is None:
+            total = _draw_total(rng, sex, params.bowel_habit, None)
+    else:
+        raise ValueError(f"colon.population: no patient of seed {seed} with these traits "
+                         f"(sex {params.sex}, bowel_habit {params.bowel_habit}, "
+                         f"length_percentile {params.length_percentile}, sigmoid "
+                         f"{params.sigmoid}) fits the procedural course in {_MAX_REDRAWS} draws")
+    defaults = ColonParams()
+    diameters = {}
+    for name in SEGMENT_NAMES:
+        nominal = defaults.segment(name).diameter
+        low, high = DIAMETER_RANGE[name]
+        diameters[name] = float(np.clip(nominal * np.clip(1.0 + DIAMETER_SPREAD * rng.normal(),
+                                                          0.75, 1.25), low, high))
+    return Patient(sex=sex, total_length=float(sum(lengths.values())), lengths=lengths,
+                   diameters=diameters, redundant_sigmoid=bool(redundant), redraws=redraws)
+
+
+COURSE_ATTEMPTS = 20
+"""Patients drawn, in turn, until the procedural course can draw one without kinks or
+overlaps (`population_colon_params`): about 1 in 10 cannot (short sigmoids with long
+rectums, wide ceca), so the population the course draws is a little narrower than the one
+sampled; tests/test_population.py measures by how much."""
+
+
+def population_colon_params(params: ColonParams, population: PopulationParams) -> ColonParams:
+    """`params` with the segments of the patient of `params.seed` drawn from the
+    population: each segment's length fixed (length_min = length_max) and its diameter.
+    A patient the procedural course cannot draw is replaced by the seed's next draw."""
+    for attempt in range(COURSE_ATTEMPTS):
+        patient = sample_patient(population, params.seed, attempt)
+        out = dataclasses.replace(params)
+        for name in SEGMENT_NAMES:
+            setattr(out, name, dataclasses.replace(
+                params.segment(name), length_min=patient.lengths[name],
+                length_max=patient.lengths[name], diameter=patient.diameters[name]))
+        try:
+            solve_course(out, np.random.default_rng(out.seed))
+        except RuntimeError:
+            continue
+        return out
+    raise ValueError(f"colon.population: the procedural course cannot draw any of the first "
+                     f"{COURSE_ATTEMPTS} patients of seed {params.seed} with these traits")
