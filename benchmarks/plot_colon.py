@@ -1,7 +1,10 @@
 """Draw procedural colons (frontal and lateral projections) and a shaded wall close-up.
 
 Usage: python benchmarks/plot_colon.py [--seeds 0 1 2] [--out colon_layout.png]
-       [--mesh-out colon_mesh.png]
+       [--mesh-out colon_mesh.png] [--population "{sex: female, sigmoid: redundant}"]
+
+--population draws the seeds' patients from the population (anatomy/population.py) with
+the traits given as YAML (`{}`: anyone).
 
 Frontal view (x-y): seen from the front, head up, patient's left on the image right; grey
 lines are the torso's flanks. Lateral view (y-z): head to the right, anterior up; the grey
@@ -17,7 +20,10 @@ import time
 import cv2
 import numpy as np
 
+from pydrake.common.yaml import yaml_load_typed
+
 from capsule_drake.anatomy import SEGMENT_NAMES, ColonParams, build_colon
+from capsule_drake.anatomy.params import PopulationParams
 
 # BGR colours per segment, rectum to cecum.
 COLOURS = [(60, 60, 220), (0, 160, 255), (0, 190, 0), (220, 110, 0), (200, 0, 200),
@@ -34,11 +40,11 @@ def _lateral(p, row):
     return (int(PANEL + PANEL / 2 + p[1] * SCALE), int(row * PANEL + PANEL - 30 - p[2] * SCALE))
 
 
-def draw_layouts(seeds):
+def draw_layouts(seeds, population=None):
     img = np.full((PANEL * len(seeds), 2 * PANEL, 3), 255, np.uint8)
     for row, seed in enumerate(seeds):
         t0 = time.perf_counter()
-        colon = build_colon(ColonParams(seed=seed))
+        colon = build_colon(ColonParams(seed=seed, population=population))
         build_s = time.perf_counter() - t0
         cl = colon.centerline
         pts, seg, rad = cl.points[::3], cl.segment[::3], cl.radius[::3]
@@ -138,11 +144,15 @@ def main():
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--out", default="colon_layout.png")
     parser.add_argument("--mesh-out", default="colon_mesh.png")
+    parser.add_argument("--population", default=None,
+                        help="draw the patients from the population, with these traits (YAML)")
     args = parser.parse_args()
-    cv2.imwrite(args.out, draw_layouts(args.seeds))
+    population = (yaml_load_typed(schema=PopulationParams, data=args.population)
+                  if args.population is not None else None)
+    cv2.imwrite(args.out, draw_layouts(args.seeds, population))
     print(f"wrote {args.out}")
 
-    colon = build_colon(ColonParams(seed=args.seeds[0]))
+    colon = build_colon(ColonParams(seed=args.seeds[0], population=population))
     t0 = time.perf_counter()
     visual = colon.visual_mesh()
     chunks = colon.collision_meshes()
