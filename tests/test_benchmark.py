@@ -21,9 +21,9 @@ import numpy as np
 import psutil
 import pytest
 
-from capsule_drake.app.benchmark import (COLUMNS, RowWriter, Task, format_table,
-                                                run_suite, run_task, summary, task_scenario,
-                                                where_it_ended, write_outputs)
+from capsule_drake.app.benchmark import (COLUMNS, TIERS, RowWriter, Task, format_table,
+                                         run_suite, run_task, summary, task_scenario,
+                                         where_it_ended, wilson_interval, write_outputs)
 
 # Short runs without the camera worker: a few simulated seconds each.
 TEXT = "{capsule: {camera: {fps: 2.0, latency: 0.0}}}"
@@ -457,3 +457,26 @@ def test_an_unreachable_dask_scheduler_is_one_line(tmp_path):
         assert len(lines) == 1 and lines[0].startswith("capsule-sim: error: --address: ") \
             and message in lines[0], done.stderr
         assert not out.exists()  # nothing was run, nothing written
+
+
+def test_the_intubation_interval_is_wilsons():
+    """Newcombe (Statistics in Medicine 17:857, 1998), Table I, the Wilson score interval
+    without continuity correction: 81/263 -> 0.2553-0.3662, 15/148 -> 0.0624-0.1605,
+    0/20 -> 0-0.1611, 1/29 -> 0.0061-0.1718; and n/n mirrors 0/n."""
+    for (k, n), (low, high) in {(81, 263): (0.2553, 0.3662), (15, 148): (0.0624, 0.1605),
+                                (0, 20): (0.0, 0.1611), (1, 29): (0.0061, 0.1718)}.items():
+        assert wilson_interval(k, n) == pytest.approx((low, high), abs=6e-5)
+    low, high = wilson_interval(20, 20)
+    assert (low, high) == pytest.approx((1 - 0.1611, 1.0), abs=6e-5)
+
+
+def test_the_population_tier_draws_its_patients():
+    """--tier population: the seeds 1000-1029 and a colon drawn from the population; the
+    standard tier's colons are the procedural ones of seeds 0-9."""
+    seeds, text = TIERS["population"]
+    assert seeds == "1000-1029"
+    scenario = task_scenario(Task("autonomy-truth", 1000, 5.0, tier_text=text))
+    assert scenario.colon.population is not None and scenario.colon.seed == 1000
+    seeds, text = TIERS["standard"]
+    assert seeds == "0-9" and task_scenario(Task("autonomy-truth", 3, 5.0,
+                                                 tier_text=text)).colon.population is None

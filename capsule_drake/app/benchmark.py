@@ -65,7 +65,7 @@ PROGRESS_PERIOD = 1.0
 # The Dask event topic the runs report their progress on.
 PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
-COLUMNS = ("navigator", "seed", "reached_cecum", "time_to_cecum_s", "progress",
+COLUMNS = ("navigator", "seed", "colon_cm", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
            "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
            "detection_error_pct", "detection_rate",
@@ -86,6 +86,12 @@ NAVIGATORS = {
     "teleop-unguided": ("Teleop", "{pseudo_force: null}"),
 }
 BUILT_IN = tuple(NAVIGATORS)
+# The benchmark's tiers: their colons (seeds) and the YAML that makes them. "standard": the
+# ten procedural colons every earlier figure was measured on. "population": 30 patients
+# drawn from the population model (anatomy/population.py; seeds 1000-1029, chosen before
+# any run and never changed), for rates with a meaningful interval; --seeds draws others.
+TIERS = {"standard": ("0-9", ""),
+         "population": ("1000-1029", "{colon: {population: {}}}")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +105,8 @@ class Task:
     # replaced by the plug-in; YAML laid over every navigator's scenario.
     scenario: str = "Navigation"
     scenario_text: str = ""
+    # The tier's YAML (TIERS), laid under the task's own text.
+    tier_text: str = ""
     log_period: float = 0.1
     # The scenario file the named scenarios come from (default diagrams/default.yaml).
     scenario_file: str | None = None
@@ -115,7 +123,8 @@ def task_scenario(task: Task):
         text = f"{{epm: {{driver: !Plugin {{factory: '{task.navigator}'}}}}}}"
     run = (f"{{duration: {task.duration!r}, colon: {{seed: {task.seed}}}, "
            f"outputs: {{log_period: {task.log_period!r}}}}}")
-    return load_scenario(task.scenario_file, name, [text, task.scenario_text, run])
+    return load_scenario(task.scenario_file, name,
+                         [text, task.tier_text, task.scenario_text, run])
 
 
 def run_task(task: Task, progress=None) -> dict:
@@ -237,6 +246,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         cut_by_time=result.status == "completed")
     return {
         "navigator": task.navigator, "seed": task.seed,
+        "colon_cm": round(float(100.0 * length), 1),
         "reached_cecum": bool(len(reached)),
         "time_to_cecum_s": round(float(times[reached[0]]), 2) if len(reached) else np.nan,
         "progress": round(float((furthest - start_s) / (length - start_s)), 4),
@@ -859,10 +869,21 @@ class RowWriter:
             csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore").writerow(result["row"])
 
 
+def wilson_interval(successes: int, runs: int, z: float = 1.959964) -> tuple[float, float]:
+    """The Wilson score interval (95 % by default) of a rate of successes in runs: unlike
+    the normal approximation it stays inside [0, 1] and is not empty at 0/n or n/n."""
+    if runs == 0:
+        return 0.0, 1.0
+    p = successes / runs
+    centre = (p + z * z / (2 * runs)) / (1 + z * z / runs)
+    half = z / (1 + z * z / runs) * np.sqrt(p * (1 - p) / runs + z * z / (4 * runs * runs))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
 def summary(results: list[dict]) -> list[dict]:
-    """Per navigator: runs, cecal intubation rate, mean time to cecum (of those that
-    reached it), mean progress, and the means of the other columns; for the localisation
-    errors, the worst run's too."""
+    """Per navigator: runs, cecal intubation rate with its 95 % Wilson interval, mean time
+    to cecum (of those that reached it), mean progress, and the means of the other columns;
+    for the localisation errors, the worst run's too."""
     out = []
     for navigator in dict.fromkeys(r["row"]["navigator"] for r in results):
         rows = [r["row"] for r in results if r["row"]["navigator"] == navigator]
@@ -881,6 +902,9 @@ def summary(results: list[dict]) -> list[dict]:
 
         out.append({"navigator": navigator, "runs": len(rows),
                     "reached_cecum": f"{sum(row['reached_cecum'] for row in rows)}/{len(rows)}",
+                    "cecum_95ci": "[{:.2f}, {:.2f}]".format(*wilson_interval(
+                        sum(bool(row["reached_cecum"]) for row in rows), len(rows))),
+                    "colon_cm": mean("colon_cm"),
                     "time_to_cecum_s": mean("time_to_cecum_s"), "progress": mean("progress"),
                     "wall_contact_s": mean("wall_contact_s"),
                     "peak_contact_force_N": mean("peak_contact_force_N"),

@@ -29,7 +29,7 @@ from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX
                                       OutputError, plan_outputs, write_atomic)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.app.benchmark import (COLUMNS, FAILED, EngineError, NotedSignals,
-                                                RowWriter, Task, default_run_timeout,
+                                                TIERS, RowWriter, Task, default_run_timeout,
                                                 format_table, run_suite, segment_table,
                                                 summary, task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
@@ -162,8 +162,11 @@ def _parser() -> argparse.ArgumentParser:
                     "a user's "
                     "'package.module:function' (the plug-in interface in "
                     "capsule_drake/app/benchmark.py).")
-    bench.add_argument("--seeds", default="0-9",
-                       help="colon seeds: '0-9', '0,3,7' or '5' (default 0-9)")
+    bench.add_argument("--tier", choices=tuple(TIERS), default="standard",
+                       help="standard: the ten procedural colons (seeds 0-9); population: "
+                            "30 patients drawn from the population model (seeds 1000-1029)")
+    bench.add_argument("--seeds", default=None,
+                       help="colon seeds: '0-9', '0,3,7' or '5' (default: the tier's)")
     bench.add_argument("--navigators", default="autonomy-truth,autonomy-detected",
                        help="comma-separated (default autonomy-truth,autonomy-detected)")
     bench.add_argument("--duration", type=float, default=600.0, metavar="S",
@@ -405,7 +408,8 @@ def _seeds(text: str, flag: str = "--seeds") -> list[int]:
 
 
 def _benchmark(args) -> int:
-    seeds = _seeds(args.seeds)
+    tier_seeds, tier_text = TIERS[args.tier]
+    seeds = _seeds(args.seeds if args.seeds is not None else tier_seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
     if not navigators:
         raise ScenarioError("--navigators: none given")
@@ -417,7 +421,8 @@ def _benchmark(args) -> int:
                    else args.run_timeout)
     if not (np.isfinite(run_timeout) and 0 < run_timeout <= 1e7):
         raise ScenarioError(f"--run-timeout must be > 0 and <= 1e7 s, got {run_timeout}")
-    tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text)
+    tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text,
+                  tier_text=tier_text)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
     names = scenario_names(DEFAULT_SCENARIO_FILE)
@@ -427,7 +432,7 @@ def _benchmark(args) -> int:
     for navigator in navigators:
         try:
             task_scenario(Task(navigator, seeds[0], args.duration, args.scenario,
-                               args.scenario_text))
+                               args.scenario_text, tier_text=tier_text))
         except ValueError as e:
             raise ScenarioError(str(e)) from None
     out_dir = _output_folder(args, "runs", "benchmark", outputs=BENCHMARK_OUTPUTS)
