@@ -41,13 +41,19 @@ from capsule_drake.scene import (add_block, add_scene, add_table_and_colon, fini
                                  is_block, set_capsule_start)
 
 
-def blocks_of(config):
+SCENE_CONFIGS = ("plant", "simulator", "colon", "contact")
+"""The scenario's fields that the scene (scene.py add_scene) and the run take whole: no
+blocks inside them (the colon's `population` is how the colon is drawn, not a block)."""
+
+
+def blocks_of(config, skip=SCENE_CONFIGS):
     """The block configs in `config` (a scenario or part of one), depth first in field
-    order: each set field whose type a block module registered (scene.block). A field that
-    may be null (`X | None`) is a block that may be absent: its type must be registered."""
+    order: each set field whose type a block module registered (scene.block), the fields
+    named in `skip` aside. A field that may be null (`X | None`) is a block that may be
+    absent: its type must be registered."""
     for item in dataclasses.fields(config):
         value = getattr(config, item.name)
-        if value is None:
+        if value is None or item.name in skip:
             continue
         if is_block(value):
             yield value
@@ -55,7 +61,7 @@ def blocks_of(config):
             if isinstance(item.type, types.UnionType) and type(None) in item.type.__args__:
                 raise TypeError(f"{type(config).__name__}.{item.name}: no block registered "
                                 f"for {type(value).__name__} (scene.block)")
-            yield from blocks_of(value)
+            yield from blocks_of(value, skip=())
 
 
 def make_station(scenario: Scenario, meshcat=None, capsule_start: RigidTransform | None = None):
