@@ -18,9 +18,10 @@ procedural course (anatomy/course.py) then follows them. Sources and their statu
 - Redundant sigmoid: 24-25 % of White and Indian patients (Madiba et al. 2008, V): here the
   longest 24 % of sigmoids.
 
-What no source at hand gives, and is assumed (U, swept in tests/test_population.py): that
-sex and bowel habit add their effects on the mean; the Dirichlet concentration of the
-segment shares (set for the sigmoid's SD of ~12 cm); the diameters' spread.
+What no source at hand gives, and is assumed (U): that sex and bowel habit add their
+effects on the mean; the log-normal spread of each segment's share (SHARE_SPREAD, set for
+the sigmoid's SD of ~12 cm); the diameters' spread. The course's shortest sigmoid is
+~23 cm: one drawn shorter (about 3 %) is built at that length (COURSE_REACH allows 20 cm).
 """
 
 from __future__ import annotations
