@@ -43,7 +43,7 @@ from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from capsule_drake.anatomy import ColonParams, check_colon_params
 from capsule_drake.anatomy.course import solve_course
 from capsule_drake.anatomy.params import SEED_RANGE, SEGMENT_NAMES
-from capsule_drake.anatomy.population import population_colon_params
+from capsule_drake.anatomy.population import resolve_population
 from capsule_drake.capsule.ahrs import AhrsConfig, check_ahrs_config
 from capsule_drake.capsule.camera import CameraConfig, check_camera_config
 from capsule_drake.capsule.contact_sensor import ContactSensorConfig, check_contact_sensor_config
@@ -583,7 +583,7 @@ def _check_colon_course(params: ColonParams) -> None:
     spend before a traceback."""
     default = ColonParams()
     if params.population is not None:   # draws until the course has room (or says why not)
-        population_colon_params(params, params.population)
+        resolve_population(params)
         return
 
     def anatomy(p):

@@ -15,7 +15,7 @@ from .course import nominal_radius, solve_course
 from .cache import ColonAssets, asset_paths, build_once, default_cache_root, params_hash, write_asset_files
 from .mesh import closed_tube, ring_stations, textured_tube, tube_chunks
 from .params import SEGMENT_NAMES, ColonParams
-from .population import population_colon_params
+from .population import resolve_population
 from .texture import write_mucosa_texture
 from .wall import HaustralWall
 
@@ -154,10 +154,13 @@ def build_colon(params: ColonParams, course_file: Path | None = None) -> Colon:
     """Build the colon of patient `params.seed`. Pure and deterministic. With `course_file`
     (the `COURSE_FILE` of its cached files) the course is read from it when it is there
     instead of solved again: the same numbers, bit for bit."""
+    course = None
     if params.population is not None:   # the population's patient of this seed
-        params = population_colon_params(params, params.population)
+        params, course = resolve_population(params)
     if course_file is not None and course_file.exists():
         s, points, boundaries, targets = read_course(course_file)
+    elif course is not None:
+        s, points, boundaries, targets = course
     else:
         s, points, boundaries, targets = solve_course(params, np.random.default_rng(params.seed))
     segment = np.clip(np.searchsorted(boundaries, s, side="right") - 1, 0,
