@@ -106,7 +106,7 @@ def main() -> None:
         for name, scenario in (
                 ("Default, procedural", load_scenario(name="Default")),
                 ("Default, imported", load_scenario(
-                    name="Default", override=f"{{colon: {{source: {procedural}}}}}")),
+                    name="Default", override=f"{{colon: {{source: !Imported {{path: {procedural}}}}}}}")),
                 ("ExVivoSegment", load_scenario(name="ExVivoSegment"))):
             print(f"  {name:<22} {real_time_factor(scenario, args.sim):.2f}")
 

@@ -23,7 +23,7 @@ import numpy as np
 from pydrake.common.yaml import yaml_load_typed
 
 from capsule_drake.anatomy import SEGMENT_NAMES, ColonParams, build_colon
-from capsule_drake.anatomy.params import PopulationParams
+from capsule_drake.anatomy.params import Population, Procedural
 
 # BGR colours per segment, rectum to cecum.
 COLOURS = [(60, 60, 220), (0, 160, 255), (0, 190, 0), (220, 110, 0), (200, 0, 200),
@@ -44,7 +44,7 @@ def draw_layouts(seeds, population=None):
     img = np.full((PANEL * len(seeds), 2 * PANEL, 3), 255, np.uint8)
     for row, seed in enumerate(seeds):
         t0 = time.perf_counter()
-        colon = build_colon(ColonParams(seed=seed, population=population))
+        colon = build_colon(ColonParams(seed=seed, source=population or Procedural()))
         build_s = time.perf_counter() - t0
         cl = colon.centerline
         pts, seg, rad = cl.points[::3], cl.segment[::3], cl.radius[::3]
@@ -147,12 +147,12 @@ def main():
     parser.add_argument("--population", default=None,
                         help="draw the patients from the population, with these traits (YAML)")
     args = parser.parse_args()
-    population = (yaml_load_typed(schema=PopulationParams, data=args.population)
+    population = (yaml_load_typed(schema=Population, data=args.population)
                   if args.population is not None else None)
     cv2.imwrite(args.out, draw_layouts(args.seeds, population))
     print(f"wrote {args.out}")
 
-    colon = build_colon(ColonParams(seed=args.seeds[0], population=population))
+    colon = build_colon(ColonParams(seed=args.seeds[0], source=population or Procedural()))
     t0 = time.perf_counter()
     visual = colon.visual_mesh()
     chunks = colon.collision_meshes()

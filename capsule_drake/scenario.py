@@ -465,11 +465,11 @@ def validate(scenario: Scenario) -> None:
     checked("", check_contact_config, scenario.contact)
     checked("", check_guard_config, scenario.guard)
     checked("", check_colon_params, scenario.colon)
-    if scenario.colon.source == "procedural":
+    if scenario.colon.procedural:
         checked("", _check_colon_course, scenario.colon)
-    need(scenario.contact.model != "convex_pieces" or scenario.colon.source == "procedural",
-         "contact.model convex_pieces needs the procedural colon (its pieces are cut from "
-         f"the analytic wall), not colon.source {scenario.colon.source!r}")
+    need(scenario.contact.model != "convex_pieces" or scenario.colon.procedural,
+         "contact.model convex_pieces needs a procedural colon (its pieces are cut from "
+         f"the analytic wall), not colon.source {scenario.colon.source_name()}")
     bound(epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
           "farther, the EPM barely pulls the capsule")
     if isinstance(epm.mount, Arm):
@@ -479,7 +479,7 @@ def validate(scenario: Scenario) -> None:
     half_length = model.half_length
     bound(capsule.start_s, "capsule.start_s", f">= {half_length:g}", "m",
           "the capsule's half length: it starts inside the colon")
-    if scenario.colon.source == "procedural":
+    if scenario.colon.procedural:
         shortest = sum(scenario.colon.segment(name).length_min for name in SEGMENT_NAMES)
         bound(capsule.start_s, "capsule.start_s",
               f"[{half_length:g}, {shortest - half_length:.3f}]", "m",

@@ -163,6 +163,9 @@ def check(schema, node, path: str) -> None:
                     return
             names = ", ".join("!" + _type_name(o) for o in options)
             raise SchemaError(f"{path}: unknown tag !{node.tag} (expected one of {names})")
+        if not isinstance(node, dict) and all(dataclasses.is_dataclass(o) for o in options):
+            names = ", ".join("!" + _type_name(o) + " {...}" for o in options)
+            raise SchemaError(f"{path}: expected one of {names}, got {node!r}")
         # An untagged mapping means the first alternative (as yaml_load_typed reads it).
         check(options[0], node, path)
         return

@@ -43,7 +43,7 @@ from capsule_drake.scene import (add_block, add_scene, add_table_and_colon, fini
 
 SCENE_CONFIGS = ("plant", "simulator", "colon", "contact")
 """The scenario's fields that the scene (scene.py add_scene) and the run take whole: no
-blocks inside them (the colon's `population` is how the colon is drawn, not a block)."""
+blocks inside them (the colon's `source` is how the colon is drawn, not a block)."""
 
 
 def blocks_of(config, skip=SCENE_CONFIGS):

@@ -88,11 +88,11 @@ SCENARIO_VALUES = [
     ("IMU rate 0", _text("{capsule: {imu: {sample_rate: 0}}}"), r"capsule\.imu\.sample_rate"),
     ("tracker without camera", _text("{capsule: {lumen_tracker: {}}}"),
      r"needs capsule\.camera"),
-    ("colon source missing", _text("{colon: {source: /no/such/colon}}"), r"/no/such/colon"),
+    ("colon source missing", _text("{colon: {source: !Imported {path: /no/such/colon}}}"), r"/no/such/colon"),
     ("unresolvable UDP host", _text("{epm: {driver: !Teleop {operator: udp, udp: "
                                     "{host: no.such.host.invalid}}}}"),
      r"no\.such\.host\.invalid"),
-    ("start at an open end", _text("{colon: {source: '{tmp}/imported'}, "
+    ("start at an open end", _text("{colon: {source: !Imported {path: '{tmp}/imported'}}, "
                                    "capsule: {start_s: 0.018}}"),
      r"capsule\.start_s 0\.018 m: the capsule would stick out of the colon's open end"),
     ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),

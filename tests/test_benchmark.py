@@ -21,7 +21,8 @@ import numpy as np
 import psutil
 import pytest
 
-from capsule_drake.app.benchmark import (COLUMNS, TIERS, RowWriter, Task, format_table,
+from capsule_drake.app.benchmark import (COLUMNS, TIERS, RowWriter, Task, breakdown,
+                                         format_table,
                                          run_suite, run_task, summary, task_scenario,
                                          where_it_ended, wilson_interval, write_outputs)
 
@@ -480,3 +481,30 @@ def test_the_population_tier_draws_its_patients():
     seeds, text = TIERS["standard"]
     assert seeds == "0-9" and task_scenario(Task("autonomy-truth", 3, 5.0,
                                                  tier_text=text)).colon.population is None
+
+
+def test_the_breakdown_counts_each_group_of_patients():
+    """Nine runs of one navigator: the groups by sigmoid, sex and length tercile count the
+    runs they hold, each with its Wilson interval and the mean time of those that arrived;
+    runs on colons not drawn from the population give no breakdown."""
+    patients = ["female, redundant sigmoid", "male, normal sigmoid", "male, normal sigmoid"] * 3
+    lengths = [120.0, 125.0, 130.0, 150.0, 151.0, 152.0, 180.0, 185.0, 190.0]
+    reached = [True, True, False, True, True, True, False, True, True]
+    results = [{"row": {"navigator": "n", "seed": k, "colon_cm": lengths[k],
+                        "patient": patients[k], "reached_cecum": reached[k],
+                        "time_to_cecum_s": 100.0 + k if reached[k] else float("nan")}}
+               for k in range(9)]
+    rows = {row["group"]: row for row in breakdown(results)}
+    assert rows["all"]["reached_cecum"] == "7/9"
+    assert rows["redundant sigmoid"]["reached_cecum"] == "2/3"   # runs 0, 3, 6: 6 failed
+    assert rows["female"]["reached_cecum"] == rows["redundant sigmoid"]["reached_cecum"]
+    assert rows["male"]["reached_cecum"] == "5/6"
+    thirds = [name for name in rows if name.startswith("length")]
+    assert [rows[name]["reached_cecum"] for name in thirds] == ["2/3", "3/3", "2/3"]
+    assert rows["all"]["time_to_cecum_s"] == pytest.approx(np.mean([100, 101, 103, 104, 105,
+                                                                     107, 108]), abs=0.05)
+    low, high = (float(x) for x in rows["all"]["cecum_95ci"].strip("[]").split(","))
+    assert (low, high) == pytest.approx(wilson_interval(7, 9), abs=0.005)
+    for r in results:
+        r["row"]["patient"] = ""
+    assert breakdown(results) == []

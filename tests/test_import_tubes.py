@@ -409,7 +409,7 @@ def test_pick_start_keeps_a_start_that_rests_moves_one_that_does_not_or_says_why
 
 def _settle(folder):
     """`pick_start`'s settle(s) for the Default scenario on the import in `folder`."""
-    scenario = load_scenario(override=f"{{colon: {{source: {folder}}}}}")
+    scenario = load_scenario(override=f"{{colon: {{source: !Imported {{path: {folder}}}}}}}")
 
     def settle(s):
         capsule = dataclasses.replace(scenario.capsule, start_s=s, settle=REST_SETTLE)

@@ -195,7 +195,8 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     path = tmp_path / "colon.obj"
     load_colon(load_scenario(name="Default").colon)[0].visual_mesh().export(path)
     settle = f"capsule: {{settle: {REST_SETTLE}}}"
-    moved, nearest = _inside("Default", f"{{colon: {{source: {path}}}, {settle}}}", 16.0)
+    text = f"{{colon: {{source: !Imported {{path: {path}}}}}, {settle}}}"
+    moved, nearest = _inside("Default", text, 16.0)
     original = simulate(dataclasses.replace(load_scenario(name="Default",
                                                           override=f"{{{settle}}}"),
                                             duration=16.0),
@@ -214,11 +215,12 @@ def test_the_drag_runs_on_the_ex_vivo_segment_with_the_capsule_inside():
 
 
 def test_bad_sources_get_one_line():
-    with pytest.raises(ScenarioError, match="colon.source must be procedural, ex_vivo, or an "
-                                            "existing mesh file"):
-        load_scenario(override="{colon: {source: no/such/colon.obj}}")
-    with pytest.raises(ScenarioError, match="convex_pieces needs the procedural colon"):
-        load_scenario(override="{colon: {source: ex_vivo}, contact: {model: convex_pieces}}")
+    with pytest.raises(ScenarioError, match="colon.source.path must be an existing mesh file"):
+        load_scenario(override="{colon: {source: !Imported {path: no/such/colon.obj}}}")
+    with pytest.raises(ScenarioError, match="convex_pieces needs a procedural colon"):
+        load_scenario(override="{colon: {source: !ExVivo {}}, contact: {model: convex_pieces}}")
+    with pytest.raises(ScenarioError, match=r"colon.source: expected one of !Procedural"):
+        load_scenario(override="{colon: {source: ex_vivo}}")   # the old spelling
 
 
 def test_a_capsule_that_leaves_the_segment_lands_in_the_tray():
@@ -257,7 +259,8 @@ def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp
 
     mesh = write_segment(tmp_path / "scan")
     assert main(["import-colon", str(mesh), "--out", str(tmp_path / "colon"), "--quiet"]) == 0
-    scenario = load_scenario(override=f"{{colon: {{source: {tmp_path / 'colon'}}}, "
+    folder = tmp_path / "colon"
+    scenario = load_scenario(override=f"{{colon: {{source: !Imported {{path: {folder}}}}}, "
                                       "capsule: {start_s: 0.03}}")
     colon, _ = load_colon(scenario.colon)
     assert 0.16 < colon.centerline.length < 0.2
@@ -268,7 +271,8 @@ def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp
     (tmp_path / "empty").mkdir()
     for source, words in ((cloud, "a point cloud (200 points"),
                           (tmp_path / "empty", "no wall.obj")):
-        assert main(["run", "--scenario-text", f"{{colon: {{source: {source}}}}}",
+        text = f"{{colon: {{source: !Imported {{path: {source}}}}}}}"
+        assert main(["run", "--scenario-text", text,
                      "--duration", "0.1", "--quiet"]) == 2
         error = capsys.readouterr().err.strip().splitlines()
         assert len(error) == 1 and "colon.source" in error[0] and words in error[0]
@@ -299,7 +303,8 @@ def test_the_readme_import_example_runs_with_the_capsule_inside(tmp_path, capsys
     out = tmp_path / "run"
     default = Path(__file__).parent.parent / "diagrams" / "default.yaml"
     assert main(["run", str(default), "--scenario", "Default", "--scenario-text",
-                 f"{{colon: {{source: {colon}}}}}", "--duration", "10", "--no-recording",
+                 f"{{colon: {{source: !Imported {{path: {colon}}}}}}}", "--duration", "10",
+                 "--no-recording",
                  "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "completed" and metrics["sim_time_s"] == pytest.approx(10.0)

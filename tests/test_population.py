@@ -9,7 +9,7 @@ import pytest
 from capsule_drake.anatomy import ColonParams, SEGMENT_NAMES, build_colon
 from capsule_drake.anatomy.course import solve_course
 from capsule_drake.anatomy.morphology import acute_flexures
-from capsule_drake.anatomy.params import PopulationParams
+from capsule_drake.anatomy.params import Population
 from capsule_drake.anatomy.population import (LENGTH_ALL, LENGTH_BY_HABIT, LENGTH_BY_SEX,
                                               LENGTH_RANGE, REDUNDANT_SIGMOID_SHARE,
                                               population_colon_params, sample_patient)
@@ -36,24 +36,24 @@ def within_published(values, mean, sd, n_published):
 
 def test_500_patients_have_the_published_length_mean_sd_and_range():
     """150.3 +- 18.5 cm, 109.7-195.9 (CT colonography, n = 295)."""
-    totals = totals_cm(PopulationParams())
+    totals = totals_cm(Population())
     within_published(totals, *LENGTH_ALL, COHORT)
     assert LENGTH_RANGE[0] <= totals.min() and totals.max() <= LENGTH_RANGE[1]
     # A new sample (other seeds) agrees too: the figures are not those of one draw.
-    within_published(totals_cm(PopulationParams(), first_seed=10_000), *LENGTH_ALL, COHORT)
+    within_published(totals_cm(Population(), first_seed=10_000), *LENGTH_ALL, COHORT)
 
 
 @pytest.mark.parametrize("sex", ["female", "male"])
 def test_each_sex_has_its_published_length(sex):
     """Women 154.3 +- 18.1, men 147.1 +- 18.3 cm; drawn as "any", 44 % are women."""
-    within_published(totals_cm(PopulationParams(sex=sex)), *LENGTH_BY_SEX[sex], COHORT // 2)
+    within_published(totals_cm(Population(sex=sex)), *LENGTH_BY_SEX[sex], COHORT // 2)
 
 
 @pytest.mark.parametrize("habit", sorted(LENGTH_BY_HABIT))
 def test_each_bowel_habit_has_its_published_length(habit):
     """Daily 147.4 +- 17.9, every 2-3 days 154.7 +- 18.5, less often 158.6 +- 18.3 cm
     (the group sizes are not in the abstract: a third of the cohort each, assumed)."""
-    within_published(totals_cm(PopulationParams(bowel_habit=habit)),
+    within_published(totals_cm(Population(bowel_habit=habit)),
                      *LENGTH_BY_HABIT[habit], COHORT // 3)
 
 
@@ -62,7 +62,7 @@ def test_segments_the_redundant_sigmoid_and_the_transverse_by_sex():
     (11.6-12.2 cm: 10-14 allowed); a quarter of sigmoids are redundant (24 %, +- twice the
     binomial SE); women's transverse colon is longer than men's (medians 48 and 40 cm:
     ratio 1.1-1.3)."""
-    patients = [sample_patient(PopulationParams(), seed) for seed in range(N)]
+    patients = [sample_patient(Population(), seed) for seed in range(N)]
     for p in patients:
         assert sum(p.lengths.values()) == pytest.approx(p.total_length, rel=1e-12)
         assert list(p.lengths) == list(SEGMENT_NAMES)
@@ -81,23 +81,24 @@ def test_segments_the_redundant_sigmoid_and_the_transverse_by_sex():
 def test_a_percentile_and_a_variant_are_what_was_asked():
     """A 95th-percentile woman is 154.3 + 1.645 x 18.1 = 184 cm long, whatever the seed (to
     the truncation's shift); a redundant sigmoid is redundant; a normal one is not."""
-    tall = [sample_patient(PopulationParams(sex="female", length_percentile=95), seed)
+    tall = [sample_patient(Population(sex="female", length_percentile=95), seed)
             for seed in range(20)]
     assert all(abs(p.total_length * 100 - 184.1) < 1.5 for p in tall)
     assert len({round(p.total_length, 9) for p in tall}) == 1
-    assert all(sample_patient(PopulationParams(sigmoid="redundant"), s).redundant_sigmoid
+    assert all(sample_patient(Population(sigmoid="redundant"), s).redundant_sigmoid
                for s in range(20))
-    assert not any(sample_patient(PopulationParams(sigmoid="normal"), s).redundant_sigmoid
+    assert not any(sample_patient(Population(sigmoid="normal"), s).redundant_sigmoid
                    for s in range(20))
-    assert sample_patient(PopulationParams(), 7) == sample_patient(PopulationParams(), 7)
+    assert sample_patient(Population(), 7) == sample_patient(Population(), 7)
 
 
 @pytest.mark.parametrize("text, key", [
-    ("{colon: {population: {sex: other}}}", "colon.population.sex"),
-    ("{colon: {population: {length_percentile: 100}}}", "colon.population.length_percentile"),
-    ("{colon: {population: {sigmoid: twisted}}}", "colon.population.sigmoid"),
-    ("{colon: {population: {bowel_habit: weekly}}}", "colon.population.bowel_habit"),
-    ("{colon: {population: {sex: female}, source: ex_vivo}}", "colon.population"),
+    ("{colon: {source: !Population {sex: other}}}", "colon.source.sex"),
+    ("{colon: {source: !Population {length_percentile: 100}}}",
+     "colon.source.length_percentile"),
+    ("{colon: {source: !Population {sigmoid: twisted}}}", "colon.source.sigmoid"),
+    ("{colon: {source: !Population {bowel_habit: weekly}}}", "colon.source.bowel_habit"),
+    ("{colon: {source: !Population {sex: female, habit: daily}}}", "colon.source.habit"),
 ])
 def test_an_impossible_request_is_one_line_at_load(text, key):
     with pytest.raises(ScenarioError) as error:
@@ -111,11 +112,11 @@ def test_drawn_patients_are_built_with_their_segments():
     """Twelve patients built: each segment of the course as long as drawn (to 1 mm), the
     diameters the patient's, and a redundant 95th-percentile patient among them."""
     for seed in range(10):
-        params = population_colon_params(ColonParams(seed=seed), PopulationParams())
+        params = population_colon_params(ColonParams(seed=seed), Population())
         s, _, boundaries, targets = solve_course(params, np.random.default_rng(seed))
         np.testing.assert_allclose(np.diff(boundaries),
                                    [targets[name] for name in SEGMENT_NAMES], atol=1e-3)
-    tall = dataclasses.replace(ColonParams(seed=3), population=PopulationParams(
+    tall = dataclasses.replace(ColonParams(seed=3), source=Population(
         sex="female", length_percentile=95, sigmoid="redundant"))
     colon = build_colon(tall)
     assert colon.centerline.s[-1] == pytest.approx(1.84, abs=0.01)

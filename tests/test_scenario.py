@@ -180,6 +180,8 @@ TESTS_DIR = Path(__file__).resolve().parent
 # the tests simulate.
 # path -> (scenario that sets it, the test that simulates that scenario); both are checked.
 ELSEWHERE = {
+    "colon.source[Procedural]": (  # the default source: every scenario that leaves it out
+        "Default", "test_station.py::test_named_scenarios_simulate"),
     "contact.model": (  # convex_pieces: its build (~15 s, ~2 GB) is that test's
         "FastContact",
         "test_station.py::test_fast_contact_model_drags_the_capsule_inside_the_wall"),
@@ -197,6 +199,16 @@ ELSEWHERE = {
 # that exercise it (checked: they exist). Keep this list short: a selector that a
 # scenario the tests simulate can hold belongs in OneOfEverything or OneOfEverythingElse.
 EXCEPTIONS = {
+    "colon.source[Imported]": (
+        "an imported colon is a user's mesh or import folder, which no shipped scenario has",
+        ("test_imported.py::test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original",
+         "test_imported.py::test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line")),
+    "colon.source[Imported].path": (
+        "as colon.source[Imported]",
+        ("test_imported.py::test_the_readme_import_example_runs_with_the_capsule_inside",)),
+    "colon.source[Imported].reverse": (
+        "as colon.source[Imported]; the ex vivo segment's `reverse` is set in "
+        "OneOfEverythingElse", ("test_imported.py::test_bad_sources_get_one_line",)),
     "simulator": (
         "Drake's SimulatorConfig, a leaf: setting it (target_realtime_rate) would pace the "
         "runs to the wall clock", ()),
@@ -301,7 +313,8 @@ def _test_exists(named: str) -> bool:
 def test_the_reflection_finds_every_selector():
     selectors = _selectors(Scenario)
     assert len(selectors) == len(set(selectors))
-    assert {"plant", "simulator", "colon.source", "colon.rectum.has_taeniae",
+    assert {"plant", "simulator", "colon.source[ExVivo]", "colon.source[Imported].path",
+            "colon.rectum.has_taeniae",
             "colon.rectal_valve_positions", "capsule.imu", "capsule.camera.lens.fx",
             "capsule.camera.render_process", "epm.mount[Stage]", "epm.mount[Arm]",
             "epm.mount[Arm].posture_deg", "epm.driver[External]",
@@ -310,7 +323,8 @@ def test_the_reflection_finds_every_selector():
                 "epm.driver[AlongColon].speed", "epm.mount[Stage].translation_gains.p",
                 "epm.driver[Teleop].channel.forward.seed"} & set(selectors)
     # A default scenario sets nothing; it holds the unions' default members.
-    assert _set_paths(Scenario(), Scenario()) == {"epm.mount[Stage]", "epm.driver[AlongColon]"}
+    assert _set_paths(Scenario(), Scenario()) == {"epm.mount[Stage]", "epm.driver[AlongColon]",
+                                                  "colon.source[Procedural]"}
     # A selector added to the scenario and set by neither scenario fails the rule; a
     # number does not.
     extended = dataclasses.make_dataclass("Extended", [

@@ -40,7 +40,7 @@ from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
 from .importer import (RepairReport, _boundary_loops, _perimeter, _texture_of,
                        check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
-from .params import MucosaParams
+from .params import ExVivo, Imported, MucosaParams
 from .texture import mucosa_texture
 from .tube_check import NotATubeError, check_open_ends, check_tube
 
@@ -328,12 +328,10 @@ class ImportedColon(TubeColon):
 
 def _digest(params, files) -> str:
     digest = hashlib.sha256(f"imported v{GEOMETRY_VERSION}\n{source_digest()}\n".encode())
-    fields = {k: getattr(params, k) for k in ("source", "mesh_scale", "mesh_max_faces",
-                                               "mesh_reverse", "mesh_skin_above",
-                                               "collision_chunks")}
-    digest.update(repr(sorted(fields.items())).encode())
+    digest.update(yaml_dump_typed(params.source).encode())
+    digest.update(f"{type(params.source).__name__} {params.collision_chunks}".encode())
     digest.update(yaml_dump_typed(params.mucosa).encode())
-    if params.source == "ex_vivo":
+    if isinstance(params.source, ExVivo):
         digest.update(f"ex_vivo seed {params.seed}".encode())
     for path in files:
         digest.update(Path(path).name.encode())
@@ -356,14 +354,14 @@ def _source_files(source: Path) -> list[Path]:
 
 
 def imported_colon_assets(params, cache_dir=None):
-    """(ImportedColon, ColonAssets) for `params.source` != "procedural": imported (or, for
-    "ex_vivo", generated and imported) once, its files cached like the procedural colon's
+    """(ImportedColon, ColonAssets) for an !Imported `params.source`: imported (or, for
+    !ExVivo, generated and imported) once, its files cached like the procedural colon's
     (written to a temporary folder and renamed into place)."""
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
-    if params.source == "ex_vivo":
+    if isinstance(params.source, ExVivo):
         files = []
     else:
-        files = _source_files(Path(params.source))
+        files = _source_files(Path(params.source.path))
     final = root / _digest(params, files)
     build_once(final, lambda tmp: _build_imported(params, tmp))
     chunks = len(sorted(final.glob("colon_collision_*.obj")))
@@ -371,16 +369,17 @@ def imported_colon_assets(params, cache_dir=None):
 
 
 def _import_folder(params, directory: Path) -> Path:
-    source = Path(params.source)
-    return source if params.source != "ex_vivo" and source.is_dir() else directory / "import"
+    if isinstance(params.source, Imported) and Path(params.source.path).is_dir():
+        return Path(params.source.path)
+    return directory / "import"
 
 
 def _load_imported(params, directory: Path) -> ImportedColon:
     display = rgba = None
     boxes = ()
-    if params.source == "ex_vivo":
+    if isinstance(params.source, ExVivo):
         display, rgba, boxes = tray_mesh(), TRAY_RGBA, tray_boxes()
-    colon = ImportedColon.load(_import_folder(params, directory), params.mesh_skin_above,
+    colon = ImportedColon.load(_import_folder(params, directory), params.source.skin_above,
                                display, rgba, mucosa=params.mucosa, seed=params.seed)
     colon.collision_boxes = boxes
     return colon
@@ -388,13 +387,15 @@ def _load_imported(params, directory: Path) -> ImportedColon:
 
 def _build_imported(params, directory: Path) -> None:
     folder = _import_folder(params, directory)
-    if folder != Path(params.source):
-        if params.source == "ex_vivo":
+    source = params.source
+    if not (isinstance(source, Imported) and folder == Path(source.path)):
+        if isinstance(source, ExVivo):
             mesh_path = write_segment(directory / "reconstruction", params.seed, params.mucosa)
         else:
-            mesh_path = Path(params.source)
-        write_import(import_colon_mesh(mesh_path, params.mesh_scale, params.mesh_max_faces,
-                                       params.mesh_reverse), folder)
+            mesh_path = Path(source.path)
+        scale = source.scale if isinstance(source, Imported) else 1.0
+        write_import(import_colon_mesh(mesh_path, scale, source.max_faces, source.reverse),
+                     folder)
     colon = _load_imported(params, directory)
     image = colon.texture_image()
 

@@ -36,7 +36,7 @@ from scipy.optimize import fsolve
 from scipy.stats import norm, truncnorm
 
 from .course import solve_course
-from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, PopulationParams,
+from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, Population,
                      check_population_params)
 
 # Utano et al. 2022 (V): total length (cm), mean and SD, overall, by sex, by bowel habit.
@@ -168,7 +168,7 @@ def _fits(lengths: dict[str, float]) -> bool:
     return all(COURSE_REACH[n][0] <= lengths[n] <= COURSE_REACH[n][1] for n in SEGMENT_NAMES)
 
 
-def sample_patient(params: PopulationParams, seed: int, attempt: int = 0) -> Patient:
+def sample_patient(params: Population, seed: int, attempt: int = 0) -> Patient:
     """The patient of `seed` with `params`' fixed traits (its own stream: [seed, 7], and
     [seed, 7, attempt] for the later attempts of `population_colon_params`).
 
@@ -193,7 +193,7 @@ def sample_patient(params: PopulationParams, seed: int, attempt: int = 0) -> Pat
         if not wanted and params.length_percentile is None:
             total = _draw_total(rng, sex, params.bowel_habit, None)
     else:
-        raise ValueError(f"colon.population: no patient of seed {seed} with these traits "
+        raise ValueError(f"colon.source: no patient of seed {seed} with these traits "
                          f"(sex {params.sex}, bowel_habit {params.bowel_habit}, "
                          f"length_percentile {params.length_percentile}, sigmoid "
                          f"{params.sigmoid}) fits the procedural course in {_MAX_REDRAWS} draws")
@@ -215,6 +215,7 @@ wide ceca), so the population the course draws is a little narrower than the one
 (measured over 80 seeds: 8 redrawn, totals 147.6 +- 17.8 -> 148.2 +- 17.9 cm; README)."""
 
 _RESOLVED: dict[str, tuple] = {}
+_PATIENTS: dict[str, Patient] = {}
 _KEEP_RESOLVED = 16
 
 
@@ -239,14 +240,31 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
         except RuntimeError:
             continue
         if len(_RESOLVED) >= _KEEP_RESOLVED:
+            _PATIENTS.pop(next(iter(_RESOLVED)), None)
             _RESOLVED.pop(next(iter(_RESOLVED)))
         _RESOLVED[key] = (out, course)
+        _PATIENTS[key] = patient
         return out, course
-    raise ValueError(f"colon.population: the procedural course cannot draw any of the first "
+    raise ValueError(f"colon.source: the procedural course cannot draw any of the first "
                      f"{COURSE_ATTEMPTS} patients of seed {params.seed} with these traits")
 
 
-def population_colon_params(params: ColonParams, population: PopulationParams) -> ColonParams:
+def resolved_patient(params: ColonParams) -> Patient:
+    """The patient `resolve_population(params)` draws (the attempt the course could draw)."""
+    resolve_population(params)
+    return _PATIENTS[yaml_dump_typed(params)]
+
+
+def patient_label(params: ColonParams) -> str:
+    """The patient's sex and sigmoid variant ("female, redundant sigmoid"), or "" for a
+    colon not drawn from the population."""
+    if params.population is None:
+        return ""
+    patient = resolved_patient(params)
+    return f"{patient.sex}, {'redundant' if patient.redundant_sigmoid else 'normal'} sigmoid"
+
+
+def population_colon_params(params: ColonParams, population: Population) -> ColonParams:
     """`params` with the patient of `params.seed` drawn from `population`
     (`resolve_population`)."""
-    return resolve_population(dataclasses.replace(params, population=population))[0]
+    return resolve_population(dataclasses.replace(params, source=population))[0]

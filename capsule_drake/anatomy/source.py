@@ -1,8 +1,9 @@
 """One place that loads a scenario's colon, whatever its source, behind one cache.
 
-`load_colon(params)` returns (colon, assets) for `params.source`: "procedural" (generated
-from the seed, anatomy/colon.py), "ex_vivo" (the shipped porcine segment, generated and
-imported) or a user's mesh or import folder (anatomy/imported.py). The colon answers the
+`load_colon(params)` returns (colon, assets) for `params.source`: !Procedural or
+!Population (generated from the seed, anatomy/colon.py), !ExVivo (the shipped porcine
+segment, generated and imported) or !Imported (a user's mesh or import folder,
+anatomy/imported.py). The colon answers the
 same queries in every case (`TubeColon`); its files (meshes, texture, centreline) are cached
 on disk (anatomy/cache.py) and the loaded colon in memory, once per process for equal
 parameters. `colon_wall_pieces` gives the convex wall pieces of the fast contact model.
@@ -34,7 +35,7 @@ def load_colon(params: ColonParams, cache_dir=None) -> tuple:
     if key not in _LOADED:
         if len(_LOADED) >= _KEEP:
             _LOADED.pop(next(iter(_LOADED)))
-        if params.source == "procedural":
+        if params.procedural:
             assets = procedural_colon_assets(params, cache_dir)
             course = assets.centerline_npz.parent / COURSE_FILE
             _LOADED[key] = (build_colon(params, course), assets)

@@ -45,6 +45,7 @@ import numpy as np
 from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
+from capsule_drake.anatomy.population import patient_label
 from capsule_drake.app.run import simulate
 from capsule_drake.io.metrics import pressure_metrics
 from capsule_drake.navigation.coverage import MucosaCoverage
@@ -65,7 +66,7 @@ PROGRESS_PERIOD = 1.0
 # The Dask event topic the runs report their progress on.
 PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
-COLUMNS = ("navigator", "seed", "colon_cm", "reached_cecum", "time_to_cecum_s", "progress",
+COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
            "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
            "detection_error_pct", "detection_rate",
@@ -91,7 +92,7 @@ BUILT_IN = tuple(NAVIGATORS)
 # drawn from the population model (anatomy/population.py; seeds 1000-1029, chosen before
 # any run and never changed), for rates with a meaningful interval; --seeds draws others.
 TIERS = {"standard": ("0-9", ""),
-         "population": ("1000-1029", "{colon: {population: {}}}")}
+         "population": ("1000-1029", "{colon: {source: !Population {}}}")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,6 +195,7 @@ def run_task(task: Task, progress=None) -> dict:
     if result.status == "diverged":  # nothing measured in such a run means anything
         row.update({key: np.nan for key in DIVERGED_NAN})
         row.update(reached_cecum=False, segments_passed=[])
+    row["patient"] = patient_label(scenario.colon)
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
     row.update(status=FINISHED, error="")
@@ -921,6 +923,46 @@ def summary(results: list[dict]) -> list[dict]:
     return out
 
 
+def breakdown(results: list[dict]) -> list[dict]:
+    """Per navigator, the cecal intubation rate (with its Wilson interval) and the mean time
+    to the cecum of each group of the population's patients: by sigmoid variant, by sex and
+    by tercile of the colon's length (the terciles of the runs' own colons). Empty when no
+    run's colon was drawn from the population (its `patient` is "")."""
+    rows = [r["row"] for r in results]
+    if not any(row.get("patient") for row in rows):
+        return []
+    lengths = np.array([row["colon_cm"] for row in rows], dtype=float)
+    cuts = np.nanquantile(lengths, [1 / 3, 2 / 3])
+    groups = {
+        "all": lambda row: True,
+        "normal sigmoid": lambda row: "normal sigmoid" in row["patient"],
+        "redundant sigmoid": lambda row: "redundant sigmoid" in row["patient"],
+        "female": lambda row: row["patient"].startswith("female"),
+        "male": lambda row: row["patient"].startswith("male"),
+        f"length < {cuts[0]:.0f} cm": lambda row: row["colon_cm"] < cuts[0],
+        f"length {cuts[0]:.0f}-{cuts[1]:.0f} cm":
+            lambda row: cuts[0] <= row["colon_cm"] < cuts[1],
+        f"length >= {cuts[1]:.0f} cm": lambda row: row["colon_cm"] >= cuts[1],
+    }
+    out = []
+    for navigator in dict.fromkeys(row["navigator"] for row in rows):
+        mine = [row for row in rows if row["navigator"] == navigator]
+        for group, member in groups.items():
+            chosen = [row for row in mine if member(row)]
+            if not chosen:
+                continue
+            reached = sum(bool(row["reached_cecum"]) for row in chosen)
+            times = np.array([row["time_to_cecum_s"] for row in chosen], dtype=float)
+            times = times[np.isfinite(times)]
+            out.append({"navigator": navigator, "group": group,
+                        "reached_cecum": f"{reached}/{len(chosen)}",
+                        "cecum_95ci": "[{:.2f}, {:.2f}]".format(
+                            *wilson_interval(reached, len(chosen))),
+                        "time_to_cecum_s": round(float(times.mean()), 1) if len(times)
+                        else np.nan})
+    return out
+
+
 def segment_table(results: list[dict]) -> list[dict]:
     """Per navigator, the share of runs that got through each colon segment."""
     names = _segment_names(results)
@@ -968,6 +1010,13 @@ def write_outputs(results: list[dict], out_dir: Path) -> dict[str, Path]:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    groups = breakdown(results)
+    if groups:
+        paths["breakdown"] = out_dir / "breakdown.csv"
+        with open(paths["breakdown"], "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(groups[0]))
+            writer.writeheader()
+            writer.writerows(groups)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

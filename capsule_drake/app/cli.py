@@ -30,7 +30,7 @@ from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.app.benchmark import (COLUMNS, FAILED, EngineError, NotedSignals,
                                                 TIERS, RowWriter, Task, default_run_timeout,
-                                                format_table, run_suite, segment_table,
+                                                breakdown, format_table, run_suite, segment_table,
                                                 summary, task_scenario, write_outputs)
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
@@ -211,7 +211,7 @@ def _parser() -> argparse.ArgumentParser:
                     "length and local radius (s = 0 at the narrower end), tabulate the wall "
                     "around it, and write DIR/wall.obj, DIR/centerline.npz, "
                     "DIR/wall_radius.npz and DIR/import.json with a summary of the repairs. "
-                    "A scenario runs on it with colon: {source: DIR}.")
+                    "A scenario runs on it with colon: {source: !Imported {path: DIR}}.")
     imp.add_argument("mesh", type=_path, help="the mesh file")
     imp.add_argument("--out", type=_path, required=True, metavar="DIR", help="output folder")
     imp.add_argument("--force", action="store_true",
@@ -482,6 +482,10 @@ def _benchmark_outputs(results, out_dir) -> None:
     rows = segment_table(results)
     print("runs through each segment:")
     print(format_table(rows, list(rows[0])))
+    rows = breakdown(results)
+    if rows:
+        print("\nby the population's patients (sigmoid variant, sex, tercile of length):")
+        print(format_table(rows, list(rows[0])))
     paths = write_outputs(results, out_dir)
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}")
 
@@ -849,7 +853,7 @@ def _import_colon(args) -> int:
     for line in wall.report.lines():
         print(f"  repaired: {line}")
     print(f"wrote {args.out}/: wall.obj, centerline.npz, wall_radius.npz, import.json; "
-          f"use it with colon: {{source: {args.out}}}")
+          f"use it with colon: {{source: !Imported {{path: {args.out}}}}}")
     return 0
 
 

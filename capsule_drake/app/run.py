@@ -203,7 +203,7 @@ def start_where_it_rests(scenario: Scenario) -> Scenario:
         ScenarioError: the capsule rests at none of the starts (one line, what happened at
             each).
     """
-    if scenario.colon.source == "procedural":
+    if scenario.colon.procedural:
         return scenario
     try:
         colon, _ = load_colon(scenario.colon)

@@ -46,7 +46,7 @@ lets it come, and the EPM turned for the largest field there:
                half-extent the EPM's guard keeps clear of the skin: epm/poses.py);
         depth_min: the capsule's centre below the skin: 0 for the procedural patient (its
                transverse colon comes within 0.3-14 mm of the skin over seeds 0-11, so
-               nothing is counted), colon.mesh_skin_above + the capsule's radius for an
+               nothing is counted), colon.source.skin_above + the capsule's radius for an
                imported colon (its skin is that far above the mesh's highest point);
     B    = 2 (mu0 / 4 pi) m_E / r^3       the dipole's field on its axis, the largest |B|
                                           at distance r (side-on it is half);
@@ -256,10 +256,10 @@ def closest_distance(scenario) -> tuple[float, str]:
     capsule = capsule_inertia()
     half = _half_extent_min(scenario.epm.magnet)
     clearance = scenario.epm.clearance
-    if scenario.colon.source == "procedural":
+    if scenario.colon.procedural:
         depth, depth_text = 0.0, ""
     else:
-        depth = scenario.colon.mesh_skin_above + capsule.radius
+        depth = scenario.colon.source.skin_above + capsule.radius
         depth_text = f" + {depth * 1e3:.1f} mm skin to capsule centre"
     text = (f"{clearance * 1e3:.0f} mm epm.clearance + {half * 1e3:.1f} mm from the EPM's "
             f"centre to its surface{depth_text}")
