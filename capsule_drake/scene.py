@@ -20,11 +20,13 @@ from typing import Callable
 
 import numpy as np
 from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import AddMultibodyPlant
+from pydrake.multibody.plant import AddMultibodyPlant, ExternallyAppliedSpatialForceMultiplexer
 
 from capsule_drake.anatomy import ColonSourceError, load_colon
+from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.capsule.model import CAPSULE_BODY, CapsuleModel, capsule_model, start_pose
 from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.fluid_force import add_fluid_force
 from capsule_drake.physics.contact import (add_capsule_drag, add_colon_visuals, add_colon_wall,
                                            set_capsule_contact)
 from capsule_drake.schema import ScenarioError
@@ -51,6 +53,9 @@ class StationParts:
     field_model: str = "dipole"
     renderer_for: Callable | None = None   # the camera walls' renderer picker, if any
     parser: object = None          # the plant's Parser (models go in before Finalize)
+    # Ports of list[ExternallyAppliedSpatialForce] for the plant (the magnet's, the fluid's):
+    # `connect_applied_forces` wires them, through a multiplexer when there are several.
+    applied_forces: list = dataclasses.field(default_factory=list)
     _outputs: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -151,6 +156,32 @@ def finish_capsule(parts: StationParts, contact):
     """Before Finalize, after every model: the capsule's contact properties and drag."""
     set_capsule_contact(parts.plant, parts.scene_graph, contact)
     add_capsule_drag(parts.plant, contact)
+
+
+def add_fluid(builder, parts: StationParts):
+    """The residual fluid's buoyancy and drag on the capsule (colon.lumen), when the colon
+    has pools (physics/fluid_force.py)."""
+    pools = fluid_scene(parts.colon_params).pools if parts.colon_params.lumen else []
+    if pools:
+        force = add_fluid_force(builder, parts, pools)
+        parts.applied_forces.append(force.GetOutputPort("applied_spatial_force"))
+        parts.export(force.GetOutputPort("submerged"), "capsule.submerged")
+
+
+def connect_applied_forces(builder, parts: StationParts):
+    """The applied forces (`parts.applied_forces`) into the plant: one directly, several
+    through an ExternallyAppliedSpatialForceMultiplexer."""
+    ports = parts.applied_forces
+    if not ports:
+        return
+    if len(ports) == 1:
+        builder.Connect(ports[0], parts.plant.get_applied_spatial_force_input_port())
+        return
+    mux = builder.AddNamedSystem("applied_forces",
+                                 ExternallyAppliedSpatialForceMultiplexer(len(ports)))
+    for k, port in enumerate(ports):
+        builder.Connect(port, mux.get_input_port(k))
+    builder.Connect(mux.get_output_port(), parts.plant.get_applied_spatial_force_input_port())
 
 
 def set_capsule_start(parts: StationParts):

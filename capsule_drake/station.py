@@ -37,8 +37,9 @@ from capsule_drake.epm.mount import add_epm_models, add_epm_mount, add_epm_pose
 from capsule_drake.io.visualization import add_meshcat
 from capsule_drake.physics.magnet_force import add_magnet_force, export_magnet_outputs
 from capsule_drake.scenario import Scenario
-from capsule_drake.scene import (add_block, add_scene, add_table_and_colon, finish_capsule,
-                                 is_block, set_capsule_start)
+from capsule_drake.scene import (add_block, add_fluid, add_scene, add_table_and_colon,
+                                 connect_applied_forces, finish_capsule, is_block,
+                                 set_capsule_start)
 
 
 SCENE_CONFIGS = ("plant", "simulator", "colon", "contact")
@@ -89,6 +90,8 @@ def make_station(scenario: Scenario, meshcat=None, capsule_start: RigidTransform
     set_capsule_start(parts)
     add_epm_mount(builder, parts, scenario.epm)
     force = add_magnet_force(builder, parts, scenario.magnet_force)
+    add_fluid(builder, parts)
+    connect_applied_forces(builder, parts)
     parts.export(parts.capsule_state, "capsule.state")
     add_epm_pose(builder, parts)
     for config in blocks_of(scenario):   # sensors, perception, guidance; the driver last

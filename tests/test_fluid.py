@@ -69,3 +69,76 @@ def test_the_surface_lies_on_the_level_inside_the_wall(colon):
     assert np.all(mesh.face_normals[:, 2] > 0.99)
     # Every vertex within the lumen (the chords' ends on the wall's polygon, to 1 mm).
     assert np.all(colon.excursion(mesh.vertices) < 1e-3)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 35.0, 80.0])
+def test_buoyancy_volume_is_the_capsules_by_closed_form(tilt_deg):
+    """The sliced capsule (physics/fluid_force.py): wholly under the level it displaces
+    pi R^2 L + 4/3 pi R^3 (to 0.5 %); with the level through its centre, half of that at any
+    tilt (the slices pair up about the centre), its centre of buoyancy below the centre."""
+    from capsule_drake.physics.fluid_force import capsule_slices, submerged
+
+    radius, length = 0.0058, 0.0194
+    whole = np.pi * radius ** 2 * length + 4.0 / 3.0 * np.pi * radius ** 3
+    slices = capsule_slices(radius, length)
+    tilt = np.radians(tilt_deg)
+    axis = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
+    p = np.array([0.1, 0.0, 0.05])
+    assert submerged(p, axis, 0.2, *slices)[0] == pytest.approx(whole, rel=5e-3)
+    assert submerged(p, axis, -0.2, *slices)[0] == 0.0
+    volume, centre = submerged(p, axis, p[2], *slices)
+    assert volume == pytest.approx(0.5 * submerged(p, axis, 0.2, *slices)[0], rel=1e-9)
+    if tilt_deg < 80.0:
+        assert centre[2] < p[2]
+
+
+def test_the_lumen_state_is_drawn_as_published():
+    """2,000 patients: the residual fluid's mean within 3 standard errors of 149 ml and its
+    share under 200 ml within the two preparations' 77-82 % (+-3 %); 10.4 % of segments
+    not fully distended (+-1.5 %), the sigmoid most often."""
+    from capsule_drake.anatomy.lumen_state import drawn_lumen
+    from capsule_drake.anatomy.params import LumenState, SEGMENT_NAMES
+
+    states = [drawn_lumen(ColonParams(seed=seed, lumen=LumenState())) for seed in range(2000)]
+    fluid = np.array([s.fluid_ml for s in states])
+    assert abs(fluid.mean() - 149.0) < 3 * 107.0 / np.sqrt(len(fluid))
+    assert 0.74 <= np.mean(fluid < 200.0) <= 0.85
+    share = {name: np.mean([name in s.collapsed for s in states]) for name in SEGMENT_NAMES}
+    assert np.mean(list(share.values())) == pytest.approx(0.104, abs=0.015)
+    assert max(share, key=share.get) == "sigmoid"
+    assert drawn_lumen(ColonParams(seed=3)) is None
+
+
+def test_a_narrowed_segment_keeps_its_course_and_passes_the_capsule():
+    """A collapsed sigmoid: the same centreline as the distended patient's, the sigmoid's
+    nominal radius 0.7 of it (above the floor that leaves the capsule 6.8 mm past its
+    folds), the other segments' unchanged."""
+    from capsule_drake.anatomy.colon import build_colon
+    from capsule_drake.anatomy.params import LumenState
+
+    open_ = build_colon(ColonParams(seed=2))
+    shut = build_colon(ColonParams(seed=2, lumen=LumenState(fluid_ml=0.0,
+                                                             collapsed=["sigmoid"])))
+    np.testing.assert_array_equal(open_.centerline.s, shut.centerline.s)
+    s0, s1 = open_.centerline.segment_ranges()["sigmoid"]
+    mid = 0.5 * (s0 + s1)
+    assert shut.centerline.radius_at(mid) == pytest.approx(0.7 * open_.centerline.radius_at(mid))
+    d0, d1 = open_.centerline.segment_ranges()["descending"]
+    assert shut.centerline.radius_at(0.5 * (d0 + d1)) == open_.centerline.radius_at(
+        0.5 * (d0 + d1))
+
+
+def test_the_centre_of_buoyancy_of_a_half_submerged_horizontal_capsule():
+    """Horizontal, the level through the axis: the submerged half's centroid lies below the
+    axis by the closed form of half a cylinder and two quarter spheres:
+    (4 R / 3 pi * pi R^2 L / 2 + 3 R / 8 * 2/3 pi R^3) / (pi R^2 L / 2 + 2/3 pi R^3), to 1 %."""
+    from capsule_drake.physics.fluid_force import capsule_slices, submerged
+
+    radius, length = 0.0058, 0.0194
+    p = np.zeros(3)
+    _, centre = submerged(p, np.array([1.0, 0.0, 0.0]), 0.0,
+                          *capsule_slices(radius, length, slices=400))
+    half_cylinder, domes = np.pi * radius ** 2 * length / 2, 2.0 / 3.0 * np.pi * radius ** 3
+    expected = (4 * radius / (3 * np.pi) * half_cylinder + 3 * radius / 8 * domes) / (
+        half_cylinder + domes)
+    assert -centre[2] == pytest.approx(expected, rel=0.01)

@@ -15,6 +15,7 @@ from .course import nominal_radius, solve_course
 from .cache import ColonAssets, asset_paths, build_once, default_cache_root, params_hash, write_asset_files
 from .mesh import closed_tube, ring_stations, textured_tube, tube_chunks
 from .params import SEGMENT_NAMES, ColonParams
+from .lumen_state import narrowed
 from .population import resolve_population
 from .texture import write_mucosa_texture
 from .wall import HaustralWall
@@ -165,7 +166,9 @@ def build_colon(params: ColonParams, course_file: Path | None = None) -> Colon:
         s, points, boundaries, targets = solve_course(params, np.random.default_rng(params.seed))
     segment = np.clip(np.searchsorted(boundaries, s, side="right") - 1, 0,
                       len(SEGMENT_NAMES) - 1)
-    radius = nominal_radius(s, boundaries, params)
+    # The course is the distended patient's; a segment not fully distended (colon.lumen)
+    # is narrower around the same centreline.
+    radius = nominal_radius(s, boundaries, narrowed(params))
     # Tangents for the frame from finite differences; the Centerline refits them.
     tangents = np.gradient(points, s, axis=0)
     tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)

@@ -186,11 +186,13 @@ def fluid_pools(colon, volume: float, step: float = STATION_STEP) -> list[FluidP
     return sorted(pools, key=lambda pool: pool.s_min)
 
 
-def surface_mesh(colon, pool: FluidPool, across: int = 8,
+def surface_mesh(colon, pool: FluidPool, across: int = 1,
                  step: float = STATION_STEP) -> trimesh.Trimesh | None:
     """The liquid's surface of `pool`: at each ring the level cuts, the chord between the
     two points where it crosses the wall, split into `across` pieces, the chords joined
-    into a strip (normals up). None when the level cuts no ring twice."""
+    into a strip (normals up). None when the level cuts no ring twice. The surface is flat:
+    one piece across is enough (a camera renders in proportion to the triangles), its
+    outline follows the wall ring by ring."""
     n = max(int(np.ceil((pool.s_max - pool.s_min) / step)), 1) + 1
     s, _, rings = tube_rings(colon, np.linspace(pool.s_min, pool.s_max, n), RING_POINTS)
     chords = []

@@ -102,6 +102,25 @@ class Imported(MeshOptions):
     scale: float = 1.0
 
 
+@dataclass
+class LumenState:
+    """The lumen's state (anatomy/lumen_state.py): residual fluid in the dependent parts and
+    segments not fully distended. Absent (`colon.lumen: null`, the default and the benchmark's
+    standard tier), every segment is distended and clean. A field left null is drawn for the
+    patient from `colon.seed`."""
+
+    # Residual fluid [ml], pooled where the lumen is lowest (anatomy/fluid.py); null: drawn
+    # (149 +- 107 ml after a bowel preparation, docs/sources.md section 3.3).
+    fluid_ml: float | None = None
+    # The segments (SEGMENT_NAMES) that are not fully distended; null: drawn (the sigmoid
+    # 35 % of the time, each other segment 6 %: 10.4 % of segments overall, as CT
+    # colonography grades them in supine patients).
+    collapsed: list[str] | None = None
+    # The lumen diameter of a segment that is not fully distended, as a fraction of its
+    # distended diameter [-] (U); never so narrow that the capsule cannot pass its folds.
+    collapsed_fraction: float = 0.7
+
+
 ColonSource = Procedural | Population | ExVivo | Imported
 """Where a colon comes from (`colon.source`): one of the four, by its YAML tag."""
 
@@ -328,6 +347,10 @@ class ColonParams:
     # or imported colon keeps only `seed` (the ex vivo segment's), `collision_chunks`,
     # `mucosa` (for a mesh without a texture) and its source's own fields.
     source: ColonSource = field(default_factory=Procedural)
+    # The lumen's state: residual fluid and segments not fully distended (LumenState);
+    # null: distended and clean. Fluid pools in colons of every source; only a procedural
+    # or population colon has segments to narrow.
+    lumen: LumenState | None = None
 
     @property
     def procedural(self) -> bool:
@@ -495,6 +518,20 @@ def check_colon_params(params: ColonParams) -> None:
              "must be in [1000, 2000000] (a software camera render costs per triangle)",
              params.source.max_faces)
         bound("source.skin_above", "[0, 0.5]", "m")
+    if params.lumen is not None:
+        lumen = params.lumen
+        if lumen.fluid_ml is not None:
+            bound("lumen.fluid_ml", "[0, 2000]", "ml",
+                  "residual fluid is 149 +- 107 ml after a bowel preparation")
+        if lumen.collapsed is not None:
+            for name in lumen.collapsed:
+                need(name in SEGMENT_NAMES, "lumen.collapsed",
+                     f"must list segments among {', '.join(SEGMENT_NAMES)}", name)
+            need(not lumen.collapsed or params.procedural, "lumen.collapsed",
+                 "narrows segments of a procedural or population colon, not of colon.source "
+                 f"{params.source_name()}", lumen.collapsed)
+        bound("lumen.collapsed_fraction", "[0.3, 1]", "",
+              "of the distended diameter (the capsule must still pass the folds)")
     m = params.mucosa
     for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
         value = getattr(m, field_name)

@@ -11,11 +11,20 @@ parameters. `colon_wall_pieces` gives the convex wall pieces of the fast contact
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import trimesh
 from pydrake.common.yaml import yaml_dump_typed
 
 from .cache import ColonAssets
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
+from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
+from .lumen_state import drawn_lumen
+from .mesh import write_obj
 from .params import ColonParams
 from .pieces import wall_pieces
 
@@ -63,3 +72,43 @@ def colon_wall_pieces(params: ColonParams, axial_length: float, max_chord_depth:
         _PIECES[key] = wall_pieces(load_colon(params)[0], axial_length=axial_length,
                                    max_chord_depth=max_chord_depth)
     return _PIECES[key]
+
+
+@dataclasses.dataclass
+class FluidScene:
+    """What the fluid of a colon adds to the scene."""
+
+    pools: list                 # anatomy/fluid.py FluidPool, by arc length
+    surface_obj: Path | None    # the liquid's surfaces, one OBJ; None without fluid
+
+
+_SCENES: dict[str, FluidScene] = {}
+
+
+def _fluid_scene(key: str, params: ColonParams, folder: str) -> FluidScene:
+    state = drawn_lumen(params)
+    if state is None or state.fluid_ml <= 0.0:
+        return FluidScene([], None)
+    colon = load_colon(params)[0]
+    pools = fluid_pools(colon, state.fluid_ml * 1e-6)
+    meshes = [m for m in (surface_mesh(colon, pool) for pool in pools) if m is not None]
+    if not meshes:
+        return FluidScene(pools, None)
+    path = Path(folder) / f"fluid_{hashlib.sha256(key.encode()).hexdigest()[:16]}.obj"
+    if not path.exists():
+        tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.obj")
+        write_obj(tmp, trimesh.util.concatenate(meshes), normals=True)
+        tmp.replace(path)
+    return FluidScene(pools, path)
+
+
+def fluid_scene(params: ColonParams) -> FluidScene:
+    """The fluid pools of the colon of `params` and their surface's OBJ (written beside the
+    colon's cached files), once per process for equal parameters."""
+    folder = colon_assets(params).visual_obj.parent
+    key = yaml_dump_typed(params)
+    if key not in _SCENES:
+        if len(_SCENES) >= 8:
+            _SCENES.pop(next(iter(_SCENES)))
+        _SCENES[key] = _fluid_scene(key, params, str(folder))
+    return _SCENES[key]

@@ -40,6 +40,8 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
 
 from capsule_drake.anatomy import colon_assets
+from capsule_drake.anatomy.lumen_state import FLUID_RGBA
+from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.lifetime import weak_method
@@ -800,6 +802,14 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
         f"<visual name='{name}'><geometry><mesh><uri>{Path(obj).resolve().as_uri()}</uri>"
         f"</mesh></geometry><drake:accepting_renderer>{renderer}</drake:accepting_renderer>"
         "</visual>" for name, obj, renderer in visuals)
+    fluid = fluid_scene(colon_params).surface_obj
+    if fluid is not None:   # the liquid's surface (colon.lumen), in every window's renderer
+        rgba = " ".join(f"{c:g}" for c in FLUID_RGBA)
+        accepting = "".join(f"<drake:accepting_renderer>{name}</drake:accepting_renderer>"
+                            for name in names)
+        body += (f"<visual name='fluid_surface'><geometry><mesh><uri>{fluid.resolve().as_uri()}"
+                 f"</uri></mesh></geometry><material><diffuse>{rgba}</diffuse></material>"
+                 f"{accepting}</visual>")
     sdf = ("<?xml version='1.0'?><sdf version='1.9' xmlns:drake='http://drake.mit.edu'>"
            f"<model name='camera_walls_{config.renderer_name}'><static>true</static>"
            f"<link name='walls'>{body}"

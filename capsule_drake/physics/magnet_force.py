@@ -886,7 +886,7 @@ def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str
                 config.update_period, no_forces))
             builder.Connect(port, hold.get_input_port())
             port = hold.get_output_port()
-        builder.Connect(port, plant.get_applied_spatial_force_input_port())
+        parts.applied_forces.append(port)   # wired by scene.connect_applied_forces
     return force
 
 
