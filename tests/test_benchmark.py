@@ -478,6 +478,7 @@ def test_the_population_tier_draws_its_patients():
     assert seeds == "1000-1029"
     scenario = task_scenario(Task("autonomy-truth", 1000, 5.0, tier_text=text))
     assert scenario.colon.population is not None and scenario.colon.seed == 1000
+    assert scenario.colon.lumen is not None
     seeds, text = TIERS["standard"]
     assert seeds == "0-9" and task_scenario(Task("autonomy-truth", 3, 5.0,
                                                  tier_text=text)).colon.population is None

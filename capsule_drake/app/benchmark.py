@@ -88,11 +88,13 @@ NAVIGATORS = {
 }
 BUILT_IN = tuple(NAVIGATORS)
 # The benchmark's tiers: their colons (seeds) and the YAML that makes them. "standard": the
-# ten procedural colons every earlier figure was measured on. "population": 30 patients
-# drawn from the population model (anatomy/population.py; seeds 1000-1029, chosen before
-# any run and never changed), for rates with a meaningful interval; --seeds draws others.
+# ten procedural colons every earlier figure was measured on, distended and clean.
+# "population": 30 patients drawn from the population model (anatomy/population.py; seeds
+# 1000-1029, chosen before any run and never changed) with their lumen's state drawn too
+# (residual fluid, segments not fully distended: anatomy/lumen_state.py), for rates with a
+# meaningful interval; --seeds draws others.
 TIERS = {"standard": ("0-9", ""),
-         "population": ("1000-1029", "{colon: {source: !Population {}}}")}
+         "population": ("1000-1029", "{colon: {source: !Population {}, lumen: {}}}")}
 
 
 @dataclasses.dataclass(frozen=True)
