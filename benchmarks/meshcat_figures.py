@@ -6,6 +6,8 @@
   camera's frames and the run's plots beside the replay), at its end;
 - arm_meshcat.png: recording.html of a short WithArm run, at its end;
 - ex_vivo_meshcat.png: recording.html of a short ExVivoSegment run, at its end;
+- fluid_meshcat.png: recording.html of a short Navigation run in population patient 1003
+  with its lumen's state (residual fluid in the rectum, a narrowed sigmoid), at its end;
 - teleop_browser.png: the live page of a browser-operator Teleop station after 1 s (the
   camera-view panel with the detected lumen in the scene).
 
@@ -31,6 +33,8 @@ REPLAYS = {
     "replay": ("WithSensors", None, 20.0),
     "arm_meshcat": ("WithArm", None, 3.0),
     "ex_vivo_meshcat": ("ExVivoSegment", None, 3.0),
+    "fluid_meshcat": ("Navigation", "{colon: {seed: 1003, source: !Population {}, lumen: {}}}",
+                      4.0),
 }
 SHOW_END = """new Promise(function (done) {
   const a = viewer.animator, t = a.duration - 1e-3;

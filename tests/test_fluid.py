@@ -142,3 +142,38 @@ def test_the_centre_of_buoyancy_of_a_half_submerged_horizontal_capsule():
     expected = (4 * radius / (3 * np.pi) * half_cylinder + 3 * radius / 8 * domes) / (
         half_cylinder + domes)
     assert -centre[2] == pytest.approx(expected, rel=0.01)
+
+
+@pytest.mark.slow
+def test_a_capsule_resting_in_a_pool_presses_on_the_wall_less_by_its_buoyancy():
+    """The capsule let settle in seed 0's rectum (the EPM 50 cm away), dry and in 150 ml of
+    fluid: the wall carries its weight m g dry, and m g less the buoyancy rho g V_sub in
+    the pool (V_sub from its final pose and the pool's level), to 5 % of m g."""
+    import dataclasses
+
+    from capsule_drake.anatomy.source import fluid_scene
+    from capsule_drake.app.run import simulate
+    from capsule_drake.capsule.model import capsule_model
+    from capsule_drake.physics.fluid_force import capsule_slices, submerged
+    from capsule_drake.scenario import load_scenario
+    from pydrake.common.eigen_geometry import Quaternion
+
+    def settled(fluid_ml):
+        scenario = load_scenario(name="FarMagnet", override=(
+            f"{{colon: {{lumen: {{fluid_ml: {fluid_ml}, collapsed: []}}}}}}"))
+        scenario = dataclasses.replace(scenario, duration=1.5)
+        result = simulate(scenario, progress=False)
+        return scenario, result, float(np.median(result.contact_load[-20:]))
+
+    model = capsule_model()
+    weight = model.mass * 9.81
+    _, _, dry = settled(0.0)
+    assert dry == pytest.approx(weight, rel=0.05)
+    scenario, result, wet = settled(150.0)
+    q = result.capsule_state[:4, -1]
+    p = result.capsule_state[4:7, -1]
+    axis = Quaternion(q / np.linalg.norm(q)).rotation()[:, 2]
+    pool = next(pool for pool in fluid_scene(scenario.colon).pools if pool.s_min < 0.05)
+    volume, _ = submerged(p, axis, pool.level, *capsule_slices(model.radius, model.length))
+    assert volume > 0.0
+    assert wet == pytest.approx(weight - 1000.0 * 9.81 * volume, abs=0.05 * weight)
