@@ -177,3 +177,17 @@ def test_a_capsule_resting_in_a_pool_presses_on_the_wall_less_by_its_buoyancy():
     volume, _ = submerged(p, axis, pool.level, *capsule_slices(model.radius, model.length))
     assert volume > 0.0
     assert wet == pytest.approx(weight - 1000.0 * 9.81 * volume, abs=0.05 * weight)
+
+
+def test_fluid_a_colon_cannot_hold_is_reported_in_one_line(caplog):
+    """The ex vivo segment lies flat in its tray: no basin holds fluid, and the 20 ml asked
+    for are reported as not placed (one warning line), not silently lost."""
+    from capsule_drake.anatomy.source import fluid_scene
+    from capsule_drake.scenario import load_scenario
+
+    scenario = load_scenario(name="ExVivoSegment", override="{colon: {lumen: {fluid_ml: 20}}}")
+    with caplog.at_level("WARNING", logger="capsule_drake.anatomy"):
+        scene = fluid_scene(scenario.colon)
+    assert scene.pools == [] and scene.surface_obj is None
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "hold 0.0 ml of the 20.0 ml" in lines[0] and "\n" not in lines[0]

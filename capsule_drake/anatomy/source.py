@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,7 @@ class FluidScene:
     surface_obj: Path | None    # the liquid's surfaces, one OBJ; None without fluid
 
 
+_log = logging.getLogger("capsule_drake.anatomy")
 _SCENES: dict[str, FluidScene] = {}
 
 
@@ -91,6 +93,11 @@ def _fluid_scene(key: str, params: ColonParams, folder: str) -> FluidScene:
         return FluidScene([], None)
     colon = load_colon(params)[0]
     pools = fluid_pools(colon, state.fluid_ml * 1e-6)
+    placed = 1e6 * sum(pool.volume for pool in pools)
+    if placed < 0.99 * state.fluid_ml:
+        _log.warning(f"colon.lumen.fluid_ml: this colon's basins hold {placed:.1f} ml of the "
+                     f"{state.fluid_ml:.1f} ml asked for; the rest is not placed (it would "
+                     "run out of the colon)")
     meshes = [m for m in (surface_mesh(colon, pool) for pool in pools) if m is not None]
     if not meshes:
         return FluidScene(pools, None)
