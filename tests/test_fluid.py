@@ -191,3 +191,24 @@ def test_fluid_a_colon_cannot_hold_is_reported_in_one_line(caplog):
     assert scene.pools == [] and scene.surface_obj is None
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and "hold 0.0 ml of the 20.0 ml" in lines[0] and "\n" not in lines[0]
+
+
+def test_bubbles_float_on_the_surface():
+    """30 bubbles asked for in seed 0's colon with 150 ml: 30 spheres, each centred on one
+    of the pools' levels (within the largest bubble radius), none wider than it."""
+    import trimesh
+
+    from capsule_drake.anatomy.lumen_state import BUBBLE_RADIUS
+    from capsule_drake.anatomy.params import LumenState
+    from capsule_drake.anatomy.source import fluid_scene
+
+    params = ColonParams(seed=0, lumen=LumenState(fluid_ml=150.0, collapsed=[], bubbles=30))
+    scene = fluid_scene(params)
+    mesh = trimesh.load(scene.bubbles_obj, force="mesh", process=True)
+    spheres = mesh.split(only_watertight=False)
+    assert len(spheres) == 30
+    levels = np.array([pool.level for pool in scene.pools])
+    for sphere in spheres:
+        centre = sphere.bounds.mean(axis=0)
+        assert np.min(np.abs(levels - centre[2])) < 1e-6 + 0.2 * BUBBLE_RADIUS[1]
+        assert 0.5 * np.ptp(sphere.vertices[:, 2]) <= BUBBLE_RADIUS[1] + 1e-9

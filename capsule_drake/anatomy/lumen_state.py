@@ -37,6 +37,12 @@ CAPSULE_PASSAGE = 0.0068
 narrowed (m): the capsule's 5.8 mm radius and 1 mm to spare."""
 FLUID_RGBA = (0.78, 0.66, 0.38, 0.8)
 """Colour of the liquid's surface: the yellow-brown of residual lavage fluid (U)."""
+BUBBLE_RGBA = (0.95, 0.93, 0.85, 0.6)
+"""Colour of the bubbles: a pale film (U)."""
+BUBBLES_DRAWN = 40
+"""Most bubbles drawn for a patient (uniform from 0; U)."""
+BUBBLE_RADIUS = (0.0005, 0.003)
+"""Smallest and largest bubble radius (m), drawn log-uniform (U)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +52,7 @@ class DrawnLumen:
     fluid_ml: float
     collapsed: tuple[str, ...]
     collapsed_fraction: float
+    bubbles: int
 
 
 def drawn_lumen(params: ColonParams) -> DrawnLumen | None:
@@ -60,10 +67,12 @@ def drawn_lumen(params: ColonParams) -> DrawnLumen | None:
     drawn_ml = float(np.exp(np.log(mean) - 0.5 * sigma ** 2 + sigma * rng.normal()))
     drawn_collapsed = tuple(name for name in SEGMENT_NAMES
                             if rng.uniform() < COLLAPSED_CHANCE[name])
+    drawn_bubbles = int(rng.integers(0, BUBBLES_DRAWN + 1))
     fluid = lumen.fluid_ml if lumen.fluid_ml is not None else drawn_ml
     collapsed = tuple(lumen.collapsed) if lumen.collapsed is not None else (
         drawn_collapsed if params.procedural else ())
-    return DrawnLumen(fluid, collapsed, lumen.collapsed_fraction)
+    bubbles = lumen.bubbles if lumen.bubbles is not None else drawn_bubbles
+    return DrawnLumen(fluid, collapsed, lumen.collapsed_fraction, bubbles)
 
 
 def narrowed(params: ColonParams) -> ColonParams:

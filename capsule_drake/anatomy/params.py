@@ -119,6 +119,9 @@ class LumenState:
     # The lumen diameter of a segment that is not fully distended, as a fraction of its
     # distended diameter [-] (U); never so narrow that the capsule cannot pass its folds.
     collapsed_fraction: float = 0.7
+    # Bubbles floating on the fluid, most at its edge against the wall; null: drawn, 0-40
+    # (U: no count was found in the sources at hand). Seen by the cameras only.
+    bubbles: int | None = None
 
 
 ColonSource = Procedural | Population | ExVivo | Imported
@@ -530,6 +533,9 @@ def check_colon_params(params: ColonParams) -> None:
             need(not lumen.collapsed or params.procedural, "lumen.collapsed",
                  "narrows segments of a procedural or population colon, not of colon.source "
                  f"{params.source_name()}", lumen.collapsed)
+        if lumen.bubbles is not None:
+            need(0 <= lumen.bubbles <= 500, "lumen.bubbles", "must be in [0, 500]",
+                 lumen.bubbles)
         bound("lumen.collapsed_fraction", "[0.3, 1]", "",
               "of the distended diameter (the capsule must still pass the folds)")
     m = params.mucosa

@@ -24,7 +24,7 @@ from .cache import ColonAssets
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
-from .lumen_state import drawn_lumen
+from .lumen_state import BUBBLE_RADIUS, drawn_lumen
 from .mesh import write_obj
 from .params import ColonParams
 from .pieces import wall_pieces
@@ -81,6 +81,7 @@ class FluidScene:
 
     pools: list                 # anatomy/fluid.py FluidPool, by arc length
     surface_obj: Path | None    # the liquid's surfaces, one OBJ; None without fluid
+    bubbles_obj: Path | None = None   # the bubbles on it, one OBJ; None without any
 
 
 _log = logging.getLogger("capsule_drake.anatomy")
@@ -101,12 +102,40 @@ def _fluid_scene(key: str, params: ColonParams, folder: str) -> FluidScene:
     meshes = [m for m in (surface_mesh(colon, pool) for pool in pools) if m is not None]
     if not meshes:
         return FluidScene(pools, None)
-    path = Path(folder) / f"fluid_{hashlib.sha256(key.encode()).hexdigest()[:16]}.obj"
-    if not path.exists():
-        tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.obj")
-        write_obj(tmp, trimesh.util.concatenate(meshes), normals=True)
-        tmp.replace(path)
-    return FluidScene(pools, path)
+    stem = f"fluid_{hashlib.sha256(key.encode()).hexdigest()[:16]}"
+    surface = trimesh.util.concatenate(meshes)
+    bubbles = _bubbles(surface, state.bubbles, np.random.default_rng([params.seed, 12]))
+    paths = []
+    for name, mesh in ((f"{stem}.obj", surface), (f"{stem}_bubbles.obj", bubbles)):
+        path = Path(folder) / name
+        if mesh is not None and not path.exists():
+            tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.obj")
+            write_obj(tmp, mesh, normals=True)
+            tmp.replace(path)
+        paths.append(path if mesh is not None else None)
+    return FluidScene(pools, *paths)
+
+
+def _bubbles(surface, count: int, rng) -> trimesh.Trimesh | None:
+    """`count` spheres centred on the liquid's `surface` (half above it): two in three at
+    its edge against the wall (where bubbles gather), the rest anywhere on it; radii
+    log-uniform in BUBBLE_RADIUS."""
+    if count <= 0:
+        return None
+    edge = surface.vertices   # the chords' ends lie on the wall
+    spheres = []
+    for k in range(count):
+        if k % 3 < 2:
+            centre = edge[rng.integers(len(edge))]
+        else:
+            face = surface.vertices[surface.faces[rng.integers(len(surface.faces))]]
+            w = rng.dirichlet(np.ones(3))
+            centre = w @ face
+        radius = float(np.exp(rng.uniform(*np.log(BUBBLE_RADIUS))))
+        sphere = trimesh.creation.icosphere(subdivisions=1, radius=radius)
+        sphere.apply_translation(centre)
+        spheres.append(sphere)
+    return trimesh.util.concatenate(spheres)
 
 
 def fluid_scene(params: ColonParams) -> FluidScene:

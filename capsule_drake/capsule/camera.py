@@ -40,7 +40,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
 
 from capsule_drake.anatomy import colon_assets
-from capsule_drake.anatomy.lumen_state import FLUID_RGBA
+from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
 from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
@@ -802,12 +802,15 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
         f"<visual name='{name}'><geometry><mesh><uri>{Path(obj).resolve().as_uri()}</uri>"
         f"</mesh></geometry><drake:accepting_renderer>{renderer}</drake:accepting_renderer>"
         "</visual>" for name, obj, renderer in visuals)
-    fluid = fluid_scene(colon_params).surface_obj
-    if fluid is not None:   # the liquid's surface (colon.lumen), in every window's renderer
-        rgba = " ".join(f"{c:g}" for c in FLUID_RGBA)
-        accepting = "".join(f"<drake:accepting_renderer>{name}</drake:accepting_renderer>"
-                            for name in names)
-        body += (f"<visual name='fluid_surface'><geometry><mesh><uri>{fluid.resolve().as_uri()}"
+    fluid = fluid_scene(colon_params)
+    accepting = "".join(f"<drake:accepting_renderer>{name}</drake:accepting_renderer>"
+                        for name in names)
+    for name, path, colour in (("fluid_surface", fluid.surface_obj, FLUID_RGBA),
+                               ("fluid_bubbles", fluid.bubbles_obj, BUBBLE_RGBA)):
+        if path is None:   # the liquid's surface and bubbles (colon.lumen), in every window
+            continue
+        rgba = " ".join(f"{c:g}" for c in colour)
+        body += (f"<visual name='{name}'><geometry><mesh><uri>{path.resolve().as_uri()}"
                  f"</uri></mesh></geometry><material><diffuse>{rgba}</diffuse></material>"
                  f"{accepting}</visual>")
     sdf = ("<?xml version='1.0'?><sdf version='1.9' xmlns:drake='http://drake.mit.edu'>"

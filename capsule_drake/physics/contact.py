@@ -19,7 +19,7 @@ from pydrake.multibody.plant import CoulombFriction
 from pydrake.multibody.tree import QuaternionFloatingJoint
 
 from capsule_drake.anatomy import colon_assets, colon_wall_pieces
-from capsule_drake.anatomy.lumen_state import FLUID_RGBA
+from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
 from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.schema import need_range
@@ -152,15 +152,18 @@ def add_colon_visuals(plant, colon_params, colon, perception: bool = True):
     rgba = colon.abdomen.display_rgba or TORSO_RGBA
     torso.set_illustration_properties(MakePhongIllustrationProperties(rgba))
     plant.RegisterVisualGeometry(world, torso)
-    fluid = fluid_scene(colon_params).surface_obj
-    if fluid is not None:   # the liquid's surface (colon.lumen), seen like the mucosa
-        surface = GeometryInstance(RigidTransform(), Mesh(str(fluid)), "fluid_surface")
-        surface.set_illustration_properties(MakePhongIllustrationProperties(FLUID_RGBA))
+    fluid = fluid_scene(colon_params)
+    for name, path, colour in (("fluid_surface", fluid.surface_obj, FLUID_RGBA),
+                               ("fluid_bubbles", fluid.bubbles_obj, BUBBLE_RGBA)):
+        if path is None:   # the liquid's surface and bubbles (colon.lumen), seen like the mucosa
+            continue
+        instance = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
+        instance.set_illustration_properties(MakePhongIllustrationProperties(colour))
         if perception:
             properties = PerceptionProperties()
-            properties.AddProperty("phong", "diffuse", Rgba(*FLUID_RGBA))
-            surface.set_perception_properties(properties)
-        plant.RegisterVisualGeometry(world, surface)
+            properties.AddProperty("phong", "diffuse", Rgba(*colour))
+            instance.set_perception_properties(properties)
+        plant.RegisterVisualGeometry(world, instance)
 
 
 def set_capsule_contact(plant, scene_graph, config: ContactConfig):
