@@ -506,6 +506,13 @@ def test_the_breakdown_counts_each_group_of_patients():
                                                                      107, 108]), abs=0.05)
     low, high = (float(x) for x in rows["all"]["cecum_95ci"].strip("[]").split(","))
     assert (low, high) == pytest.approx(wilson_interval(7, 9), abs=0.005)
+    # A failed run's row (its process crashed) has no patient and no length: counted in
+    # "all" only.
+    results.append({"row": {"navigator": "n", "seed": 9, "colon_cm": float("nan"),
+                            "patient": float("nan"), "reached_cecum": False,
+                            "time_to_cecum_s": float("nan")}})
+    rows = {row["group"]: row for row in breakdown(results)}
+    assert rows["all"]["reached_cecum"] == "7/10" and rows["male"]["reached_cecum"] == "5/6"
     for r in results:
         r["row"]["patient"] = ""
     assert breakdown(results) == []

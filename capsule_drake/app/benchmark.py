@@ -931,20 +931,25 @@ def breakdown(results: list[dict]) -> list[dict]:
     by tercile of the colon's length (the terciles of the runs' own colons). Empty when no
     run's colon was drawn from the population (its `patient` is "")."""
     rows = [r["row"] for r in results]
-    if not any(row.get("patient") for row in rows):
+
+    def patient(row) -> str:   # a failed run's row has no patient (NaN)
+        value = row.get("patient")
+        return value if isinstance(value, str) else ""
+
+    if not any(patient(row) for row in rows):
         return []
-    lengths = np.array([row["colon_cm"] for row in rows], dtype=float)
+    lengths = np.array([row.get("colon_cm", np.nan) for row in rows], dtype=float)
     cuts = np.nanquantile(lengths, [1 / 3, 2 / 3])
     groups = {
         "all": lambda row: True,
-        "normal sigmoid": lambda row: "normal sigmoid" in row["patient"],
-        "redundant sigmoid": lambda row: "redundant sigmoid" in row["patient"],
-        "female": lambda row: row["patient"].startswith("female"),
-        "male": lambda row: row["patient"].startswith("male"),
-        f"length < {cuts[0]:.0f} cm": lambda row: row["colon_cm"] < cuts[0],
+        "normal sigmoid": lambda row: "normal sigmoid" in patient(row),
+        "redundant sigmoid": lambda row: "redundant sigmoid" in patient(row),
+        "female": lambda row: patient(row).startswith("female"),
+        "male": lambda row: patient(row).startswith("male"),
+        f"length < {cuts[0]:.0f} cm": lambda row: row.get("colon_cm", np.nan) < cuts[0],
         f"length {cuts[0]:.0f}-{cuts[1]:.0f} cm":
-            lambda row: cuts[0] <= row["colon_cm"] < cuts[1],
-        f"length >= {cuts[1]:.0f} cm": lambda row: row["colon_cm"] >= cuts[1],
+            lambda row: cuts[0] <= row.get("colon_cm", np.nan) < cuts[1],
+        f"length >= {cuts[1]:.0f} cm": lambda row: row.get("colon_cm", np.nan) >= cuts[1],
     }
     out = []
     for navigator in dict.fromkeys(row["navigator"] for row in rows):
@@ -954,7 +959,8 @@ def breakdown(results: list[dict]) -> list[dict]:
             if not chosen:
                 continue
             reached = sum(bool(row["reached_cecum"]) for row in chosen)
-            times = np.array([row["time_to_cecum_s"] for row in chosen], dtype=float)
+            times = np.array([row.get("time_to_cecum_s", np.nan) for row in chosen],
+                             dtype=float)
             times = times[np.isfinite(times)]
             out.append({"navigator": navigator, "group": group,
                         "reached_cecum": f"{reached}/{len(chosen)}",
