@@ -82,6 +82,19 @@ def write_asset_files(directory: Path, chunks, visual, write_texture, mucosa, ce
     return assets
 
 
+def write_atomic(path: Path, write) -> None:
+    """Runs write(temporary path) beside `path` and renames the file into place, so that
+    concurrent processes never see it half written."""
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
 def build_once(final: Path, write) -> None:
     """Unless folder `final` is complete (it has centerline.npz), runs write(folder) into a
     temporary folder beside it and renames that into place, so concurrent processes never

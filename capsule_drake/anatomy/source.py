@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 from pydrake.common.yaml import yaml_dump_typed
 
-from .cache import ColonAssets
+from .cache import ColonAssets, write_atomic
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
@@ -109,9 +109,7 @@ def _fluid_scene(key: str, params: ColonParams, folder: str) -> FluidScene:
     for name, mesh in ((f"{stem}.obj", surface), (f"{stem}_bubbles.obj", bubbles)):
         path = Path(folder) / name
         if mesh is not None and not path.exists():
-            tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.obj")
-            write_obj(tmp, mesh, normals=True)
-            tmp.replace(path)
+            write_atomic(path, lambda tmp, m=mesh: write_obj(tmp, m, normals=True))
         paths.append(path if mesh is not None else None)
     return FluidScene(pools, *paths)
 

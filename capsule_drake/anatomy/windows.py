@@ -22,13 +22,12 @@ keeps (kappa r_max <= 0.82 over seeds 0-5).
 """
 
 import hashlib
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .cache import write_atomic
 from .mesh import TexturedMesh, write_textured_obj
 
 VISUAL_MTL = ("colon_visual.mtl", "mucosa")
@@ -125,19 +124,9 @@ def camera_windows(colon, directory: Path, far: float, spacing: float) -> Camera
     mesh = colon.camera_mesh()
     masks = window_faces(colon, mesh, centres, far)
     for path, mask in zip(objs, masks):
-        _write_atomic(path, lambda tmp, m=mask: write_textured_obj(tmp, mesh.subset(m),
+        write_atomic(path, lambda tmp, m=mask: write_textured_obj(tmp, mesh.subset(m),
                                                                      VISUAL_MTL))
     triangles = np.array([int(mask.sum()) for mask in masks])
-    _write_atomic(counts_file, lambda tmp: np.save(tmp, triangles))
+    write_atomic(counts_file, lambda tmp: np.save(tmp, triangles))
     return CameraWindows(centres, objs, triangles, far)
 
-
-def _write_atomic(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)

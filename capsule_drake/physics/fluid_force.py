@@ -77,11 +77,9 @@ class FluidForce(LeafSystem):
     share of the capsule's volume in fluid).
     """
 
-    def __init__(self, plant, body, colon, pools, radius: float, length: float,
-                 gravity: float):
+    def __init__(self, body, colon, pools, radius: float, length: float, gravity: float):
         super().__init__()
         self._index = body.index()
-        self._colon = colon
         self._pools = [(p.s_min, p.s_max, p.level) for p in pools]
         # Boxes around each pool's stretch of lumen (and the capsule's reach): outside all
         # of them, the capsule is dry without a search for its centreline station.
@@ -151,8 +149,8 @@ def add_fluid_force(builder, parts, pools):
     """Adds `FluidForce` for the capsule of `parts` and the fluid's `pools`; returns it."""
     plant = parts.plant
     system = builder.AddNamedSystem("fluid_force", FluidForce(
-        plant, parts.capsule_body, parts.colon, pools, parts.capsule.radius,
-        parts.capsule.length, parts.gravity))
+        parts.capsule_body, parts.colon, pools, parts.capsule.radius, parts.capsule.length,
+        parts.gravity))
     builder.Connect(plant.get_body_poses_output_port(), system.GetInputPort("body_poses"))
     builder.Connect(plant.get_body_spatial_velocities_output_port(),
                     system.GetInputPort("body_spatial_velocities"))
