@@ -212,3 +212,18 @@ def test_bubbles_float_on_the_surface():
         centre = sphere.bounds.mean(axis=0)
         assert np.min(np.abs(levels - centre[2])) < 1e-6 + 0.2 * BUBBLE_RADIUS[1]
         assert 0.5 * np.ptp(sphere.vertices[:, 2]) <= BUBBLE_RADIUS[1] + 1e-9
+
+
+def test_patients_differing_only_in_fluid_share_one_built_colon():
+    """The fluid and the bubbles are not part of the wall: seed 0 with 150 ml and bubbles,
+    with none, and without a lumen state at all load the same colon and files; a narrowed
+    sigmoid is another colon."""
+    from capsule_drake.anatomy.params import LumenState
+
+    dry = load_colon(ColonParams(seed=0))
+    wet = load_colon(ColonParams(seed=0, lumen=LumenState(fluid_ml=150.0, collapsed=[],
+                                                           bubbles=10)))
+    assert wet[0] is dry[0] and wet[1] == dry[1]
+    shut = load_colon(ColonParams(seed=0, lumen=LumenState(fluid_ml=10.0,
+                                                            collapsed=["sigmoid"])))
+    assert shut[1].visual_obj.parent != dry[1].visual_obj.parent

@@ -24,7 +24,7 @@ import dataclasses
 
 import numpy as np
 
-from .params import SEGMENT_NAMES, ColonParams
+from .params import SEGMENT_NAMES, ColonParams, LumenState
 
 FLUID_ML = (149.0, 107.0)
 """Residual fluid (ml), mean and SD pooled over Pickhardt et al.'s two preparations."""
@@ -73,6 +73,19 @@ def drawn_lumen(params: ColonParams) -> DrawnLumen | None:
         drawn_collapsed if params.procedural else ())
     bubbles = lumen.bubbles if lumen.bubbles is not None else drawn_bubbles
     return DrawnLumen(fluid, collapsed, lumen.collapsed_fraction, bubbles)
+
+
+def geometry_params(params: ColonParams) -> ColonParams:
+    """`params` as far as the colon's wall goes: the lumen's state only through the
+    segments it narrows (resolved for the seed), its fluid and bubbles aside, so that
+    patients who differ only in those share one built colon and its cached files."""
+    state = drawn_lumen(params)
+    if state is None:
+        return params
+    lumen = (LumenState(fluid_ml=0.0, collapsed=list(state.collapsed),
+                        collapsed_fraction=state.collapsed_fraction, bubbles=0)
+             if state.collapsed else None)
+    return dataclasses.replace(params, lumen=lumen)
 
 
 def narrowed(params: ColonParams) -> ColonParams:

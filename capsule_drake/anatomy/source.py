@@ -24,7 +24,7 @@ from .cache import ColonAssets, write_atomic
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
-from .lumen_state import BUBBLE_RADIUS, drawn_lumen
+from .lumen_state import BUBBLE_RADIUS, drawn_lumen, geometry_params
 from .mesh import write_obj
 from .params import ColonParams
 from .pieces import wall_pieces
@@ -40,7 +40,10 @@ class ColonSourceError(ValueError):
 
 def load_colon(params: ColonParams, cache_dir=None) -> tuple:
     """(colon, ColonAssets) of `params`, built or imported once and cached. Raises
-    ColonSourceError (one line) when an imported source cannot be read."""
+    ColonSourceError (one line) when an imported source cannot be read. The lumen's fluid
+    and bubbles are not part of the colon (`fluid_scene`): colons that differ only in them
+    are one."""
+    params = geometry_params(params)
     key = yaml_dump_typed(params) + f"\n{cache_dir}"
     if key not in _LOADED:
         if len(_LOADED) >= _KEEP:
@@ -67,6 +70,7 @@ def colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
 def colon_wall_pieces(params: ColonParams, axial_length: float, max_chord_depth: float):
     """The convex pieces of the procedural colon's wall (anatomy/pieces.py), built once per
     process for equal parameters."""
+    params = geometry_params(params)
     key = (yaml_dump_typed(params), axial_length, max_chord_depth)
     if key not in _PIECES:
         _PIECES.clear()
