@@ -35,9 +35,12 @@ from pydrake.common.yaml import yaml_dump_typed
 from scipy.optimize import fsolve
 from scipy.stats import norm, truncnorm
 
-from .course import solve_course
+from .abdomen import Abdomen
+from .course import nominal_radius, solve_course
+from .morphology import acute_flexures
 from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, Population,
                      check_population_params)
+from .tortuosity import add_flexures
 
 # Utano et al. 2022 (V): total length (cm), mean and SD, overall, by sex, by bowel habit.
 LENGTH_ALL = (150.3, 18.5)
@@ -72,6 +75,29 @@ DIAMETER_SPREAD = 0.08
 the sigmoid's widest point is 40 +- 7 mm, an SD of 18 %, Chung et al. 2006; the averaged
 diameter varies less)."""
 
+# Acute-angle flexures (anatomy/morphology.py). Khashab et al. 2009 (V): 10.9 +- 2.4 per
+# colon (n = 505) in colons 189.5 +- 26.3 cm long by their centreline; Hanson et al. 2007
+# (V): 9.6 in colons of 167 cm (completed colonoscopies) and 11.9 in colons of 210.8 cm
+# (failed ones). The three groups have 5.65-5.75 flexures per metre of their own length; the
+# lengths here are Utano's (150.3 cm), from another centreline and another population. What
+# carries over is the count per metre: a patient's flexures are drawn as Khashab's 5.75 per
+# metre of the patient's length, with Khashab's relative spread (22 %, U: that the spread
+# scales with the mean).
+FLEXURES_KHASHAB = (10.9, 2.4, 189.5)    # mean, SD, mean length (cm)
+FLEXURES_PER_METRE = FLEXURES_KHASHAB[0] / (FLEXURES_KHASHAB[2] / 100.0)
+FLEXURES_HANSON = {"completed": (9.6, 167.0), "failed": (11.9, 210.8)}
+
+
+def flexure_distribution() -> tuple[float, float, float]:
+    """(mean, SD, SD of the part not explained by length) of the flexure count of the
+    population's patients (before rounding): FLEXURES_PER_METRE x the length, spread to
+    Khashab's coefficient of variation."""
+    mean = FLEXURES_PER_METRE * LENGTH_ALL[0] / 100.0
+    sd = FLEXURES_KHASHAB[1] / FLEXURES_KHASHAB[0] * mean
+    from_length = FLEXURES_PER_METRE * LENGTH_ALL[1] / 100.0
+    return mean, sd, float(np.sqrt(max(sd**2 - from_length**2 - 1.0 / 12.0, 0.0)))
+
+
 # The course (anatomy/course.py) has room for these segment lengths (m): what its shape
 # brackets reach, less a margin. A sampled length beyond them is a patient the course
 # cannot draw: redrawn, and counted (Patient.redraws).
@@ -91,6 +117,8 @@ class Patient:
     diameters: dict[str, float]            # m, per segment
     redundant_sigmoid: bool
     redraws: int                           # draws the course had no room for
+    flexures: int = 0                      # acute-angle flexures drawn for the patient
+    flexures_built: int | None = None      # ... and those its course has (resolve_population)
 
 
 def length_distribution(sex: str, habit: str) -> tuple[float, float]:
@@ -204,8 +232,12 @@ def sample_patient(params: Population, seed: int, attempt: int = 0) -> Patient:
         low, high = DIAMETER_RANGE[name]
         diameters[name] = float(np.clip(nominal * np.clip(1.0 + DIAMETER_SPREAD * rng.normal(),
                                                           0.75, 1.25), low, high))
-    return Patient(sex=sex, total_length=float(sum(lengths.values())), lengths=lengths,
-                   diameters=diameters, redundant_sigmoid=bool(redundant), redraws=redraws)
+    total = float(sum(lengths.values()))
+    flexures = int(round(FLEXURES_PER_METRE * total
+                         + flexure_distribution()[2] * rng.normal()))
+    return Patient(sex=sex, total_length=total, lengths=lengths, diameters=diameters,
+                   redundant_sigmoid=bool(redundant), redraws=redraws,
+                   flexures=max(flexures, 0))
 
 
 COURSE_ATTEMPTS = 20
@@ -239,6 +271,11 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
             course = solve_course(out, np.random.default_rng(out.seed))
         except RuntimeError:
             continue
+        bent = bend_course(out, course, patient.flexures)
+        if bent is None:
+            continue
+        course, built = bent
+        patient = dataclasses.replace(patient, flexures_built=built)
         if len(_RESOLVED) >= _KEEP_RESOLVED:
             _PATIENTS.pop(next(iter(_RESOLVED)), None)
             _RESOLVED.pop(next(iter(_RESOLVED)))
@@ -247,6 +284,54 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
         return out, course
     raise ValueError(f"colon.source: the procedural course cannot draw any of the first "
                      f"{COURSE_ATTEMPTS} patients of seed {params.seed} with these traits")
+
+
+BEND_ATTEMPTS = 4
+"""Placements of a patient's added flexures tried in turn (`bend_course`)."""
+MOBILE_ODDS = 3.0
+"""How much likelier an added flexure is in the sigmoid or the transverse colon, which hang
+on their mesenteries, than in the fixed segments (U: where CT colonography finds them is
+not in the abstracts at hand)."""
+
+
+def bend_course(params: ColonParams, course: tuple, flexures: int):
+    """((s, points, boundaries, targets), flexures it has) of the solved `course` bent to
+    `flexures` acute-angle flexures (anatomy/tortuosity.py): new ones between the rectum's
+    first 8 cm and the ascending colon's last 6 cm (the cecum is too wide to turn within
+    10 cm), each placement drawn from the stream [seed, 12, attempt]. The first placement
+    that makes the count is taken, else the closest; None when no placement passes the
+    course's checks."""
+    s, points, boundaries, targets = course
+    existing = len(acute_flexures(s, points))
+    flexures = max(flexures, existing)
+    if flexures == existing:
+        return course, existing
+    abdomen = Abdomen(params.abdomen)
+
+    def radius_of(q, b):
+        return nominal_radius(q, b, params)
+
+    def allowed(q):
+        return (q > 0.08) & (q < boundaries[5] - 0.06)
+
+    def weight(q):   # the mobile sigmoid and transverse colon MOBILE_ODDS times as likely
+        segment = np.searchsorted(boundaries, q, side="right") - 1
+        return np.where(np.isin(segment, [1, 3]), MOBILE_ODDS, 1.0)
+
+    best = None
+    for attempt in range(BEND_ATTEMPTS):
+        out = add_flexures(s, points, boundaries, radius_of, abdomen, flexures,
+                           np.random.default_rng([params.seed, 12, attempt]), allowed,
+                           params.centerline_step, weight)
+        if out is None:
+            continue
+        if best is None or abs(out[3] - flexures) < abs(best[3] - flexures):
+            best = out
+        if best[3] == flexures:
+            break
+    if best is None:
+        return None
+    return (best[0], best[1], best[2], targets), best[3]
 
 
 def resolved_patient(params: ColonParams) -> Patient:
