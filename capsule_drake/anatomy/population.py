@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
@@ -36,6 +37,7 @@ from scipy.optimize import fsolve
 from scipy.stats import norm, truncnorm
 
 from .abdomen import Abdomen
+from .cache import default_cache_root, params_hash, write_atomic
 from .course import nominal_radius, solve_course
 from .morphology import acute_flexures
 from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, Population,
@@ -260,6 +262,7 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
     key = yaml_dump_typed(params)
     if key in _RESOLVED:
         return _RESOLVED[key]
+    stored = _course_file(params)
     for attempt in range(COURSE_ATTEMPTS):
         patient = sample_patient(params.population, params.seed, attempt)
         out = dataclasses.replace(params)
@@ -267,14 +270,18 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
             setattr(out, name, dataclasses.replace(
                 params.segment(name), length_min=patient.lengths[name],
                 length_max=patient.lengths[name], diameter=patient.diameters[name]))
-        try:
-            course = solve_course(out, np.random.default_rng(out.seed))
-        except RuntimeError:
-            continue
-        bent = bend_course(out, course, patient.flexures)
-        if bent is None:
-            continue
-        course, built = bent
+        found = _read_course(stored, attempt)
+        if found is None:
+            try:
+                course = solve_course(out, np.random.default_rng(out.seed))
+            except RuntimeError:
+                continue
+            bent = bend_course(out, course, patient.flexures)
+            if bent is None:
+                continue
+            found = bent
+            _write_course(stored, attempt, *found)
+        course, built = found
         patient = dataclasses.replace(patient, flexures_built=built)
         if len(_RESOLVED) >= _KEEP_RESOLVED:
             _PATIENTS.pop(next(iter(_RESOLVED)), None)
@@ -284,6 +291,41 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
         return out, course
     raise ValueError(f"colon.source: the procedural course cannot draw any of the first "
                      f"{COURSE_ATTEMPTS} patients of seed {params.seed} with these traits")
+
+
+def _course_file(params: ColonParams) -> Path:
+    """Where the resolved course of `params` is kept between processes (seconds to a few
+    minutes to bend; keyed like the colon's files, by parameters and source)."""
+    return default_cache_root().parent / "population" / f"{params_hash(params)}.npz"
+
+
+def _read_course(path: Path, attempt: int):
+    """((s, points, boundaries, targets), flexures) kept for `attempt`, or None."""
+    if not path.exists():
+        return None
+    with np.load(path) as data:
+        if int(data["attempt"]) != attempt:
+            return None
+        targets = {str(n): float(v) for n, v in zip(data["target_names"],
+                                                     data["target_lengths"])}
+        return ((data["s"], data["points"], data["boundaries"], targets),
+                int(data["flexures"]))
+
+
+def _write_course(path: Path, attempt: int, course: tuple, flexures: int) -> None:
+    s, points, boundaries, targets = course
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(targets)
+
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, attempt=attempt, flexures=flexures, s=s, points=points,
+                     boundaries=boundaries, target_names=np.array(names),
+                     target_lengths=np.array([targets[n] for n in names]))
+    try:
+        write_atomic(path, write)
+    except OSError:
+        pass   # a read-only cache: the course is solved again next time
 
 
 BEND_ATTEMPTS = 4
