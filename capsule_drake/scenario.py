@@ -583,7 +583,7 @@ def _check_colon_course(params: ColonParams) -> None:
     spend before a traceback."""
     default = ColonParams()
     if params.population is not None:   # draws until the course has room (or says why not)
-        resolve_population(params)
+        resolve_population(params, bend=False)
         return
 
     def anatomy(p):

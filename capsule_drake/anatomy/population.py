@@ -253,13 +253,17 @@ _PATIENTS: dict[str, Patient] = {}
 _KEEP_RESOLVED = 16
 
 
-def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
+def resolve_population(params: ColonParams, bend: bool = True) -> tuple[ColonParams, tuple]:
     """(`params` with the segments of the patient of `params.seed` drawn from
     `params.population`: each segment's length fixed, length_min = length_max, and its
     diameter; the course solved for them, as `solve_course` returns it). A patient the
     procedural course cannot draw is replaced by the seed's next draw. Once per process for
-    equal parameters: the scenario's check and the colon's build ask for the same patient."""
-    key = yaml_dump_typed(params)
+    equal parameters: the scenario's check and the colon's build ask for the same patient.
+    With `bend` False the course is not bent to the patient's flexures (seconds to minutes,
+    `bend_course`): what the scenario's check and the patient's label need; the patient is
+    the same unless no placement of its flexures passes the course's checks, then the next
+    draw's."""
+    key = yaml_dump_typed(params) + f"\nbend: {bend}"
     if key in _RESOLVED:
         return _RESOLVED[key]
     stored = _course_file(params)
@@ -270,19 +274,21 @@ def resolve_population(params: ColonParams) -> tuple[ColonParams, tuple]:
             setattr(out, name, dataclasses.replace(
                 params.segment(name), length_min=patient.lengths[name],
                 length_max=patient.lengths[name], diameter=patient.diameters[name]))
-        found = _read_course(stored, attempt)
+        found = _read_course(stored, attempt) if bend else None
         if found is None:
             try:
                 course = solve_course(out, np.random.default_rng(out.seed))
             except RuntimeError:
                 continue
-            bent = bend_course(out, course, patient.flexures)
-            if bent is None:
-                continue
-            found = bent
-            _write_course(stored, attempt, *found)
+            if not bend:
+                found = (course, len(acute_flexures(*course[:2])))
+            else:
+                found = bend_course(out, course, patient.flexures)
+                if found is None:
+                    continue
+                _write_course(stored, attempt, *found)
         course, built = found
-        patient = dataclasses.replace(patient, flexures_built=built)
+        patient = dataclasses.replace(patient, flexures_built=built if bend else None)
         if len(_RESOLVED) >= _KEEP_RESOLVED:
             _PATIENTS.pop(next(iter(_RESOLVED)), None)
             _RESOLVED.pop(next(iter(_RESOLVED)))
@@ -376,10 +382,11 @@ def bend_course(params: ColonParams, course: tuple, flexures: int):
     return (best[0], best[1], best[2], targets), best[3]
 
 
-def resolved_patient(params: ColonParams) -> Patient:
-    """The patient `resolve_population(params)` draws (the attempt the course could draw)."""
-    resolve_population(params)
-    return _PATIENTS[yaml_dump_typed(params)]
+def resolved_patient(params: ColonParams, bend: bool = True) -> Patient:
+    """The patient `resolve_population(params, bend)` draws (the attempt the course could
+    draw)."""
+    resolve_population(params, bend)
+    return _PATIENTS[yaml_dump_typed(params) + f"\nbend: {bend}"]
 
 
 def patient_label(params: ColonParams) -> str:
@@ -387,7 +394,7 @@ def patient_label(params: ColonParams) -> str:
     colon not drawn from the population."""
     if params.population is None:
         return ""
-    patient = resolved_patient(params)
+    patient = resolved_patient(params, bend=False)
     return f"{patient.sex}, {'redundant' if patient.redundant_sigmoid else 'normal'} sigmoid"
 
 

@@ -26,6 +26,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from .abdomen import Abdomen
+from .course import MIN_CLEARANCE, MIN_CURVATURE_RATIO, course_defects
 from .morphology import acute_flexures, turning_angles
 
 BEAD = 0.01
@@ -262,7 +263,6 @@ def add_flexures(s, points, boundaries, radius_of, abdomen: Abdomen, count: int,
     radius along a course; `allowed(s)` where new flexures may go (default: anywhere) and
     `weight(s)` how likely each place is (default: uniform). The segments keep their lengths
     (between `boundaries`)."""
-    from .course import MIN_CLEARANCE, MIN_CURVATURE_RATIO, course_defects
     s, points = np.asarray(s, dtype=float), np.asarray(points, dtype=float)
     boundaries = np.asarray(boundaries, dtype=float)
     sb, xb = _resample(s, points, BEAD)
