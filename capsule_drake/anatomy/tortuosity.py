@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
@@ -45,12 +44,6 @@ TURN_RANGE = (100.0, 125.0)
 """Turn of an added flexure [degrees] (U)."""
 KICK = 0.005
 """Sideways start of an added flexure [m]."""
-SMOOTHING = 0.0
-"""Gaussian smoothing of the relaxed beads before the curve is drawn through them [beads];
-0: none (measured on 18 patients: 13 made their count with none, 10 with 0.8 beads, fewer
-with 1.5; the curvature check catches the curves that overshoot)."""
-
-
 def _resample(s, points, step):
     n = int(round(s[-1] / step))
     sb = np.linspace(0.0, s[-1], n + 1)
@@ -218,19 +211,6 @@ def _relax(start, radius, windows, anchors, abdomen, rest, maxiter, tether_to):
     return x
 
 
-def _smooth(x, sigma=SMOOTHING):
-    """The beads smoothed along the chain (Gaussian, `sigma` beads; the ends odd-reflected
-    so they stay where they are): an interpolating spline through beads whose turn changes
-    abruptly overshoots, and a curve so smoothed does not."""
-    if sigma <= 0.0:
-        return x
-    pad = min(int(4 * sigma) + 1, len(x) - 1)
-    head = 2.0 * x[0] - x[pad:0:-1]
-    tail = 2.0 * x[-1] - x[-2:-pad - 2:-1]
-    return gaussian_filter1d(np.concatenate([head, x, tail]), sigma, axis=0,
-                             mode="nearest")[pad:pad + len(x)]
-
-
 def _arc(points, step):
     """(s, points) every ~`step` m of arc length along the spline through `points`."""
     chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0),
@@ -300,11 +280,11 @@ def add_flexures(s, points, boundaries, radius_of, abdomen: Abdomen, count: int,
     # The segments' ends stay near where the course put them; the cecum's pole may move.
     anchors = np.unique(np.clip(np.round(boundaries[:-1] / rest).astype(int), 0, len(sb) - 1))
     x = _relax(start, radius, windows, anchors, abdomen, rest, 10000, tether_to=xb)
-    # The smoothed curve through the beads is not as long as their chords: change the beads'
+    # The curve through the beads is not as long as their chords: change the beads'
     # spacing by as much and relax again from there.
-    longer = _arc(_smooth(x), step)[0][-1] / s[-1]
+    longer = _arc(x, step)[0][-1] / s[-1]
     x = _relax(x, radius, windows, anchors, abdomen, rest / longer, 3000, tether_to=xb)
-    s_out, p_out = _arc(_smooth(x), step)
+    s_out, p_out = _arc(x, step)
     b_out = boundaries * (s_out[-1] / boundaries[-1])
     ratio, clearance = course_defects(s_out, p_out, radius_of(s_out, b_out))
     if ratio < MIN_CURVATURE_RATIO or clearance < MIN_CLEARANCE:
