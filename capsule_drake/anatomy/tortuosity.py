@@ -170,15 +170,16 @@ class _Energy:
         room = self.radius + 0.012
         depth = self.abdomen.depth(x)
         short = np.maximum(room - depth, 0.0) / self.rest
-        if np.any(short > 0.0):
-            h = 1e-4
-            dx = (self.abdomen.depth(x + [h, 0, 0]) - self.abdomen.depth(x - [h, 0, 0])) / (2 * h)
-            dy = (self.abdomen.depth(x + [0, h, 0]) - self.abdomen.depth(x - [0, h, 0])) / (2 * h)
-            energy += w["contain"] * np.sum(short * short)
-            coef = -2.0 * w["contain"] * short / self.rest
-            g[:, 0] += coef * dx
-            g[:, 1] += coef * dy
-            g[:, 2] += coef * -1.0
+        under = np.flatnonzero(short)
+        if len(under):
+            h, xu, su = 1e-4, x[under], short[under]
+            dx = (self.abdomen.depth(xu + [h, 0, 0]) - self.abdomen.depth(xu - [h, 0, 0])) / (2 * h)
+            dy = (self.abdomen.depth(xu + [0, h, 0]) - self.abdomen.depth(xu - [0, h, 0])) / (2 * h)
+            energy += w["contain"] * np.sum(su * su)
+            coef = -2.0 * w["contain"] * su / self.rest
+            g[under, 0] += coef * dx
+            g[under, 1] += coef * dy
+            g[under, 2] -= coef
         low = np.maximum(room - x[:, 2], 0.0) / self.rest
         energy += w["contain"] * np.sum(low * low)
         g[:, 2] += -2.0 * w["contain"] * low / self.rest
