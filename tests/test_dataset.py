@@ -12,6 +12,7 @@ from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
 from capsule_drake.app.dataset import DatasetWriter, Stream, encode_depth, read_depth_png
+from capsule_drake.perception.lumen_truth import far_region
 
 
 class FrameClock(LeafSystem):
@@ -88,8 +89,12 @@ def test_writer_round_trip(tmp_path):
     assert len(seen) == 4 and seen[0][0].IsExactlyEqualTo(X_WC)
     np.testing.assert_array_equal(np.isinf(seen[0][1]), np.isinf(depth.data[:, :, 0]))
     lumen_rows = np.loadtxt(tmp_path / "lumen_truth.csv", delimiter=",", skiprows=1)
-    assert lumen_rows.shape == (4, 9)
-    np.testing.assert_allclose(lumen_rows[0, 2:], [100.5, 80.25, 1, 0.1, 0.2, 0.3, 0.4])
+    assert lumen_rows.shape == (4, 12)
+    np.testing.assert_allclose(lumen_rows[0, 2:9], [100.5, 80.25, 1, 0.1, 0.2, 0.3, 0.4])
+    # The image-side truth of the frame's own range inside the lens's field.
+    far = far_region(depth.data[:, :, 0], mask, 0.2)
+    np.testing.assert_allclose(lumen_rows[0, 9:11], far.pixel, atol=1e-3, equal_nan=True)
+    assert lumen_rows[0, 11] == int(far.visible)
     imu = np.loadtxt(tmp_path / "imu.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(imu[:, 0], 0.01 * np.arange(len(imu)), atol=1e-9)
     assert len(imu) == 35  # samples at 0, 0.01, ..., 0.34 s

@@ -78,7 +78,7 @@ def test_the_folder_has_what_its_readme_lists(folder):
                  "ground_truth.csv", "camera.yaml", "sensors.yaml"):
         assert (folder / name).exists() and f"`{name}`" in readme, name
     lumen = np.loadtxt(folder / "lumen_truth.csv", delimiter=",", skiprows=1)
-    assert lumen.shape == (6, 9) and lumen[:, 4].all()
+    assert lumen.shape == (6, 12) and lumen[:, 4].all()
     assert json.loads((folder / "metrics.json").read_text())["stopped_early"] is None
 
 

@@ -10,6 +10,7 @@ from capsule_drake.perception import photometry
 from capsule_drake.perception.evaluation import condition_frames, evaluate
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import LumenParams, detect_lumen_core, load_detector
+from capsule_drake.perception.lumen_truth import FAR_FRACTION, RIM_MARGIN, far_region
 from capsule_drake.perception.raycast import RayCaster, Shading
 
 from test_lumen import _field, _image
@@ -128,3 +129,77 @@ def test_core_detector_on_the_ray_casters_frames():
         assert summary["median_error"] < 0.04, (condition, summary)
         assert summary["detection_rate"] >= 0.75, (condition, summary)
         assert summary["false_positive_rate"] <= 0.25, (condition, summary)
+
+
+# --- The image-side lumen truth (perception/lumen_truth.py, far_region) -----------------------
+
+def _looking(angle_deg: float) -> RigidTransform:
+    """The camera on the tube's axis, its optical axis turned `angle_deg` from the tube's
+    axis (+z) toward +x."""
+    return RigidTransform(RotationMatrix.MakeYRotation(np.radians(angle_deg)), [0.0, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module", params=["pinhole", "fisheye"])
+def tube_lens_caster(request, tube_caster):
+    if request.param == "pinhole":
+        return tube_caster
+    tube = straight_tube(0.6, RADIUS, rings=121, around=256, start=-0.3)
+    return RayCaster(tube, LensConfig(width=129, height=129), far=0.2)
+
+
+def test_far_region_of_a_straight_tube_is_the_cone_around_its_axis(tube_lens_caster):
+    """Looking down a straight tube from its axis, the range at angle theta off the axis is
+    R / sin(theta) (capped at the clip), so the farthest tenth of the field is the cone
+    theta <= asin(R / cut) around the axis, centred on the principal point; a lumen in
+    view."""
+    caster = tube_lens_caster
+    range_image = caster.range_image(caster.cast(_looking(0.0)))
+    region = far_region(range_image, caster.field, caster.far)
+    centre = caster.lens.project(np.array([[0.0, 0.0, 1.0]]))[0][0]
+    np.testing.assert_allclose(region.pixel, centre, atol=0.5)
+    assert region.visible and region.rim_distance > 0.3
+    rays, field = caster.lens.pixel_rays()
+    theta = np.arccos(np.clip(rays[..., 2], -1.0, 1.0))
+    closed = np.minimum(RADIUS / np.maximum(np.sin(theta), 1e-12), caster.far)
+    cut = np.quantile(closed[field], 1.0 - FAR_FRACTION)
+    expected = field & (closed >= cut)
+    # Only pixels on the cone's edge (the 256-gon's flats) may differ.
+    assert np.sum(expected != region.mask) <= 0.1 * expected.sum()
+    assert expected.sum() == pytest.approx(FAR_FRACTION * field.sum(), rel=0.1)
+
+
+def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_caster):
+    """Turning the camera toward +x moves the far region toward the tube's axis in the image
+    (the mirror plane y = 0 keeps it on the principal row); facing the wall, the farthest
+    tenth is the tube's two ends at the rim: no lumen in view."""
+    caster = tube_lens_caster
+    centre = caster.lens.project(np.array([[0.0, 0.0, 1.0]]))[0][0]
+    last = centre[0]
+    for angle in (15.0, 30.0):
+        X_WC = _looking(angle)
+        region = far_region(caster.range_image(caster.cast(X_WC)), caster.field, caster.far)
+        axis_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
+        axis_pixel = caster.lens.project(axis_C[None, :])[0][0]
+        assert region.visible
+        assert region.pixel[1] == pytest.approx(centre[1], abs=0.5)
+        # Toward the axis's image, past the last turn's centre.
+        assert np.sign(region.pixel[0] - centre[0]) == np.sign(axis_pixel[0] - centre[0])
+        assert abs(region.pixel[0] - centre[0]) > abs(last - centre[0]) + 2.0
+        last = region.pixel[0]
+    wall = far_region(caster.range_image(caster.cast(_looking(90.0))), caster.field,
+                      caster.far)
+    assert not wall.visible and wall.rim_distance < RIM_MARGIN
+
+
+def test_far_region_counts_the_clip_as_far_and_a_flat_view_as_no_lumen():
+    field = np.ones((64, 64), dtype=bool)
+    range_image = np.full((64, 64), 0.03)
+    range_image[20:30, 30:44] = np.inf           # sees past the clip
+    range_image[0, :] = np.nan                   # unknown: not counted
+    region = far_region(range_image, field, far=0.2)
+    assert region.visible and region.range == pytest.approx(0.2)
+    np.testing.assert_allclose(region.pixel, [36.5, 24.5])
+    flat = far_region(np.full((64, 64), 0.03), field, far=0.2)
+    assert not flat.visible and np.all(np.isnan(flat.pixel))
+    with pytest.raises(ValueError, match="differ"):
+        far_region(np.zeros((4, 4)), np.ones((4, 5), dtype=bool), far=0.2)

@@ -53,6 +53,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 
 from capsule_drake.app.outputs import OutputError
+from capsule_drake.perception.lumen_truth import far_region
 
 # How long after a sample time the writer reads (s): just after the sensors' updates at that
 # time (Drake publishes before updating at the same time).
@@ -227,7 +228,8 @@ class DatasetWriter(LeafSystem):
         self._open("frames", "frames.csv", "index,time_s")
         if lumen_truth is not None:
             self._open("lumen", "lumen_truth.csv",
-                       "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m")
+                       "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m,far_u_px,far_v_px,"
+                       "far_visible")
         self._frames_written = 0
         self._last_frame_time = None
         # Just after the frame's delivery: at the tick itself a publish runs before the
@@ -305,8 +307,10 @@ class DatasetWriter(LeafSystem):
         if self._lumen_truth is not None:
             pixel, visible, point_W, s = self._lumen_truth(X_WC, depth)
             x, y, z = point_W
+            far = far_region(depth, mask, self._depth_full_scale)
             self._write("lumen", f"{index},{frame_time:.6f},{pixel[0]:.3f},{pixel[1]:.3f},"
-                                 f"{int(visible)},{x:.6f},{y:.6f},{z:.6f},{s:.6f}")
+                                 f"{int(visible)},{x:.6f},{y:.6f},{z:.6f},{s:.6f},"
+                                 f"{far.pixel[0]:.3f},{far.pixel[1]:.3f},{int(far.visible)}")
         self._frames_written += 1
         return EventStatus.Succeeded()
 

@@ -15,6 +15,7 @@ import yaml
 from pydrake.math import RigidTransform
 
 from capsule_drake.app.dataset import DEPTH_BEYOND, DEPTH_NONE, DEPTH_SCALE, quaternion_xyzw
+from capsule_drake.perception.lumen_truth import FAR_FRACTION, RIM_MARGIN
 
 
 @dataclasses.dataclass
@@ -291,7 +292,7 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         "|---|---|---|",
         "| `Frames/FrameBuffer_XXXX.png` | frame | colour image, 8-bit RGB (black outside the "
         "lens's image circle) |",
-        f"| `Frames/Depth_XXXX.png` | frame | 16-bit range image (below) |",
+        "| `Frames/Depth_XXXX.png` | frame | 16-bit range image (below) |",
         "| `mask.png` | (one) | 8-bit: 255 inside the lens's image circle (the pixels that see "
         "anything), 0 outside |",
         "| `frames.csv` | frame | `index, time_s`: the frame's number XXXX and its exposure "
@@ -361,10 +362,18 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         "",
         "### Lumen truth (`lumen_truth.csv`)",
         "",
-        "`index, time_s, u_px, v_px, visible, x_m, y_m, z_m, s_m`: the centreline point 5 cm "
+        "`index, time_s, u_px, v_px, visible, x_m, y_m, z_m, s_m, far_u_px, far_v_px, "
+        "far_visible`: the centreline point 5 cm "
         "ahead of the camera along the colon, (x, y, z) in W and s its arc length from the "
         "colon's anal end; (u, v) its pixel through the lens; visible = 1 when it is inside the "
         "field of view and not hidden by nearer tissue (checked against the frame's depth). "
+        "Then the image-side truth, read from the frame's range alone: (far_u, far_v) the "
+        f"range-weighted centre of the farthest {100 * FAR_FRACTION:g} % of the lens's field "
+        "(what sees past the "
+        "depth's full scale counts as that scale), far_visible = 1 when that centre lies at "
+        f"least {100 * RIM_MARGIN:g} % of the image diagonal inside the field's edge (a far "
+        "region hugging the rim "
+        "is the lumen's ends seen past a wall; NaN pixel when the view has no farther part). "
         "Computed from the frame's own pose and depth.",
     ]
     if "imu" in names:

@@ -9,8 +9,11 @@ random poses of two kinds: looking along the lumen (toward the cecum or the rect
 up to `max_tilt_deg`, off the centreline by up to half the radius) and facing the wall
 (the optical axis within 15 degrees of the wall's normal, the camera 40-80 % of the
 radius toward that wall).
-The truth is the station's: the centreline point `lookahead` ahead, through the lens,
-visible unless outside the field or hidden behind nearer tissue.
+Two truths per frame. The image-side truth, which a detector is scored against first, is
+the principle's own definition read from the frame's range image (`lumen_truth.far_region`:
+the range-weighted centre of the farthest tenth of the field, a lumen in view unless it hugs
+the field's rim). The station's truth is the second column: the centreline point `lookahead`
+ahead, through the lens, visible unless outside the field or hidden behind nearer tissue.
 """
 
 import dataclasses
@@ -27,7 +30,7 @@ from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.capsule.camera import CameraConfig, LensRenderer
 from capsule_drake.perception import photometry
 from capsule_drake.perception.lumen import detection_problem
-from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
+from capsule_drake.perception.lumen_truth import far_region, lumen_target, project_lumen
 from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 from capsule_drake.perception.views import camera_scene
 
@@ -49,8 +52,10 @@ class Frame:
     kind: str                 # "lumen" or "wall"
     rgb: np.ndarray           # (H, W, 3) uint8
     field: np.ndarray         # (H, W) bool, pixels the lens sees
-    truth_pixel: np.ndarray   # (2,)
+    truth_pixel: np.ndarray   # (2,) the centreline point `lookahead` ahead
     truth_visible: bool
+    far_pixel: np.ndarray     # (2,) the image-side truth (lumen_truth.far_region)
+    far_visible: bool
 
 
 def _rotation_with_z(z: np.ndarray, rng) -> RotationMatrix:
@@ -133,6 +138,7 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
             point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
                                     lookahead)
             pixel, visible = project_lumen(lens_model, X_WC, point, depth)
+            far = far_region(depth, field, config.far)
             for n, condition in enumerate(conditions):
                 draw = np.random.default_rng([seed, done, n])
                 image_condition = condition
@@ -144,7 +150,7 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
                     image_condition = "nominal" if group is not None else condition
                 image = photometry.apply(image_condition, rgb, field, draw)
                 out[condition].append(Frame(colon_params.seed, float(s), kind, image, field,
-                                            pixel, bool(visible)))
+                                            pixel, bool(visible), far.pixel, far.visible))
             done += 1
             if progress is not None:
                 progress(done)
@@ -199,12 +205,14 @@ class EvalResult:
     frames: list[Frame]
     detections: list
     milliseconds: np.ndarray     # (N,) detector time per frame
-    errors: np.ndarray           # (N,) px where both visible, else NaN
+    errors: np.ndarray           # (N,) px from the image-side truth where both visible, else NaN
     diagonal: float
+    errors_ahead: np.ndarray | None = None   # (N,) px from the point ahead, likewise
 
     @property
     def truth_visible(self) -> np.ndarray:
-        return np.array([f.truth_visible for f in self.frames])
+        """Whether each frame has a lumen in view (the image-side truth)."""
+        return np.array([f.far_visible for f in self.frames], dtype=bool)
 
     @property
     def detected(self) -> np.ndarray:
@@ -214,6 +222,9 @@ class EvalResult:
         visible = self.truth_visible
         detected = self.detected
         fraction = self.errors[np.isfinite(self.errors)] / self.diagonal
+        ahead = (self.errors_ahead if self.errors_ahead is not None
+                 else np.full(len(self.frames), np.nan))
+        ahead = ahead[np.isfinite(ahead)] / self.diagonal
         return {
             "frames": len(self.frames),
             "lumen_visible": int(visible.sum()),
@@ -224,6 +235,9 @@ class EvalResult:
             "false_positive_rate": (float(detected[~visible].mean()) if (~visible).any()
                                     else float("nan")),
             "ms_per_frame": float(np.median(self.milliseconds)),
+            "ahead_visible": int(sum(f.truth_visible for f in self.frames)),
+            "median_error_ahead": float(np.median(ahead)) if len(ahead) else float("nan"),
+            "p90_error_ahead": float(np.percentile(ahead, 90)) if len(ahead) else float("nan"),
         }
 
     def table(self, name: str = "detector") -> str:
@@ -261,33 +275,46 @@ def undefined_reasons(summary: dict) -> list[str]:
 
 ACCEPTANCE = {"median_error": 0.015, "p90_error": 0.04, "detection_rate": 0.95,
               "false_positive_rate": 0.10}
-"""What a detector must reach on every condition: median and 90th-percentile error (fraction
-of the diagonal) at most, detection (of lumen-visible frames) at least, false positives (of
-frames without a visible lumen) at most."""
+"""What a detector must reach on every condition against the image-side truth: median and
+90th-percentile error (fraction of the diagonal) at most, detection (of frames with a lumen
+in view) at least, false positives (of frames without one) at most."""
+ACCEPTANCE_AHEAD = {"fisheye": {"median_error_ahead": 0.015, "p90_error_ahead": 0.05},
+                    "pinhole": {"median_error_ahead": 0.03, "p90_error_ahead": 0.08}}
+"""Against the centreline point 5 cm ahead, per lens: the ideal of the principle itself
+misses it by a median 1.2 % and a p90 of 4.4 % of the diagonal on the fisheye, 2.4-3.2 % and
+7.1-9.1 % on the 120-degree pinhole (benchmarks/lumen_truth_ceiling.py), so the targets sit
+just above that ceiling."""
 
 
-def meets(summary: dict) -> bool:
-    """Whether a summary meets ACCEPTANCE (an undefined rate, no frame of its kind, passes)."""
-    def ok(key, at_most):
-        value = summary[key]
-        return not np.isfinite(value) or (value <= ACCEPTANCE[key] if at_most
-                                          else value >= ACCEPTANCE[key])
-    return (ok("median_error", True) and ok("p90_error", True)
-            and ok("detection_rate", False) and ok("false_positive_rate", True))
+def meets(summary: dict, lens: str | None = None) -> bool:
+    """Whether a summary meets ACCEPTANCE, and ACCEPTANCE_AHEAD of `lens` ("fisheye" or
+    "pinhole") when given (an undefined score, no frame of its kind, passes)."""
+    targets = dict(ACCEPTANCE, **ACCEPTANCE_AHEAD.get(lens, {}))
+
+    def ok(key):
+        value = summary.get(key, float("nan"))
+        at_most = key != "detection_rate"
+        return not np.isfinite(value) or (value <= targets[key] if at_most
+                                          else value >= targets[key])
+    return all(ok(key) for key in targets)
 
 
-def condition_table(summaries: dict, title: str) -> str:
-    """A Markdown table of per-condition summaries ({condition: summary})."""
+def condition_table(summaries: dict, title: str, lens: str | None = None) -> str:
+    """A Markdown table of per-condition summaries ({condition: summary}): the scores against
+    the image-side truth, then the errors from the point 5 cm ahead; "meets" with `lens`'s
+    targets for the latter."""
     rows = [f"{title}", "",
             "| condition | frames | median error | p90 error | detected | false positives "
-            "| ms/frame | meets |", "|---|---|---|---|---|---|---|---|"]
+            "| 5 cm point: median / p90 | ms/frame | meets |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for condition, s in summaries.items():
         rows.append(
             f"| {condition} | {s['frames']} | {_percent(s['median_error'], 1)} | "
             f"{_percent(s['p90_error'], 1)} | {_percent(s['detection_rate'], 1)} (of "
             f"{s['lumen_visible']}) | {_percent(s['false_positive_rate'], 1)} (of "
-            f"{s['lumen_hidden']}) | {s['ms_per_frame']:.2f} | "
-            f"{'yes' if meets(s) else '**no**'} |")
+            f"{s['lumen_hidden']}) | {_percent(s.get('median_error_ahead', np.nan), 1)} / "
+            f"{_percent(s.get('p90_error_ahead', np.nan), 1)} | {s['ms_per_frame']:.2f} | "
+            f"{'yes' if meets(s, lens) else '**no**'} |")
     notes = [f"n/a in {condition}: {'; '.join(undefined_reasons(s))}"
              for condition, s in summaries.items() if undefined_reasons(s)]
     if notes:
@@ -332,7 +359,7 @@ def evaluate(frames: list[Frame], detector, name: str = "detector",
     (e.g. the image path and condition), its kind, colon and place) when the detector
     raises, or returns something that breaks the detector contract (None, NaN, a pixel
     that is not (u, v), ...: `detection_problem`)."""
-    detections, milliseconds, errors = [], [], []
+    detections, milliseconds, errors, ahead = [], [], [], []
     for index, frame in enumerate(frames):
         start = time.perf_counter()
         try:
@@ -350,18 +377,20 @@ def evaluate(frames: list[Frame], detector, name: str = "detector",
                                 f"{describe_frame(frames, index, where)}")
         detections.append(detection)
         pixel = np.asarray(getattr(detection, "pixel", [np.nan, np.nan]), dtype=float)
-        if frame.truth_visible and detection.visible and np.all(np.isfinite(pixel)):
-            errors.append(float(np.linalg.norm(pixel - frame.truth_pixel)))
-        else:
-            errors.append(float("nan"))
+        found = bool(detection.visible) and bool(np.all(np.isfinite(pixel)))
+        errors.append(float(np.linalg.norm(pixel - frame.far_pixel))
+                      if found and frame.far_visible else float("nan"))
+        ahead.append(float(np.linalg.norm(pixel - frame.truth_pixel))
+                     if found and frame.truth_visible else float("nan"))
     h, w = frames[0].rgb.shape[:2] if frames else (1, 1)
     return EvalResult(frames, detections, np.array(milliseconds), np.array(errors),
-                      float(np.hypot(w, h)))
+                      float(np.hypot(w, h)), np.array(ahead))
 
 
 def annotated_sheet(result: EvalResult, count: int = 16, columns: int = 4) -> np.ndarray:
     """Up to `count` frames tiled (RGB): detected region outlined in blue, detected centre
-    as a blue circle, truth as a green cross (visible) and the frame's kind and error."""
+    as a blue circle, the image-side truth as a green cross and the point 5 cm ahead as a
+    small yellow one (each where in view), and the frame's kind and error."""
     tiles = []
     for frame, detection, error in list(zip(result.frames, result.detections,
                                             result.errors))[:count]:
@@ -371,15 +400,18 @@ def annotated_sheet(result: EvalResult, count: int = 16, columns: int = 4) -> np
             contours, _ = cv2.findContours((np.asarray(region) > 0).astype(np.uint8),
                                            cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
             cv2.drawContours(tile, contours, -1, (80, 160, 255), 1)
-        if frame.truth_visible:
-            cv2.drawMarker(tile, tuple(int(round(x)) for x in frame.truth_pixel), (0, 255, 0),
+        if frame.truth_visible:   # the point 5 cm ahead: a small yellow cross
+            cv2.drawMarker(tile, tuple(int(round(x)) for x in frame.truth_pixel),
+                           (255, 230, 0), cv2.MARKER_CROSS, 9, 1)
+        if frame.far_visible:     # the image-side truth: a green cross
+            cv2.drawMarker(tile, tuple(int(round(x)) for x in frame.far_pixel), (0, 255, 0),
                            cv2.MARKER_CROSS, 18, 2)
         if detection.visible:
             cv2.circle(tile, tuple(int(round(x)) for x in detection.pixel), 7,
                        (60, 120, 255), 2)
         label = f"{frame.kind} s={100 * frame.s:.0f}cm"
         label += f" err {error:.0f}px" if np.isfinite(error) else (
-            " no lumen" if not detection.visible else " FP" if not frame.truth_visible
+            " no lumen" if not detection.visible else " FP" if not frame.far_visible
             else "")
         cv2.putText(tile, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1,
                     cv2.LINE_AA)

@@ -1,5 +1,11 @@
-"""LumenTruth: where the lumen really is in the capsule camera's image."""
+"""Where the lumen really is in the capsule camera's image: LumenTruth, the centreline point
+a fixed distance ahead through the lens; and `far_region`, the image-side truth read from the
+view's range image (the seed's principle, "the darkest region is the lumen when the light is at
+the camera", at its ideal: the farthest part of the view)."""
 
+import dataclasses
+
+import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
@@ -49,6 +55,78 @@ def project_lumen(lens, X_WC: RigidTransform, point_W, depth=None, depth_is_rang
         if np.isfinite(seen) and seen < expected - tolerance:
             return pixel, False
     return pixel, True
+
+
+FAR_FRACTION = 0.10
+"""The far region is the farthest tenth of the lens's field (`far_region`). Chosen from
+benchmarks/lumen_truth_ceiling.py's sweep of 2-20 % (seeds 100-104): the tenth lands nearest
+the centreline point 5 cm ahead on the default fisheye (median 1.2 %, p90 4.4 % of the
+diagonal; 5 %: 1.7 / 4.7 %, 20 %: 2.6 / 8.2 %)."""
+RIM_MARGIN = 0.08
+"""The lumen is in view when the far region's centre lies at least this share of the image
+diagonal inside the lens's field. Facing the wall, the farthest tenth is the lumen's two
+ends grazing the rim of a wide lens, thin crescents whose centres lie 2-7 % of the
+diagonal inside it (ray-cast range images of the evaluation's wall-facing poses, colon seeds
+0-4: 90th percentile 6.6 % on the fisheye, 9.2 % on the pinhole); looking along the lumen,
+its centre lies 15-31 % inside (5th-95th percentile, fisheye; 10-31 % pinhole)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FarRegion:
+    """The image-side lumen truth of one view (`far_region`)."""
+
+    pixel: np.ndarray     # (u, v): the range-weighted centroid of the far region
+    visible: bool         # whether that is a lumen in view (RIM_MARGIN)
+    mask: np.ndarray      # (H, W) bool: the far region
+    rim_distance: float   # its centre's distance inside the field's edge, share of the diagonal
+    range: float          # its mean range (m, at most `far`)
+
+
+def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
+               rim: float = RIM_MARGIN) -> FarRegion:
+    """The farthest part of the view, from its range image: the definition every lumen score
+    against the image (`eval-lumen`, datasets' `lumen_far_px`) uses.
+
+    - Ranges: a pixel that sees nothing within `far` (+inf) counts as `far`: the open lumen
+      beyond the camera's clip; a surface nearer than the near plane (0) as 0; a NaN, like a
+      pixel outside the lens's `field`, does not count. Ranges are capped at `far`.
+    - The far set: the field's pixels at or beyond the (1 - `fraction`) quantile of its
+      ranges (every pixel at `far` when more than `fraction` of them see beyond the clip;
+      when that quantile is the nearest range, as where a small window sees past a flat
+      wall, the pixels farther than the nearest).
+    - The far region: the set's 8-connected component with the largest sum of ranges; its
+      pixel is the range-weighted centroid of that component.
+    - In view: the pixel lies at least `rim` of the image diagonal inside the field's edge
+      (a region hugging the rim is the lumen's ends seen sideways past the wall, not a
+      lumen ahead). A view whose ranges are all equal (nothing farther) has none.
+    """
+    r = np.asarray(range_image, dtype=float)
+    field = np.asarray(field, dtype=bool)
+    if r.shape != field.shape:
+        raise ValueError(f"far_region: range image {r.shape} and field {field.shape} differ")
+    counted = field & ~np.isnan(r)
+    r = np.clip(np.nan_to_num(r, nan=0.0, posinf=far), 0.0, far)
+    empty = FarRegion(np.array([np.nan, np.nan]), False, np.zeros_like(field), 0.0, 0.0)
+    if not counted.any():
+        return empty
+    values = r[counted]
+    cut, nearest = np.quantile(values, 1.0 - fraction), np.min(values)
+    far_set = counted & ((r >= cut) if cut > nearest else (r > nearest))
+    if not far_set.any():
+        return empty
+    far_set = far_set.astype(np.uint8)
+    count, labels = cv2.connectedComponents(far_set, connectivity=8)
+    mass = np.bincount(labels.ravel(), weights=r.ravel(), minlength=count)
+    mask = labels == 1 + int(np.argmax(mass[1:]))
+    v, u = np.nonzero(mask)
+    w = r[v, u]
+    pixel = np.array([np.sum(u * w), np.sum(v * w)]) / np.sum(w)
+    diagonal = float(np.hypot(*field.shape))
+    inside = cv2.distanceTransform(np.pad(field.astype(np.uint8), 1), cv2.DIST_L2,
+                                   cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    row, column = int(round(pixel[1])), int(round(pixel[0]))
+    depth_in = float(inside[row, column]) / diagonal
+    return FarRegion(pixel, depth_in >= rim, mask, depth_in, float(np.mean(w)))
 
 
 class LumenTruth(LeafSystem):
