@@ -9,6 +9,9 @@ from the ray caster (perception/raycast.py) with its nominal shading. The other 
 are kept for scoring (`capsule-sim eval-lumen`), so that the figures in the README are
 measured on what was not tuned on.
 
+Both steps score against the image-side truth (perception/lumen_truth.py, `far_region`: the
+centre of the farthest part of the view, from the frame's range image).
+
 1. `core_sigma`, `core_level` and `core_radius` by a grid search for the smallest
    90th-percentile error, the worse of the two renderers', over the frames whose lumen is in
    view;
@@ -36,9 +39,9 @@ def features_and_errors(frames, params):
         rows.append([detection.features.get(name, 0.0) for name in CORE_FEATURES])
         centre = detection.features.get("centre", np.full(2, np.nan))
         diagonal = float(np.hypot(*frame.rgb.shape[:2]))
-        errors.append(float(np.linalg.norm(centre - frame.truth_pixel)) / diagonal
-                      if frame.truth_visible else np.nan)
-        visible.append(frame.truth_visible)
+        errors.append(float(np.linalg.norm(centre - frame.far_pixel)) / diagonal
+                      if frame.far_visible else np.nan)
+        visible.append(frame.far_visible)
     return np.array(rows), np.array(errors), np.array(visible)
 
 

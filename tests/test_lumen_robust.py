@@ -107,10 +107,30 @@ def test_core_detector_rejects_a_view_facing_the_wall():
     assert not detect_lumen_core(rgb, _field()).visible
 
 
+def test_core_detector_seeks_the_lumen_in_a_basin_inside_the_rim_margin():
+    """A narrow spot light leaves the rim, and the field well inside it, darker than the
+    lumen: the darkest point anywhere, or anywhere inside the image-side truth's margin, is
+    not the hole; the darkest basin inside the margin is."""
+    v, u = np.mgrid[0:256, 0:256].astype(float)
+    r = np.hypot(u - 127.5, v - 127.5) / 128.0
+    spot = np.exp(-3.0 * r ** 2)
+    hole = 1.0 - 0.8 * np.exp(-0.5 * (np.hypot(u - 150.0, v - 110.0) / 20.0) ** 2)
+    red = (250.0 * spot * hole + np.random.default_rng(0).normal(0, 2, r.shape)).clip(0, 255)
+    rgb = np.stack([red, 0.55 * red, 0.5 * red], -1).astype(np.uint8)
+    hole_at = np.array([150.0, 110.0])
+    for margin, basin, found in ((0.0, 0.0, False), (RIM_MARGIN, 0.0, False),
+                                 (RIM_MARGIN, 0.1, True)):
+        centre = detect_lumen_core(rgb, _field(), LumenParams(
+            core_rim_margin=margin, core_basin=basin)).features["centre"]
+        assert (np.linalg.norm(centre - hole_at) < 8.0) == found, (margin, basin, centre)
+
+
 def test_core_params_are_checked():
     from capsule_drake.perception.lumen import check_lumen_params
     for bad in (dict(core_sigma=0.0), dict(core_level=1.5), dict(core_radius=0.0),
-                dict(confidence_weights=[1.0, 2.0]), dict(core_work_size=4)):
+                dict(confidence_weights=[1.0, 2.0]), dict(core_work_size=4),
+                dict(core_rim_margin=-0.1), dict(core_rim_margin=0.5),
+                dict(core_basin=-0.1)):
         with pytest.raises(ValueError, match="lumen detector"):
             check_lumen_params(LumenParams(**bad))
 

@@ -89,6 +89,16 @@ class LumenParams:
     # ... and within this fraction of the field's radius of the darkest point (a dark
     # periphery joined to the lumen does not pull the centre outward).
     core_radius: float = 0.45
+    # The darkest point is sought only this far inside the field's edge, as a share of the
+    # image diagonal (0: anywhere but the edge's own pixels). A lumen whose centre lies
+    # nearer the rim is, by the image-side truth's definition, not in view
+    # (perception/lumen_truth.py, RIM_MARGIN), and an unlit periphery is darker than it.
+    core_rim_margin: float = 0.0
+    # The darkest point must be a basin: the lowest of the blurred log intensity within this
+    # fraction of the working image's longest side around it (0: the darkest point
+    # anywhere). Light falling off toward a wall-facing view's rim, or outside a narrow
+    # spot, darkens toward the edge of the search without a basin; the lumen is one.
+    core_basin: float = 0.0
     # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
     # benchmarks/tune_lumen.py on colon seeds 0-4 only: the simulator's frames under the
     # nominal, noise and exposure conditions and the ray caster's under its nominal light;
@@ -126,6 +136,11 @@ def check_lumen_params(params: LumenParams) -> None:
         raise ValueError(f"lumen detector core_sigma {params.core_sigma} must be in (0, 0.5]")
     if not 0.0 < params.core_radius <= 1.0:
         raise ValueError(f"lumen detector core_radius {params.core_radius} must be in (0, 1]")
+    if not 0.0 <= params.core_basin <= 0.5:
+        raise ValueError(f"lumen detector core_basin {params.core_basin} must be in [0, 0.5]")
+    if not 0.0 <= params.core_rim_margin <= 0.3:
+        raise ValueError(f"lumen detector core_rim_margin {params.core_rim_margin} must be "
+                         "in [0, 0.3]")
     if not 0.0 < params.core_level <= 1.0:
         raise ValueError(f"lumen detector core_level {params.core_level} must be in (0, 1]")
     if (len(params.confidence_weights) != len(CORE_FEATURES) + 1
@@ -418,9 +433,20 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     log = masked_blur(np.log(work + 6.0), mask, params.core_sigma * max(size))
     kernel = np.ones((3, 3), np.uint8)
     inner = cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
-    if not inner.any():
+    search = inner
+    if params.core_rim_margin > 0.0:
+        edge = cv2.distanceTransform(np.pad(inside.astype(np.uint8), 1), cv2.DIST_L2,
+                                     cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+        search = inner & (edge >= params.core_rim_margin * float(np.hypot(*size)))
+    if params.core_basin > 0.0:
+        reach = max(1, round(params.core_basin * max(size)))
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+        level = np.where(inside, log, 1e6).astype(np.float32)
+        lowest = cv2.erode(level, disc, borderType=cv2.BORDER_CONSTANT, borderValue=1e6)
+        search = search & (level <= lowest)
+    if not search.any():
         return LumenDetection.nothing(rgb.shape)
-    darkest = np.unravel_index(int(np.argmin(np.where(inner, log, np.inf))), log.shape)
+    darkest = np.unravel_index(int(np.argmin(np.where(search, log, np.inf))), log.shape)
     low = float(log[darkest])
     median = float(np.median(log[inside]))
     depth = median - low
