@@ -130,7 +130,7 @@ def test_core_params_are_checked():
     for bad in (dict(core_sigma=0.0), dict(core_level=1.5), dict(core_radius=0.0),
                 dict(confidence_weights=[1.0, 2.0]), dict(core_work_size=4),
                 dict(core_rim_margin=-0.1), dict(core_rim_margin=0.5),
-                dict(core_basin=-0.1)):
+                dict(core_basin=-0.1), dict(core_quantile=0.9)):
         with pytest.raises(ValueError, match="lumen detector"):
             check_lumen_params(LumenParams(**bad))
 
@@ -223,3 +223,22 @@ def test_far_region_counts_the_clip_as_far_and_a_flat_view_as_no_lumen():
     assert not flat.visible and np.all(np.isnan(flat.pixel))
     with pytest.raises(ValueError, match="differ"):
         far_region(np.zeros((4, 4)), np.ones((4, 5), dtype=bool), far=0.2)
+
+
+def test_core_quantile_finds_the_far_region_under_inverse_square_light(tube_lens_caster):
+    """Light at the lens and nothing else (intensity ~ 1 / range^2 of the straight tube's
+    exact range image): the darkest tenth is the farthest tenth, and the core detector's
+    quantile core, weighted by intensity^-1/2, lands on the image-side truth's centre
+    within 1.5 % of the diagonal (its working image is a quarter of the frame's size)."""
+    caster = tube_lens_caster
+    params = LumenParams(core_quantile=FAR_FRACTION, core_sigma=0.02, core_radius=1.0,
+                         core_work_size=64)
+    for angle in (0.0, 20.0):
+        range_image = caster.range_image(caster.cast(_looking(angle)))
+        r = np.where(np.isfinite(range_image), range_image, caster.far)
+        grey = np.where(caster.field, 250.0 * np.minimum((0.03 / r) ** 2, 1.0), 0.0)
+        rgb = np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
+        found = detect_lumen_core(rgb, caster.field, params).features["centre"]
+        truth = far_region(range_image, caster.field, caster.far).pixel
+        diagonal = np.hypot(*caster.field.shape)
+        assert np.linalg.norm(found - truth) / diagonal < 0.015, (angle, found, truth)

@@ -99,6 +99,11 @@ class LumenParams:
     # anywhere). Light falling off toward a wall-facing view's rim, or outside a narrow
     # spot, darkens toward the edge of the search without a basin; the lumen is one.
     core_basin: float = 0.0
+    # The core as the image-side truth's far region is made (0: by `core_level`): the
+    # darkest `core_quantile` of the field's blurred log intensity connected to the darkest
+    # point, weighted by intensity^-1/2 (the range, were all light the lens's own falling
+    # off as the inverse square).
+    core_quantile: float = 0.0
     # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
     # benchmarks/tune_lumen.py on colon seeds 0-4 only: the simulator's frames under the
     # nominal, noise and exposure conditions and the ray caster's under its nominal light;
@@ -136,6 +141,9 @@ def check_lumen_params(params: LumenParams) -> None:
         raise ValueError(f"lumen detector core_sigma {params.core_sigma} must be in (0, 0.5]")
     if not 0.0 < params.core_radius <= 1.0:
         raise ValueError(f"lumen detector core_radius {params.core_radius} must be in (0, 1]")
+    if not 0.0 <= params.core_quantile <= 0.5:
+        raise ValueError(f"lumen detector core_quantile {params.core_quantile} must be in "
+                         "[0, 0.5]")
     if not 0.0 <= params.core_basin <= 0.5:
         raise ValueError(f"lumen detector core_basin {params.core_basin} must be in [0, 0.5]")
     if not 0.0 <= params.core_rim_margin <= 0.3:
@@ -451,6 +459,8 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     median = float(np.median(log[inside]))
     depth = median - low
     cut = low + params.core_level * max(depth, 1e-6)
+    if params.core_quantile > 0.0:
+        cut = max(float(np.quantile(log[inside], params.core_quantile)), low + 1e-6)
     below = (log <= cut) & inside
     field_radius = np.sqrt(inside.sum() / np.pi)
     if params.core_radius < 1.0:
@@ -461,7 +471,10 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     _, labels = cv2.connectedComponents(below, connectivity=8)
     core = labels == labels[darkest]
     v, u = np.nonzero(core)
-    weights = cut - log[core] + 1e-3
+    # Range-like weights for the quantile's core (light at the lens falls off as the
+    # square of the range: range ~ intensity^-1/2), else depth below the cut.
+    weights = (np.exp(-0.5 * (log[core] - low)) if params.core_quantile > 0.0
+               else cut - log[core] + 1e-3)
     centre_work = np.array([np.sum(u * weights), np.sum(v * weights)]) / np.sum(weights)
     pixel = (centre_work + 0.5) * scale - 0.5
 
