@@ -37,7 +37,9 @@ from pydrake.geometry import (
 from pydrake.multibody.parsing import Parser
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
+from pydrake.common import RandomDistribution
 
 from capsule_drake.anatomy import colon_assets
 from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
@@ -45,7 +47,7 @@ from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.lifetime import weak_method
-from capsule_drake.perception import Lens, LensConfig
+from capsule_drake.perception import Lens, LensConfig, photometry
 from capsule_drake.perception.lumen_truth import add_lumen_truth
 from capsule_drake.scene import block
 from capsule_drake.schema import need_range
@@ -124,6 +126,17 @@ class CameraConfig:
     # With latency > 0: draw frames in a process of their own (capsule/render_worker.py),
     # on another core while the simulation runs on; the images are the same either way.
     render_process: bool = True
+    # Image conditions a frame meets before it leaves the camera (perception/photometry.py):
+    # "nominal" (none), one of exposure, gamma, noise, motion_blur, vignetting, colour_cast,
+    # compression, bubbles, everything (each with its strength drawn per frame), or "all": a
+    # condition drawn per frame from all of these and nominal. The draws come from the
+    # scenario's random_seed (a RandomSource sampled at the camera's tick), so a run can be
+    # repeated; the depth image is never degraded.
+    conditions: str = "nominal"
+
+
+CAMERA_CONDITIONS = ("nominal",) + tuple(photometry.CONDITIONS)
+"""What `CameraConfig.conditions` may name, besides "all"."""
 
 
 def camera_tick(config: CameraConfig) -> float:
@@ -173,6 +186,9 @@ def check_camera_config(config: CameraConfig) -> None:
                    "at 2 cm along a 1.5 m colon")
     need_range(config.face_resolution_scale, "face_resolution_scale", "[0.05, 4]", "",
                "1 = the lens's sharpest sampling")
+    if config.conditions not in CAMERA_CONDITIONS + ("all",):
+        raise ValueError(f"camera conditions {config.conditions!r} is not one of "
+                         f"{', '.join(CAMERA_CONDITIONS)} or all")
     if not (math.isfinite(config.latency) and config.latency >= 0.0):
         raise ValueError(f"camera latency {config.latency} must be >= 0 and finite")
     lens_config = config.lens
@@ -496,13 +512,18 @@ class CapsuleCamera(LeafSystem):
         name: CapsuleCamera
         input_ports:
         - query_object
+        - condition_draw (with config.conditions other than nominal)
         output_ports:
         - rgb_image
         - depth_image
         - frame_info
         - frame_pose
 
-    rgb_image: ImageRgba8U (H x W); black outside the lens's image circle.
+    condition_draw: two uniform numbers in [0, 1) read at each frame (a RandomSource at
+    the camera's tick): which image condition of `config.conditions` the frame meets, and
+    the seed of its strengths (`condition_of`).
+    rgb_image: ImageRgba8U (H x W); black outside the lens's image circle; with its image
+    condition applied.
     depth_image: ImageDepth32F (H x W), metres of RANGE along each pixel's ray from the
     camera centre (not z-depth: beyond 90 degrees z-depth is meaningless); +inf beyond `far`
     and outside the image circle, 0 nearer than `near`. Stays +inf if render_depth is off.
@@ -548,6 +569,12 @@ class CapsuleCamera(LeafSystem):
 
         self._query_object_port = self.DeclareAbstractInputPort(
             "query_object", AbstractValue.Make(QueryObject()))
+        # Image conditions: two uniform draws per frame (which condition, its strengths).
+        self._conditions = c.conditions
+        self._draw_port = None
+        if self._conditions != "nominal":
+            self._draw_port = self.DeclareVectorInputPort("condition_draw", 2)
+            self._field = self._renderer.lens.pixel_rays()[1]
         rgb = ImageRgba8U(W, H)
         depth = ImageDepth32F(W, H)
         depth.mutable_data[...] = np.inf
@@ -645,6 +672,22 @@ class CapsuleCamera(LeafSystem):
             self._renderer.render_range(query_object, self._parent_frame, self._X_PC,
                                         out=depth.mutable_data[..., 0], renderer=renderer)
 
+    def condition_of(self, draw) -> tuple[str, np.random.Generator]:
+        """The condition a frame meets and the generator of its strengths, from the two
+        uniform numbers `draw` of its condition_draw input."""
+        name = self._conditions
+        if name == "all":
+            name = CAMERA_CONDITIONS[min(int(draw[0] * len(CAMERA_CONDITIONS)),
+                                         len(CAMERA_CONDITIONS) - 1)]
+        return name, np.random.default_rng(int(draw[1] * 2**32) % 2**32)
+
+    def _degrade(self, context, rgb: np.ndarray) -> None:
+        """Applies the frame's image condition to the RGBA buffer `rgb` in place."""
+        if self._draw_port is None:
+            return
+        name, rng = self.condition_of(self._draw_port.Eval(context))
+        rgb[..., :3] = photometry.apply(name, rgb[..., :3].copy(), self._field, rng)
+
     def _view_at(self, pose):
         """(X_WC, renderer name) of a camera pose [R_WC (9), p_WC (3)]."""
         X_WC = RigidTransform(RotationMatrix(pose[:9].reshape(3, 3)), pose[9:])
@@ -701,6 +744,8 @@ class CapsuleCamera(LeafSystem):
     def _initialize(self, context, state):
         query_object = self._query_object_port.Eval(context)
         self._capture(query_object, state)
+        self._degrade(context, state.get_mutable_abstract_state(
+            self._rgb_index).get_mutable_value().mutable_data)
         t = context.get_time()
         rate = self._config.fps_min if self._adaptive else self._config.fps
         state.get_mutable_discrete_state(self._info_index).set_value([t, 1.0, 1.0, rate])
@@ -728,6 +773,8 @@ class CapsuleCamera(LeafSystem):
             delivered = False
         elif take:
             self._capture(query_object, state, pose_now)
+            self._degrade(context, state.get_mutable_abstract_state(
+                self._rgb_index).get_mutable_value().mutable_data)
             t_last, count = t, count + 1.0
         state.get_mutable_discrete_state(self._info_index).set_value(
             [t_last, count, 1.0 if delivered else 0.0, rate])
@@ -742,6 +789,7 @@ class CapsuleCamera(LeafSystem):
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         if self._worker is None or not self._worker.collect(pose, rgb.mutable_data):
             self._draw_at(self._query_object_port.Eval(context), pose, rgb.mutable_data)
+        self._degrade(context, rgb.mutable_data)
         state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose)
         _, count, _, rate = context.get_discrete_state(self._info_index).value()
         state.get_mutable_discrete_state(self._info_index).set_value(
@@ -852,6 +900,10 @@ def add_camera(builder, parts, config: CameraConfig):
         plant, camera_frame, config, parts.renderer_for, static_scene=static, worker=worker))
     builder.Connect(parts.scene_graph.get_query_output_port(),
                     camera.get_query_object_input_port())
+    if config.conditions != "nominal":   # the draws of the frames' image conditions
+        draws = builder.AddNamedSystem("capsule.camera.condition_draws", RandomSource(
+            RandomDistribution.kUniform, 2, camera.tick()))
+        builder.Connect(draws.get_output_port(), camera.GetInputPort("condition_draw"))
     for name in ("rgb_image", "depth_image", "frame_info", "frame_pose"):
         parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
     add_lumen_truth(builder, parts, camera)
