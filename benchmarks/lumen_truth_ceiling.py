@@ -7,7 +7,8 @@ farthest part of the view, taken from the range image itself (no shading, no det
 With the light at the camera, the darkest region is the farthest one. This script takes that
 principle at its ideal: for each of the evaluation's seeded poses (`evaluation.seeded_poses`,
 the frames `capsule-sim eval-lumen` scores), the range-weighted centroid of the farthest
-`q` of the field (q = 2, 5, 10, 20 %), from the ray caster's exact range image, against the
+`q` of the field (q = 2, 5, 10, 20 %; `lumen_truth.far_region`, the image-side truth, which
+takes the tenth), from the ray caster's exact range image, against the
 lumen truth (the centreline point `lookahead` ahead, through the lens) at several lookaheads.
 Any detector that finds the darkest region, however well, inherits these errors; what it
 adds comes from the shading. Prints median, 90th percentile and the share within 4 % of the
@@ -21,20 +22,11 @@ import numpy as np
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception.evaluation import seeded_poses
 from capsule_drake.perception.lens import LensConfig
-from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
+from capsule_drake.perception.lumen_truth import far_region, lumen_target, project_lumen
 from capsule_drake.perception.raycast import RayCaster
 
 QUANTILES = (0.02, 0.05, 0.10, 0.20)
 LOOKAHEADS = (0.03, 0.05, 0.08)
-
-
-def farthest_centroid(range_image, field, far, q):
-    """The range-weighted centroid (u, v) of the farthest `q` of the field's pixels."""
-    r = np.where(np.isfinite(range_image), np.minimum(range_image, far), far)
-    cut = np.quantile(r[field], 1.0 - q)
-    v, u = np.nonzero((r >= cut) & field)
-    w = r[v, u]
-    return np.array([np.sum(u * w), np.sum(v * w)]) / np.sum(w)
 
 
 def main():
@@ -58,7 +50,7 @@ def main():
                 if not visible:
                     continue
                 for q in QUANTILES:
-                    centre = farthest_centroid(range_image, caster.field, config.far, q)
+                    centre = far_region(range_image, caster.field, config.far, q).pixel
                     errors[la, q].append(np.linalg.norm(centre - pixel) / diagonal)
     print(f"The farthest part of the view against the lumen truth: colon seeds {args.seed}-"
           f"{args.seed + 4}, {args.frames} poses, {args.lens} lens "

@@ -242,3 +242,7 @@ def test_core_quantile_finds_the_far_region_under_inverse_square_light(tube_lens
         truth = far_region(range_image, caster.field, caster.far).pixel
         diagonal = np.hypot(*caster.field.shape)
         assert np.linalg.norm(found - truth) / diagonal < 0.015, (angle, found, truth)
+
+
+def test_the_core_detector_seeks_the_lumen_where_the_truth_would_call_it_in_view():
+    assert LumenParams().core_rim_margin == RIM_MARGIN

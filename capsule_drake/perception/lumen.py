@@ -36,7 +36,7 @@ from capsule_drake.plugins import load_function
 PREFILTERS = ("gaussian", "median")
 CORE_FEATURES = ("depth", "surround", "rim_fraction", "radius", "area_fraction")
 """What the core detector's confidence is a logistic function of (detect_lumen_core)."""
-CORE_CONFIDENCE_WEIGHTS = (19.80, -1.428, 4.823, -7.734, -21.81, 3.402)
+CORE_CONFIDENCE_WEIGHTS = (17.29, 4.932, -14.78, -9.916, -14.39, 1.843)
 
 
 @dataclasses.dataclass
@@ -92,8 +92,9 @@ class LumenParams:
     # The darkest point is sought only this far inside the field's edge, as a share of the
     # image diagonal (0: anywhere but the edge's own pixels). A lumen whose centre lies
     # nearer the rim is, by the image-side truth's definition, not in view
-    # (perception/lumen_truth.py, RIM_MARGIN), and an unlit periphery is darker than it.
-    core_rim_margin: float = 0.0
+    # (perception/lumen_truth.py, RIM_MARGIN, the same 8 %), and an unlit periphery is
+    # darker than it.
+    core_rim_margin: float = 0.08
     # The darkest point must be a basin: the lowest of the blurred log intensity within this
     # fraction of the working image's longest side around it (0: the darkest point
     # anywhere). Light falling off toward a wall-facing view's rim, or outside a narrow
@@ -105,9 +106,10 @@ class LumenParams:
     # off as the inverse square).
     core_quantile: float = 0.0
     # Logistic confidence: bias, then the weights of CORE_FEATURES (fitted by
-    # benchmarks/tune_lumen.py on colon seeds 0-4 only: the simulator's frames under the
-    # nominal, noise and exposure conditions and the ray caster's under its nominal light;
-    # scored on seeds 100-104 under every condition, README).
+    # benchmarks/tune_lumen.py on colon seeds 0-4 only, against the image-side truth's
+    # "lumen in view", with the 8 % rim margin: the simulator's frames under the nominal,
+    # noise and exposure conditions and the ray caster's under its nominal light, through
+    # the fisheye; scored on seeds 100-104 under every condition and both lenses, README).
     confidence_weights: list[float] = dataclasses.field(
         default_factory=lambda: list(CORE_CONFIDENCE_WEIGHTS))
 
