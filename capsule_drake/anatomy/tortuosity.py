@@ -44,6 +44,8 @@ TURN_RANGE = (100.0, 125.0)
 """Turn of an added flexure [degrees] (U)."""
 KICK = 0.005
 """Sideways start of an added flexure [m]."""
+
+
 def _resample(s, points, step):
     n = int(round(s[-1] / step))
     sb = np.linspace(0.0, s[-1], n + 1)

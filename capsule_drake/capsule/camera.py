@@ -659,11 +659,12 @@ class CapsuleCamera(LeafSystem):
         X_WP = query_object.GetPoseInWorld(self._parent_frame)
         return self._renderer_for(X_WP.multiply(self._X_PC.translation()))
 
-    def _capture(self, query_object, state, pose_now=None):
+    def _capture(self, context, query_object, state, pose_now=None):
         renderer = self.renderer_name(query_object)
         rgb = state.get_mutable_abstract_state(self._rgb_index).get_mutable_value()
         self._renderer.render_rgba(query_object, self._parent_frame, self._X_PC,
                                    out=rgb.mutable_data, renderer=renderer)
+        self._degrade(context, rgb.mutable_data)
         if pose_now is None:
             pose_now = self._camera_pose_vector(query_object)
         state.get_mutable_discrete_state(self._frame_pose_index).set_value(pose_now)
@@ -743,9 +744,7 @@ class CapsuleCamera(LeafSystem):
 
     def _initialize(self, context, state):
         query_object = self._query_object_port.Eval(context)
-        self._capture(query_object, state)
-        self._degrade(context, state.get_mutable_abstract_state(
-            self._rgb_index).get_mutable_value().mutable_data)
+        self._capture(context, query_object, state)
         t = context.get_time()
         rate = self._config.fps_min if self._adaptive else self._config.fps
         state.get_mutable_discrete_state(self._info_index).set_value([t, 1.0, 1.0, rate])
@@ -772,9 +771,7 @@ class CapsuleCamera(LeafSystem):
                 self._worker.submit(pose_now)
             delivered = False
         elif take:
-            self._capture(query_object, state, pose_now)
-            self._degrade(context, state.get_mutable_abstract_state(
-                self._rgb_index).get_mutable_value().mutable_data)
+            self._capture(context, query_object, state, pose_now)
             t_last, count = t, count + 1.0
         state.get_mutable_discrete_state(self._info_index).set_value(
             [t_last, count, 1.0 if delivered else 0.0, rate])

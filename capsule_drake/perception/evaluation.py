@@ -207,7 +207,7 @@ class EvalResult:
     milliseconds: np.ndarray     # (N,) detector time per frame
     errors: np.ndarray           # (N,) px from the image-side truth where both visible, else NaN
     diagonal: float
-    errors_ahead: np.ndarray | None = None   # (N,) px from the point ahead, likewise
+    errors_ahead: np.ndarray     # (N,) px from the point 5 cm ahead, likewise
 
     @property
     def truth_visible(self) -> np.ndarray:
@@ -222,9 +222,7 @@ class EvalResult:
         visible = self.truth_visible
         detected = self.detected
         fraction = self.errors[np.isfinite(self.errors)] / self.diagonal
-        ahead = (self.errors_ahead if self.errors_ahead is not None
-                 else np.full(len(self.frames), np.nan))
-        ahead = ahead[np.isfinite(ahead)] / self.diagonal
+        ahead = self.errors_ahead[np.isfinite(self.errors_ahead)] / self.diagonal
         return {
             "frames": len(self.frames),
             "lumen_visible": int(visible.sum()),

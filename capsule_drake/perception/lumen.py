@@ -392,6 +392,13 @@ def detect_lumen(rgb: np.ndarray, field_mask: np.ndarray | None = None,
                           confidence, full_region, float(t), features)
 
 
+def inside_distance(field: np.ndarray) -> np.ndarray:
+    """Each pixel's distance (px) to the nearest pixel outside `field` or the image (0
+    outside the field): how far inside a lens's field it lies."""
+    return cv2.distanceTransform(np.pad(np.asarray(field, dtype=np.uint8), 1), cv2.DIST_L2,
+                                 cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+
+
 def masked_blur(values, weight, sigma):
     """Gaussian blur of `values` over the pixels of `weight` only (normalised convolution),
     so the black surround of a fisheye's field does not darken its rim."""
@@ -445,9 +452,8 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
     inner = cv2.erode(inside.astype(np.uint8), kernel, borderValue=0).astype(bool)
     search = inner
     if params.core_rim_margin > 0.0:
-        edge = cv2.distanceTransform(np.pad(inside.astype(np.uint8), 1), cv2.DIST_L2,
-                                     cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-        search = inner & (edge >= params.core_rim_margin * float(np.hypot(*size)))
+        search = inner & (inside_distance(inside)
+                          >= params.core_rim_margin * float(np.hypot(*size)))
     if params.core_basin > 0.0:
         reach = max(1, round(params.core_basin * max(size)))
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
