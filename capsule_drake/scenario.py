@@ -60,8 +60,8 @@ from capsule_drake.io.guard import GuardConfig, check_guard_config
 from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
 from capsule_drake.navigation.localization import LocalizerConfig, check_localizer_config
 from capsule_drake.navigation.plugin import Plugin, check_plugin
-from capsule_drake.perception.lumen import check_lumen_params, load_detector
-from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
+from capsule_drake.perception.lumen import load_detector
+from capsule_drake.perception.lumen_tracker import LumenTrackerConfig, check_lumen_tracker_config
 from capsule_drake.physics.contact import ContactConfig, check_contact_config
 from capsule_drake.physics.magnet_force import MagnetForceConfig, check_magnet_force_config
 from capsule_drake.physics.magnetics import MagnetGeometry, check_magnet_geometry
@@ -522,7 +522,7 @@ def validate(scenario: Scenario) -> None:
     if tracker is not None:
         need(capsule.camera is not None,
              "capsule.lumen_tracker needs capsule.camera (give a camera, e.g. camera: {})")
-        checked("capsule.lumen_tracker: ", check_lumen_params, tracker.params)
+        checked("capsule.lumen_tracker: ", check_lumen_tracker_config, tracker)
         checked("", _check_tracker_resources, tracker.params)
         checked("capsule.lumen_tracker: ", load_detector, tracker.detector, tracker.params)
     if scenario.pseudo_force is not None:

@@ -235,15 +235,16 @@ def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
     camera = SimpleNamespace(lens=SimpleNamespace(width=300, height=400))  # diagonal 500 px
     truth = [[100, 100]] * 5 + [[np.nan, np.nan]]
     truth_visible = [[1]] * 5 + [[0]]
-    # Off by 5, 10, 15 px where found; missed once; a false detection where the truth is
-    # not visible does not count toward either score.
+    # The truth is the image-side one (far_pixel, far_visible). Off by 5, 10, 15 px where
+    # found; missed once; a detection where the truth sees no lumen counts toward the false
+    # positives only.
     found = [[105, 100], [100, 110], [100, 85], [np.nan, np.nan], [100, 100], [50, 50]]
     found_visible = [[1], [1], [1], [0], [0], [1]]
-    data = {"lumen_pixel": _Log(truth), "lumen_visible": _Log(truth_visible),
+    data = {"far_pixel": _Log(truth), "far_visible": _Log(truth_visible),
             "tracker_lumen_pixel": _Log(found), "tracker_lumen_visible": _Log(found_visible)}
-    error, rate = _detection_scores(camera, data)
+    error, rate, false_positives = _detection_scores(camera, data)
     assert error == pytest.approx(100 * 10 / 500)
-    assert rate == pytest.approx(3 / 5)
+    assert rate == pytest.approx(3 / 5) and false_positives == pytest.approx(1.0)
     assert all(np.isnan(_detection_scores(None, data)))
     assert all(np.isnan(_detection_scores(camera, {k: data[k] for k in list(data)[:2]})))
 
@@ -516,3 +517,4 @@ def test_the_breakdown_counts_each_group_of_patients():
     for r in results:
         r["row"]["patient"] = ""
     assert breakdown(results) == []
+

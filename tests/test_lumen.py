@@ -183,6 +183,39 @@ def test_tracker_runs_a_users_detector_by_name_and_survives_a_broken_one():
     np.testing.assert_array_equal(outputs["stats"], [1.0, 1.0])
 
 
+def test_tracker_reports_a_detection_once_consecutive_frames_agree():
+    """confirm_frames 3, agree_deg 10: a lumen held still is reported from the third frame;
+    one that jumps across the view between frames (a dark patch on a wall coming and going)
+    never is; a frame without a detection starts the count again."""
+    lens = Lens(LensConfig())
+    answers = []
+
+    def scripted(rgb, field_mask):
+        return answers.pop(0)
+
+    def found(u, v):
+        return LumenDetection(True, np.array([u, v]), 0.9, np.zeros((SIZE, SIZE), np.uint8))
+
+    tracker = LumenTracker(lens, LumenTrackerConfig(confirm_frames=3, agree_deg=10.0),
+                           period=0.1, detector=scripted)
+    context = tracker.CreateDefaultContext()
+    image = ImageRgba8U(SIZE, SIZE)
+    tracker.GetInputPort("rgb_image").FixValue(context, image)
+    simulator = Simulator(tracker, context)
+    reported = []
+    script = [found(128, 128), found(130, 127), found(131, 128), found(133, 129),  # held
+              LumenDetection.nothing((SIZE, SIZE)), found(131, 128), found(132, 128),
+              found(40, 200), found(210, 60), found(45, 190)]  # lost, then jumping
+    for frame, answer in enumerate(script, start=1):
+        answers.append(answer)
+        tracker.GetInputPort("frame_info").FixValue(context, [0.0, frame, 1.0, 10.0])
+        simulator.AdvanceTo(0.1 * frame - 0.05)
+        reported.append(tracker.GetOutputPort("lumen_visible").Eval(context)[0])
+    assert reported == [0, 0, 1, 1, 0, 0, 0, 0, 0, 0]
+    with pytest.raises(ValueError, match="confirm_frames"):
+        LumenTracker(lens, LumenTrackerConfig(confirm_frames=0))
+
+
 def test_bad_detector_names_give_one_line_scenario_errors():
     for name, words in (("nonsense", "is not 'core', 'gaussian', 'median'"),
                         ("no_such_module_x:f", "no module .no_such_module_x. on the Python path"),

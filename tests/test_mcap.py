@@ -28,6 +28,7 @@ from capsule_drake.app.outputs import OutputError
 from capsule_drake.app.ros2_messages import DEFINITIONS, schema_text
 from capsule_drake.app.run import chain_extends, simulate
 from capsule_drake.perception.lens import Lens
+from capsule_drake.perception.lumen_truth import far_region
 from capsule_drake.physics.magnetics import dipole_field
 from capsule_drake.scenario import load_scenario
 
@@ -357,6 +358,31 @@ def test_camera_model_projects_the_lumen_truth(recorded):
         errors.append(np.linalg.norm(uv.ravel() - [pixel.point.x, pixel.point.y]))
     print(f"lumen truth: OpenCV vs the lens model, largest {max(errors):.2g} px")
     assert len(errors) >= 5 and max(errors) < 0.01
+
+
+@pytest.mark.slow
+def test_far_region_topic_is_the_far_region_of_the_logged_depth(recorded):
+    # The image-side truth on /capsule/lumen_truth/far_pixel, recomputed here from the same
+    # frame's REP 118 depth (range = z over the ray's z; +inf kept as nothing within the
+    # clip, NaN outside the field), lands on the same pixel with the same verdict.
+    _, (_, _, messages) = recorded
+    scenario = load_scenario(name="WithSensors")
+    lens = Lens(scenario.capsule.camera.lens)
+    rays, field = lens.pixel_rays()
+    depths = messages["/capsule/camera/depth/image_raw"]
+    fars = messages["/capsule/lumen_truth/far_pixel"]
+    assert len(fars) == len(depths) >= 5
+    seen = 0
+    for (_, depth, _, _), (_, far, _, _) in zip(depths, fars):
+        assert seconds(far.header.stamp) == seconds(depth.header.stamp)
+        z = np.frombuffer(bytes(depth.data), "<f4").reshape(256, 256).astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            range_m = np.where(np.isinf(z), np.where(z > 0, np.inf, 0.0), z / rays[..., 2])
+        region = far_region(range_m, field, scenario.capsule.camera.far)
+        assert (far.point.z == 1.0) == region.visible
+        np.testing.assert_allclose([far.point.x, far.point.y], region.pixel, atol=0.05)
+        seen += region.visible
+    assert seen >= 1
 
 
 @pytest.mark.slow

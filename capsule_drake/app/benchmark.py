@@ -69,7 +69,7 @@ PROGRESS_TOPIC = "capsule-benchmark-progress"
 COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
            "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
-           "detection_error_pct", "detection_rate",
+           "detection_error_pct", "detection_rate", "detection_fp_rate",
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
            "epm_path_m", "coverage", "sim_time_s", "wall_time_s", "status", "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
@@ -160,7 +160,7 @@ def run_task(task: Task, progress=None) -> dict:
                 builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
                                 coverage.GetInputPort(name))
             extra["coverage"] = LogVectorOutput(coverage.GetOutputPort("coverage"), builder, 1.0)
-            for name in ("lumen_pixel", "lumen_visible"):
+            for name in ("lumen_pixel", "lumen_visible", "far_pixel", "far_visible"):
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
@@ -216,7 +216,7 @@ def _rounded(value, digits: int) -> float:
 DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
                 "peak_contact_force_N", "peak_contact_pressure_kPa", "injury_pressure_s",
                 "centring_error_deg", "detection_error_pct",
-                "detection_rate", "loc_pos_err_median_mm", "loc_pos_err_p95_mm",
+                "detection_rate", "detection_fp_rate", "loc_pos_err_median_mm", "loc_pos_err_p95_mm",
                 "loc_rot_err_median_deg", "coverage")
 
 
@@ -240,7 +240,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
             angles = np.degrees(np.arccos(np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1),
                                                   -1.0, 1.0)))
             centring = float(np.median(angles))
-    detection_error, detection_rate = _detection_scores(camera, data)
+    detection_error, detection_rate, false_positives = _detection_scores(camera, data)
     localisation = _localisation_errors(data, state)
     coverage = float(data["coverage"].data()[0, -1]) if "coverage" in data and \
         data["coverage"].data().size else np.nan
@@ -266,6 +266,8 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         "detection_error_pct": (round(detection_error, 2) if np.isfinite(detection_error)
                                 else np.nan),
         "detection_rate": round(detection_rate, 3) if np.isfinite(detection_rate) else np.nan,
+        "detection_fp_rate": (round(false_positives, 3) if np.isfinite(false_positives)
+                              else np.nan),
         **localisation,
         "epm_path_m": round(float(np.sum(np.linalg.norm(np.diff(epm, axis=1), axis=0))), 3),
         "coverage": round(coverage, 4) if np.isfinite(coverage) else np.nan,
@@ -331,28 +333,32 @@ def _localisation_errors(data, state) -> dict:
                            round(float(np.degrees(np.median(angle[ok]))), 2))))
 
 
-def _detection_scores(camera, data) -> tuple[float, float]:
-    """How the run's lumen tracker did against the lumen truth, sampled together: the
-    median distance between detected and true pixel (% of the image diagonal) where both
-    see the lumen, and the share of truth-visible samples the tracker reported visible.
-    NaN for a run without a tracker. The tracker holds its last frame's result, so a sample
-    may compare a frame up to one camera period old with the current truth."""
-    if camera is None or "tracker_lumen_pixel" not in data or "lumen_pixel" not in data:
-        return np.nan, np.nan
-    truth, truth_visible = _logged_lumen(data, "lumen")
+def _detection_scores(camera, data) -> tuple[float, float, float]:
+    """How the run's lumen tracker did against the image-side truth (perception/
+    lumen_truth.py, `far_region` of each frame's range image), sampled together: the median
+    distance between detected and true pixel (% of the image diagonal) where both see the
+    lumen, the share of lumen-in-view samples the tracker reported visible, and the share of
+    samples without a lumen in view that it reported visible (false positives). NaN for a run
+    without a tracker (or a measure with no samples). Tracker and truth both hold the last
+    frame's result; they may be a frame apart for the tracker's reading delay."""
+    if camera is None or "tracker_lumen_pixel" not in data or "far_pixel" not in data:
+        return np.nan, np.nan, np.nan
+    truth, truth_visible = _logged_lumen(data, "far")
     found, found_visible = _logged_lumen(data, "tracker_lumen")
     count = min(len(truth), len(found))
     truth, truth_visible = truth[:count], truth_visible[:count]
     found, found_visible = found[:count], found_visible[:count]
+    false_positives = (float(found_visible[~truth_visible].mean()) if (~truth_visible).any()
+                       else np.nan)
     if not truth_visible.any():
-        return np.nan, np.nan
+        return np.nan, np.nan, false_positives
     rate = float(found_visible[truth_visible].mean())
     both = truth_visible & found_visible
     if not both.any():
-        return np.nan, rate
+        return np.nan, rate, false_positives
     diagonal = float(np.hypot(camera.lens.width, camera.lens.height))
     error = 100.0 * float(np.median(np.linalg.norm(found[both] - truth[both], axis=1))) / diagonal
-    return error, rate
+    return error, rate, false_positives
 
 
 def default_run_timeout(duration: float) -> float:
@@ -930,6 +936,7 @@ def summary(results: list[dict]) -> list[dict]:
                     "centring_error_deg": mean("centring_error_deg"),
                     "detection_error_pct": mean("detection_error_pct"),
                     "detection_rate": mean("detection_rate"),
+                    "detection_fp_rate": mean("detection_fp_rate"),
                     **{f"{key}{suffix}": how(key)
                        for key in ("loc_pos_err_median_mm", "loc_pos_err_p95_mm",
                                    "loc_rot_err_median_deg")

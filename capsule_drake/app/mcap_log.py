@@ -15,6 +15,9 @@ writes, for whatever the scenario has (a topic whose source is switched off is a
     /capsule/lumen_truth/pixel         geometry_msgs PointStamped   each frame; capsule_camera_image
     /capsule/lumen_truth/point         geometry_msgs PointStamped   each frame; world
     /capsule/lumen_truth/marker        visualization_msgs ImageMarker   each frame
+    /capsule/lumen_truth/far_pixel     geometry_msgs PointStamped   each frame; capsule_camera_image
+                                       (the image-side truth, far_region: z 1 = lumen in view)
+    /capsule/lumen_truth/far_marker    visualization_msgs ImageMarker   each frame
     /capsule/lumen_tracker/pixel       geometry_msgs PointStamped   each frame; capsule_camera_image
     /capsule/lumen_tracker/marker      visualization_msgs ImageMarker   each frame
     /capsule/imu/data                  sensor_msgs Imu              its rate; capsule_imu
@@ -561,7 +564,8 @@ class _CameraStream(_Stream):
         self.inputs = {"capsule.camera.frame_info": 4,
                        "capsule.camera.rgb_image": AbstractValue.Make(ImageRgba8U(W, H)),
                        "capsule.lumen.lumen_pixel": 2, "capsule.lumen.lumen_visible": 1,
-                       "capsule.lumen.lumen_point_W": 4}
+                       "capsule.lumen.lumen_point_W": 4, "capsule.lumen.far_pixel": 2,
+                       "capsule.lumen.far_visible": 1}
         if render_depth:
             self.inputs["capsule.camera.depth_image"] = AbstractValue.Make(ImageDepth32F(W, H))
         if with_tracker:
@@ -606,6 +610,15 @@ class _CameraStream(_Stream):
         log.write("/capsule/lumen_truth/marker", "visualization_msgs/msg/ImageMarker",
                   _image_marker(stamp, "lumen_truth", pixel, visible, self._marker_radius,
                                 (0.2, 1.0, 0.2)), now)
+        # The image-side truth: the far region of this frame's range image.
+        far = np.asarray(values["capsule.lumen.far_pixel"], dtype=float)
+        far_visible = float(values["capsule.lumen.far_visible"][0]) > 0.5
+        log.write("/capsule/lumen_truth/far_pixel", "geometry_msgs/msg/PointStamped", {
+            "header": header(stamp, PIXELS),
+            "point": {"x": far[0], "y": far[1], "z": 1.0 if far_visible else 0.0}}, now)
+        log.write("/capsule/lumen_truth/far_marker", "visualization_msgs/msg/ImageMarker",
+                  _image_marker(stamp, "lumen_far", far, far_visible, self._marker_radius,
+                                (0.2, 0.6, 1.0)), now)
         if self._tracker:
             found = float(values["capsule.lumen_tracker.lumen_visible"][0]) > 0.5
             detected = np.asarray(values["capsule.lumen_tracker.lumen_pixel"], dtype=float)

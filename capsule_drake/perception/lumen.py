@@ -528,7 +528,8 @@ def median_detector(params: LumenParams | None = None) -> Detector:
 
 def load_detector(name: str, params: LumenParams | None = None) -> Detector:
     """A detector by name: "core" (detect_lumen_core), "gaussian", "median" (the
-    dark-class detectors of the seed and of STORM), or "package.module:function" naming a
+    dark-class detectors of the seed and of STORM), "net" (the learned detector,
+    perception/lumen_net.py), or "package.module:function" naming a
     user's function with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool or
     None) -> LumenDetection (or an object with visible, pixel, confidence and, optionally,
     region). Raises ValueError with one line if it cannot be found.
@@ -547,4 +548,7 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
         return gaussian_detector(params)
     if name == "median":
         return median_detector(params)
-    return load_function("lumen detector", name, "'core', 'gaussian', 'median'")
+    if name == "net":
+        from capsule_drake.perception.lumen_net import net_detector
+        return net_detector(min_confidence=(params or LumenParams()).min_confidence)
+    return load_function("lumen detector", name, "'core', 'gaussian', 'median', 'net'")

@@ -26,6 +26,23 @@ class LumenTrackerConfig:
     detector: str = "gaussian"
     # Settings of the built-in detectors (ignored by a user's).
     params: LumenParams = dataclasses.field(default_factory=LumenParams)
+    # Consistency over frames: a detection is reported only once this many consecutive
+    # frames have detected a lumen, each frame's ray within `agree_deg` of the one before.
+    # A confident dark patch on a view of the wall comes and goes and jumps as the capsule
+    # moves; the lumen stays where it was. 1: every detection is reported as it comes.
+    confirm_frames: int = 1
+    agree_deg: float = 10.0
+
+
+def check_lumen_tracker_config(config: LumenTrackerConfig) -> None:
+    """Raises ValueError naming the first impossible field."""
+    check_lumen_params(config.params)
+    if not 1 <= int(config.confirm_frames) <= 100 or config.confirm_frames != int(
+            config.confirm_frames):
+        raise ValueError(f"lumen tracker confirm_frames must be an integer in [1, 100], got "
+                         f"{config.confirm_frames}")
+    if not 0.0 < config.agree_deg <= 180.0:
+        raise ValueError(f"lumen tracker agree_deg must be in (0, 180], got {config.agree_deg}")
 
 
 class LumenTracker(LeafSystem):
@@ -67,7 +84,8 @@ class LumenTracker(LeafSystem):
                  detector=None, delay: float = 1e-6):
         super().__init__()
         self._config = config or LumenTrackerConfig()
-        check_lumen_params(self._config.params)
+        check_lumen_tracker_config(self._config)
+        self._cos_agree = float(np.cos(np.radians(self._config.agree_deg)))
         self._detector = detector or load_detector(self._config.detector, self._config.params)
         self._lens = lens
         _, self._field = lens.pixel_rays()
@@ -75,8 +93,10 @@ class LumenTracker(LeafSystem):
         self._rgb_port = self.DeclareAbstractInputPort("rgb_image",
                                                        AbstractValue.Make(ImageRgba8U(W, H)))
         self._frame_info_port = self.DeclareVectorInputPort("frame_info", 4)
-        # [u, v, ray (3), confidence, visible, last frame count, processed, failures]
-        initial = [np.nan, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0]
+        # [u, v, ray (3), confidence, visible, last frame count, processed, failures,
+        #  the last frame's detected ray (3; zeros: none), consecutive agreeing detections]
+        initial = [np.nan, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                   0.0]
         self._state = self.DeclareDiscreteState(BasicVector(initial))
         self._region = self.DeclareAbstractState(AbstractValue.Make(ImageGrey8U(W, H)))
         for name, start, size in (("lumen_pixel", 0, 2), ("lumen_ray", 2, 3),
@@ -118,6 +138,17 @@ class LumenTracker(LeafSystem):
             return EventStatus.DidNothing()
         rgba = self._rgb_port.Eval(context).data
         pixel, ray, confidence, visible, region, failed = self.detect(rgba[..., :3])
+        before = values[10:13]
+        if not visible:
+            streak = 0.0
+        elif np.any(before) and float(before @ ray) >= self._cos_agree * np.linalg.norm(ray):
+            streak = values[13] + 1.0
+        else:
+            streak = 1.0
+        values[10:13] = ray if visible else 0.0
+        values[13] = streak
+        if visible and streak < self._config.confirm_frames:
+            pixel, ray, visible = np.full(2, np.nan), np.zeros(3), False  # not yet confirmed
         values[0:2], values[2:5] = pixel, ray
         values[5], values[6], values[7] = confidence, 1.0 if visible else 0.0, info[1]
         values[8] += 1.0

@@ -1,0 +1,214 @@
+"""Trains the learned lumen detector (perception/lumen_net.py) on generated frames only, and
+writes its weights to models/lumen_net.npz.
+
+    python benchmarks/train_lumen_net.py data  --seeds 20-59 --out runs/lumen_net_data
+    python benchmarks/train_lumen_net.py train --data runs/lumen_net_data --out models/lumen_net.npz
+
+Frames: the evaluation's seeded poses (perception/evaluation.py, `seeded_poses`: a quarter
+facing the wall) in colon seeds that no reported figure uses (the default 20-59: eval-lumen
+reports seeds 100-104, the in-loop acceptance uses 0-19, the hand-made detectors were tuned
+on 0-4), each pose through both lenses and both image paths: the ray caster under random
+light (`Shading.sample`, every group at once) and the simulator's own renderer, each then
+under a random image condition (perception/photometry.py). Labels: the image-side truth
+(`far_region` of the frame's own range image): where the far region is and whether a lumen
+is in view. The training loss, the optimiser (Adam) and the augmentation (the eight flips
+and quarter turns of the square frame, which move the truth with the image) are below;
+the validation seeds (default 60-64) choose the epoch kept.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.perception import lumen_net, photometry
+from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, _vtk_renderer, seeded_poses
+from capsule_drake.perception.lens import LensConfig
+from capsule_drake.perception.lumen_truth import far_region
+from capsule_drake.perception.raycast import RayCaster, Shading
+
+LENSES = {"fisheye": "equidistant", "pinhole": "pinhole_radtan"}
+
+
+def seed_range(text: str) -> list[int]:
+    first, _, last = text.partition("-")
+    return list(range(int(first), int(last or first) + 1))
+
+
+def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, log=print):
+    """Writes one .npz of frames per group of five colon seeds."""
+    out.mkdir(parents=True, exist_ok=True)
+    groups = [seeds[i:i + 5] for i in range(0, len(seeds), 5)]
+    for group in groups:
+        path = out / f"frames_{group[0]}-{group[-1]}.npz"
+        if path.exists():
+            continue
+        started = time.time()
+        rows = {key: [] for key in ("log", "inside", "cells", "target", "visible", "source")}
+        configs = {lens: CameraConfig(lens=LensConfig(model=model))
+                   for lens, model in LENSES.items()}
+        rng = np.random.default_rng([group[0], 7])
+        for colon_params, colon, poses in seeded_poses(poses_per_colon * len(group),
+                                                       len(group), group[0]):
+            for lens, config in configs.items():
+                caster = RayCaster(colon.visual_mesh(), config.lens, far=config.far)
+                render = _vtk_renderer(colon_params, config)
+                for kind, X_WC, _ in poses:
+                    hits = caster.cast(X_WC)
+                    depth = caster.range_image(hits)
+                    images = []
+                    far = far_region(depth, caster.field, config.far)
+                    for _ in range(raycast_variants):
+                        rgb = caster.shade(hits, Shading.sample(rng))
+                        images.append((0, rgb, caster.field, far))
+                    rgb, depth_vtk, _, field = render(X_WC)
+                    far_vtk = far_region(depth_vtk, field, config.far)
+                    for _ in range(vtk_variants):
+                        images.append((1, rgb, field, far_vtk))
+                    for source, rgb, field, truth in images:
+                        condition = IMAGE_CONDITIONS[rng.integers(len(IMAGE_CONDITIONS))]
+                        image = photometry.apply(condition, rgb, field, rng)
+                        x, inside, cells = lumen_net.preprocess(image, field)
+                        rows["log"].append(x[..., 0].astype(np.float16))
+                        rows["inside"].append(inside)
+                        rows["cells"].append(cells)
+                        rows["target"].append(lumen_net.to_unit(truth.pixel, image.shape)
+                                              if truth.visible else np.zeros(2))
+                        rows["visible"].append(bool(truth.visible))
+                        rows["source"].append(source * 2 + (lens == "pinhole"))
+        np.savez_compressed(path, **{key: np.asarray(value) for key, value in rows.items()})
+        log(f"{path.name}: {len(rows['log'])} frames, {np.mean(rows['visible']):.0%} with a "
+            f"lumen in view, {time.time() - started:.0f} s")
+
+
+def load(paths):
+    parts = [np.load(path) for path in paths]
+    data = {key: np.concatenate([part[key] for part in parts]) for key in parts[0].files}
+    return data
+
+
+def batch_input(data, index, turn=None):
+    """Network input for frames `index`, with flip/turn code 0-7 per frame (None: none)."""
+    n = lumen_net.INPUT_SIZE
+    log = data["log"][index].astype(np.float32)
+    inside = data["inside"][index]
+    cells = data["cells"][index]
+    target = data["target"][index].astype(np.float32).copy()
+    if turn is not None:
+        for i, code in enumerate(turn):
+            log[i], inside[i], cells[i], target[i] = lumen_net.symmetry(
+                (log[i], inside[i], cells[i]), target[i], code)
+    x = np.zeros((len(index), n, n, 4), np.float32)
+    x[..., 0] = log
+    x[..., 1] = inside
+    coords = (np.arange(n, dtype=np.float32) + 0.5) / n * 2.0 - 1.0
+    x[..., 2] = coords[None, :]
+    x[..., 3] = coords[:, None]
+    return x, cells, target, data["visible"][index]
+
+
+def evaluate(weights, data, batch=256):
+    """Median and 90th-percentile error (% of the diagonal, in view and detected at 0.5),
+    detection rate and false-positive rate, per source."""
+    out = {}
+    errors, probs = [], []
+    for start in range(0, len(data["log"]), batch):
+        index = np.arange(start, min(start + batch, len(data["log"])))
+        x, cells, target, visible = batch_input(data, index)
+        position, vis, _ = lumen_net.forward(weights, x, cells)
+        errors.append(np.linalg.norm(position - target, axis=1) / (2 * np.sqrt(2)))
+        probs.append(1 / (1 + np.exp(-vis)))
+    errors, probs = np.concatenate(errors), np.concatenate(probs)
+    visible = data["visible"]
+    names = ("raycast fisheye", "raycast pinhole", "vtk fisheye", "vtk pinhole")
+    for code, name in enumerate(names):
+        sel = data["source"] == code
+        hit = sel & visible & (probs >= 0.5)
+        out[name] = (100 * np.median(errors[hit]), 100 * np.percentile(errors[hit], 90),
+                     100 * np.mean(probs[sel & visible] >= 0.5),
+                     100 * np.mean(probs[sel & ~visible] >= 0.5))
+    return out
+
+
+def train(data, valid, epochs, batch, rate, seed, log=print):
+    rng = np.random.default_rng(seed)
+    weights = lumen_net.init_weights(rng)
+    moments = {key: (np.zeros_like(w), np.zeros_like(w)) for key, w in weights.items()}
+    beta1, beta2, step = 0.9, 0.999, 0
+    best, best_score = None, np.inf
+    count = len(data["log"])
+    for epoch in range(epochs):
+        started = time.time()
+        order = rng.permutation(count)
+        lr = rate * 0.5 * (1 + np.cos(np.pi * epoch / epochs))
+        total = []
+        for start in range(0, count - batch + 1, batch):
+            index = order[start:start + batch]
+            x, cells, target, visible = batch_input(data, index, rng.integers(0, 8, batch))
+            loss, grads, _ = lumen_net.loss_and_gradients(weights, x, cells, target, visible)
+            total.append(loss)
+            step += 1
+            for key, g in grads.items():
+                m, v = moments[key]
+                m *= beta1
+                m += (1 - beta1) * g
+                v *= beta2
+                v += (1 - beta2) * g * g
+                weights[key] -= (lr * (m / (1 - beta1 ** step))
+                                 / (np.sqrt(v / (1 - beta2 ** step)) + 1e-8)).astype(np.float32)
+        scores = evaluate(weights, valid)
+        worst = max(s[1] for s in scores.values())
+        log(f"epoch {epoch + 1}/{epochs}: loss {np.mean(total):.4f}, {time.time() - started:.0f} s; "
+            + "; ".join(f"{name} {s[0]:.1f}/{s[1]:.1f}/{s[2]:.0f}/{s[3]:.0f}"
+                        for name, s in scores.items()))
+        if worst < best_score:
+            best_score, best = worst, {key: w.copy() for key, w in weights.items()}
+    return best
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    data = sub.add_parser("data", help="generate training frames")
+    data.add_argument("--seeds", default="20-64")
+    data.add_argument("--poses", type=int, default=20, help="poses per colon")
+    data.add_argument("--raycast-variants", type=int, default=3)
+    data.add_argument("--vtk-variants", type=int, default=2)
+    data.add_argument("--out", type=Path, default=Path("runs/lumen_net_data"))
+    fit = sub.add_parser("train", help="train on generated frames")
+    fit.add_argument("--data", type=Path, default=Path("runs/lumen_net_data"))
+    fit.add_argument("--train-seeds", default="20-59")
+    fit.add_argument("--valid-seeds", default="60-64")
+    fit.add_argument("--epochs", type=int, default=30)
+    fit.add_argument("--batch", type=int, default=32)
+    fit.add_argument("--rate", type=float, default=2e-3)
+    fit.add_argument("--seed", type=int, default=0)
+    fit.add_argument("--out", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
+    args = parser.parse_args(argv)
+    if args.command == "data":
+        generate(seed_range(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
+                 args.out)
+        return 0
+
+    def files(text):
+        seeds = seed_range(text)
+        paths = [args.data / f"frames_{s}-{s + 4}.npz" for s in seeds[::5]]
+        missing = [str(p) for p in paths if not p.exists()]
+        if missing:
+            raise SystemExit(f"train_lumen_net: no frames at {', '.join(missing)}; run 'data' first")
+        return paths
+
+    weights = train(load(files(args.train_seeds)), load(files(args.valid_seeds)), args.epochs,
+                    args.batch, args.rate, args.seed)
+    info = {"train_seeds": args.train_seeds, "valid_seeds": args.valid_seeds,
+            "epochs": args.epochs}
+    lumen_net.LumenNet(weights, info).save(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""The learned lumen detector (perception/lumen_net.py): its layers against an independent
+convolution, its gradients against finite differences of its loss, its symmetries, its
+weights file's errors, and the shipped weights on views whose truth has a closed form."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from capsule_drake.perception import lumen_net
+
+
+
+@pytest.mark.parametrize("stride, dilation", [(1, 1), (2, 1), (1, 2), (1, 4)])
+def test_convolution_matches_scipy_correlation(stride, dilation):
+    rng = np.random.default_rng(stride * 10 + dilation)
+    x = rng.standard_normal((2, 12, 12, 3))
+    w = rng.standard_normal((4, 3, 3, 3))
+    b = rng.standard_normal(4)
+    out = lumen_net.conv_forward(x, w, b, stride, dilation)
+    for n in range(2):
+        for k in range(4):
+            total = np.zeros((12, 12))
+            for c in range(3):
+                kernel = np.zeros((2 * dilation + 1,) * 2)
+                kernel[::dilation, ::dilation] = w[k, c]
+                total += ndimage.correlate(x[n, :, :, c], kernel, mode="constant")
+            np.testing.assert_allclose(out[n, :, :, k], total[::stride, ::stride] + b[k],
+                                       atol=1e-10)
+
+
+def test_gradients_match_finite_differences_of_the_loss():
+    """Along a random direction in each weight tensor, the analytic gradient's projection
+    equals the central difference of the loss (float64; ReLU kinks are measure zero)."""
+    rng = np.random.default_rng(3)
+    weights = {k: v.astype(np.float64) for k, v in lumen_net.init_weights(rng).items()}
+    for key in weights:
+        if key.endswith("_b"):
+            weights[key] = 0.1 * rng.standard_normal(weights[key].shape)
+    x = rng.standard_normal((3, 64, 64, 4))
+    cells = np.ones((3, 16, 16), bool)
+    cells[0, :3] = False
+    cells[2, :, 12:] = False
+    target = rng.uniform(-0.5, 0.5, (3, 2))
+    visible = np.array([True, False, True])
+    _, grads, parts = lumen_net.loss_and_gradients(weights, x, cells, target, visible)
+    assert parts["position"] > 0 and parts["visible"] > 0
+    for key in weights:
+        direction = rng.standard_normal(weights[key].shape)
+        step = 1e-6
+        shifted = dict(weights)
+        shifted[key] = weights[key] + step * direction
+        up, _, _ = lumen_net.loss_and_gradients(shifted, x, cells, target, visible)
+        shifted[key] = weights[key] - step * direction
+        down, _, _ = lumen_net.loss_and_gradients(shifted, x, cells, target, visible)
+        numeric = (up - down) / (2 * step)
+        analytic = float(np.sum(grads[key] * direction))
+        assert analytic == pytest.approx(numeric, rel=1e-4, abs=1e-8), key
+
+
+def test_the_soft_argmax_lands_on_the_cell_its_logits_pick():
+    weights = {k: np.zeros_like(v) for k, v in lumen_net.init_weights(
+        np.random.default_rng(0)).items()}
+    weights["heat_b"][:] = 0.0
+    x = np.zeros((1, 64, 64, 4), np.float32)
+    cells = np.ones((1, 16, 16), bool)
+    position, vis, _ = lumen_net.forward(weights, x, cells)
+    np.testing.assert_allclose(position[0], [0.0, 0.0], atol=1e-6)  # uniform: the centre
+    only = np.zeros((1, 16, 16), bool)
+    only[0, 3, 11] = True
+    position, _, _ = lumen_net.forward(weights, x, only)
+    np.testing.assert_allclose(position[0], lumen_net.cell_centres()[:, 3, 11], atol=1e-6)
+
+
+@pytest.mark.parametrize("code", range(8))
+def test_each_symmetry_moves_the_target_with_the_image(code):
+    image = np.zeros((64, 64), np.float32)
+    u, v = 41, 13  # a marked pixel
+    image[v, u] = 1.0
+    unit = np.array([(u + 0.5) / 64 * 2 - 1, (v + 0.5) / 64 * 2 - 1])
+    moved, point = lumen_net.symmetry([image], unit, code)
+    vv, uu = np.unravel_index(np.argmax(moved), moved.shape)
+    np.testing.assert_allclose(point, [(uu + 0.5) / 64 * 2 - 1, (vv + 0.5) / 64 * 2 - 1],
+                               atol=1e-6)
+
+
+def test_preprocess_removes_exposure_and_keeps_the_field():
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(20, 120, (256, 256, 3)).astype(np.uint8)
+    field = np.zeros((256, 256), bool)
+    yy, xx = np.mgrid[:256, :256]
+    field[(yy - 127.5) ** 2 + (xx - 127.5) ** 2 < 120 ** 2] = True
+    x, inside, cells = lumen_net.preprocess(rgb, field)
+    assert x.shape == (64, 64, 4) and cells.shape == (16, 16)
+    assert not inside[0, 0] and inside[32, 32] and not cells[0, 0] and cells[8, 8]
+    assert np.median(x[..., 0][inside]) == pytest.approx(0.0, abs=1e-6)
+    assert np.all(x[..., 0][~inside] == 0.0)
+    brighter = np.clip(rgb.astype(np.float64) * 2.0, 0, 255).astype(np.uint8)
+    x2, _, _ = lumen_net.preprocess(brighter, field)
+    # log(2 I + 6) - median vs log(I + 6) - median: nearly the same where I >> 6.
+    assert np.median(np.abs(x2[..., 0] - x[..., 0])[inside]) < 0.05
+
+
+def test_missing_or_foreign_weights_are_one_line_errors(tmp_path):
+    with pytest.raises(ValueError, match="not found"):
+        lumen_net.LumenNet.load(tmp_path / "none.npz")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="not the layers"):
+        lumen_net.LumenNet.load(tmp_path / "other.npz")
+    net = lumen_net.LumenNet(lumen_net.init_weights(np.random.default_rng(1)), {"epochs": 3})
+    net.save(tmp_path / "net.npz")
+    again = lumen_net.LumenNet.load(tmp_path / "net.npz")
+    assert again.info["epochs"] == 3
+    for key, value in net.weights.items():
+        np.testing.assert_array_equal(again.weights[key], value)
