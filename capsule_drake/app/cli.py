@@ -139,8 +139,9 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--wall-fraction", type=float, default=0.25,
                     help="share of frames facing the wall (default 0.25)")
     ev.add_argument("--detector", action="append", metavar="NAME",
-                    help="'core', 'gaussian', 'median' or 'package.module:function' "
-                         "(repeatable; default: core and gaussian)")
+                    help="'net', 'core', 'gaussian', 'median' or "
+                         "'package.module:function' (repeatable; default: net, core and "
+                         "gaussian)")
     ev.add_argument("--renderer", choices=("vtk", "raycast", "both"), default="both",
                     help="image path: the simulator's camera, the ray caster, or both "
                          "(default)")
@@ -664,7 +665,7 @@ def _eval_lumen(args) -> int:
     if not 0.0 <= args.wall_fraction <= 1.0:
         raise ScenarioError(f"--wall-fraction must be in [0, 1], got {args.wall_fraction}")
 
-    names = args.detector or ["core", "gaussian"]
+    names = args.detector or ["net", "core", "gaussian"]
     try:
         detectors = {name: load_detector(name) for name in names}
     except ValueError as e:
