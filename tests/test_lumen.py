@@ -156,7 +156,7 @@ def _tracker_outputs(tracker, rgb, frame_count=1.0):
 
 def test_tracker_outputs_the_detection_and_its_ray_through_the_lens():
     lens = Lens(LensConfig())
-    tracker = LumenTracker(lens, LumenTrackerConfig(), period=0.1)
+    tracker = LumenTracker(lens, LumenTrackerConfig(detector="gaussian"), period=0.1)
     rgb = _image([(150.0, 110.0, 15.0, 180.0)])
     outputs, region = _tracker_outputs(tracker, rgb)
     expected = detect_lumen(rgb, lens.pixel_rays()[1])
