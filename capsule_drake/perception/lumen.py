@@ -31,6 +31,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from capsule_drake.perception.lumen_net import DEFAULT_WEIGHTS, LumenNet
 from capsule_drake.plugins import load_function
 
 PREFILTERS = ("gaussian", "median")
@@ -509,7 +510,7 @@ def detect_lumen_core(rgb: np.ndarray, field_mask: np.ndarray | None = None,
 
 
 def core_detector(params: LumenParams | None = None) -> Detector:
-    """The default detector (detect_lumen_core) as a detector function."""
+    """The core detector (detect_lumen_core) as a detector function."""
     params = params or LumenParams()
     return lambda rgb, field_mask=None: detect_lumen_core(rgb, field_mask, params)
 
@@ -524,6 +525,31 @@ def median_detector(params: LumenParams | None = None) -> Detector:
     """The STORM variant (median pre-filter) as a detector function."""
     params = dataclasses.replace(params or LumenParams(), prefilter="median")
     return lambda rgb, field_mask=None: detect_lumen(rgb, field_mask, params)
+
+
+_NETS: dict = {}
+
+
+def net_detector(params: LumenParams | None = None, path=None) -> Detector:
+    """The learned detector (perception/lumen_net.py) as a detector function: the network's
+    answer, reported visible when its probability that a lumen is in view is at least
+    `params.min_confidence`. Weights (default models/lumen_net.npz) load once per path."""
+    min_confidence = (params or LumenParams()).min_confidence
+    key = str(path or DEFAULT_WEIGHTS)
+    if key not in _NETS:
+        _NETS[key] = LumenNet.load(key)
+    net = _NETS[key]
+
+    def detect(rgb, field_mask=None):
+        pixel, confidence = net.predict(rgb, field_mask)
+        if not np.all(np.isfinite(pixel)):
+            return LumenDetection.nothing(rgb.shape)
+        visible = confidence >= min_confidence
+        return LumenDetection(bool(visible), pixel if visible else np.full(2, np.nan),
+                              confidence, np.zeros(rgb.shape[:2], np.uint8),
+                              features={"centre": pixel})
+
+    return detect
 
 
 def load_detector(name: str, params: LumenParams | None = None) -> Detector:
@@ -549,6 +575,5 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
     if name == "median":
         return median_detector(params)
     if name == "net":
-        from capsule_drake.perception.lumen_net import net_detector
-        return net_detector(min_confidence=(params or LumenParams()).min_confidence)
+        return net_detector(params)
     return load_function("lumen detector", name, "'core', 'gaussian', 'median', 'net'")

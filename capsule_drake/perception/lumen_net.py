@@ -315,28 +315,3 @@ class LumenNet:
         return to_pixel(position[0], rgb.shape), float(1.0 / (1.0 + np.exp(-np.clip(
             vis[0], -50.0, 50.0))))
 
-
-_LOADED: dict = {}
-
-
-def net_detector(path: str | Path | None = None, min_confidence: float = 0.5):
-    """The learned detector as a detector function (perception/lumen.py's contract): the
-    network's answer, reported visible when its probability that a lumen is in view is at
-    least `min_confidence`. Weights load once per path."""
-    from capsule_drake.perception.lumen import LumenDetection
-
-    key = str(Path(path or DEFAULT_WEIGHTS).resolve())
-    if key not in _LOADED:
-        _LOADED[key] = LumenNet.load(key)
-    net = _LOADED[key]
-
-    def detect(rgb, field_mask=None):
-        pixel, confidence = net.predict(rgb, field_mask)
-        if not np.all(np.isfinite(pixel)):
-            return LumenDetection.nothing(rgb.shape)
-        visible = confidence >= min_confidence
-        return LumenDetection(bool(visible), pixel if visible else np.full(2, np.nan),
-                              confidence, np.zeros(rgb.shape[:2], np.uint8),
-                              features={"centre": pixel})
-
-    return detect

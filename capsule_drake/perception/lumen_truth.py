@@ -171,7 +171,8 @@ class LumenTruth(LeafSystem):
                  depth_is_range: bool = True, far: float = 0.2):
         super().__init__()
         self._far = float(far)
-        self._field = lens.pixel_rays()[1]
+        # The lens's field (an ideal pinhole without one sees the whole image).
+        self._field = lens.pixel_rays()[1] if hasattr(lens, "pixel_rays") else None
         self._far_memo = None  # (depth image's hash, (pixel, visible)) of the last frame
         self._colon = colon
         self._lens = lens
@@ -235,10 +236,11 @@ class LumenTruth(LeafSystem):
         # new frame, so its truth is kept by the image's content.
         key = hash(depth.tobytes())
         if self._far_memo is None or self._far_memo[0] != key:
-            if depth.shape != self._field.shape or not np.isfinite(depth).any():
+            field = self._field if self._field is not None else np.ones(depth.shape, bool)
+            if depth.shape != field.shape or not np.isfinite(depth).any():
                 answer = (np.full(2, np.nan), False)
             else:
-                region = far_region(depth, self._field, self._far)
+                region = far_region(depth, field, self._far)
                 answer = (region.pixel, bool(region.visible))
             self._far_memo = (key, answer)
         return self._far_memo[1]
