@@ -1,8 +1,8 @@
 """Trains the learned lumen detector (perception/lumen_net.py) on generated frames only, and
 writes its weights to models/lumen_net.npz.
 
-    python benchmarks/train_lumen_net.py data  --seeds 20-59 --out runs/lumen_net_data
-    python benchmarks/train_lumen_net.py train --data runs/lumen_net_data --out models/lumen_net.npz
+    python benchmarks/train_lumen_net.py data     # colon seeds 20-64, 60 poses each
+    python benchmarks/train_lumen_net.py train    # 24 epochs; writes models/lumen_net.npz
 
 Frames: the evaluation's seeded poses (perception/evaluation.py, `seeded_poses`: a quarter
 facing the wall) in colon seeds that no reported figure uses (the default 20-59: eval-lumen
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     data = sub.add_parser("data", help="generate training frames")
     data.add_argument("--seeds", default="20-64")
-    data.add_argument("--poses", type=int, default=20, help="poses per colon")
+    data.add_argument("--poses", type=int, default=60, help="poses per colon")
     data.add_argument("--raycast-variants", type=int, default=3)
     data.add_argument("--vtk-variants", type=int, default=2)
     data.add_argument("--out", type=Path, default=Path("runs/lumen_net_data"))
@@ -182,7 +182,7 @@ def main(argv=None) -> int:
     fit.add_argument("--data", type=Path, default=Path("runs/lumen_net_data"))
     fit.add_argument("--train-seeds", default="20-59")
     fit.add_argument("--valid-seeds", default="60-64")
-    fit.add_argument("--epochs", type=int, default=30)
+    fit.add_argument("--epochs", type=int, default=24)
     fit.add_argument("--batch", type=int, default=32)
     fit.add_argument("--rate", type=float, default=2e-3)
     fit.add_argument("--seed", type=int, default=0)
