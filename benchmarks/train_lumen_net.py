@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capsule_drake.app.cli import parse_seeds
 from capsule_drake.capsule.camera import CameraConfig
 from capsule_drake.perception import lumen_net, photometry
 from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, _vtk_renderer, seeded_poses
@@ -31,11 +32,6 @@ from capsule_drake.perception.lumen_truth import far_region
 from capsule_drake.perception.raycast import RayCaster, Shading
 
 LENSES = {"fisheye": "equidistant", "pinhole": "pinhole_radtan"}
-
-
-def seed_range(text: str) -> list[int]:
-    first, _, last = text.partition("-")
-    return list(range(int(first), int(last or first) + 1))
 
 
 def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, log=print):
@@ -189,12 +185,12 @@ def main(argv=None) -> int:
     fit.add_argument("--out", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
     args = parser.parse_args(argv)
     if args.command == "data":
-        generate(seed_range(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
+        generate(parse_seeds(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
                  args.out)
         return 0
 
     def files(text):
-        seeds = seed_range(text)
+        seeds = parse_seeds(text)
         paths = [args.data / f"frames_{s}-{s + 4}.npz" for s in seeds[::5]]
         missing = [str(p) for p in paths if not p.exists()]
         if missing:

@@ -7,6 +7,7 @@ import pytest
 from pydrake.math import RigidTransform, RotationMatrix
 from scipy import ndimage
 
+from capsule_drake.app.cli import parse_seeds
 from capsule_drake.perception import lumen_net
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector
@@ -160,10 +161,5 @@ def test_shipped_network_was_trained_away_from_every_reported_seed():
     """The weights record the colon seeds they were trained and validated on: none of the
     seeds eval-lumen reports (100-104) or the in-loop acceptance drives (0-19)."""
     info = lumen_net.LumenNet.load().info
-
-    def seeds(text):
-        first, _, last = str(text).partition("-")
-        return set(range(int(first), int(last or first) + 1))
-
-    used = seeds(info["train_seeds"]) | seeds(info["valid_seeds"])
+    used = set(parse_seeds(info["train_seeds"])) | set(parse_seeds(info["valid_seeds"]))
     assert used and not used & (set(range(100, 105)) | set(range(0, 20)))

@@ -389,7 +389,8 @@ def _report_stop(result) -> None:
 MAX_SEEDS = 10_000  # a benchmark of more runs than this is a typing mistake
 
 
-def _seeds(text: str, flag: str = "--seeds") -> list[int]:
+def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
+    """Seeds from '0-9', '0,3,7' or '5'; ScenarioError (one line) on anything else."""
     ranges = []
     try:
         for part in text.split(","):
@@ -410,7 +411,7 @@ def _seeds(text: str, flag: str = "--seeds") -> list[int]:
 
 def _benchmark(args) -> int:
     tier_seeds, tier_text = TIERS[args.tier]
-    seeds = _seeds(args.seeds if args.seeds is not None else tier_seeds)
+    seeds = parse_seeds(args.seeds if args.seeds is not None else tier_seeds)
     navigators = [n.strip() for n in args.navigators.split(",") if n.strip()]
     if not navigators:
         raise ScenarioError("--navigators: none given")
@@ -551,7 +552,7 @@ def _record_seeds(args) -> int:
     if args.mcap is not None:
         raise ScenarioError("--mcap: not with --seeds (an MCAP log holds one recording; "
                             "record a seed on its own to log it)")
-    seeds = _seeds(args.seeds, "--seeds")
+    seeds = parse_seeds(args.seeds, "--seeds")
     fractions = _split_fractions(args.split or "0.7,0.15,0.15")
     name = args.scenario or "Default"
     # Each seed is its own patient and its own noise; the user's --scenario-text comes after,

@@ -13,12 +13,12 @@ conditions) of colon seeds that no reported figure uses, by
 
 Architecture (every layer a 3x3 convolution with ReLU unless said otherwise):
 input 64 x 64 x 4 (log intensity less the field's median, the field mask, x and y in
-[-1, 1]) -> stride 2: 12 -> 16 -> stride 2: 24 -> dilation 2: 24 -> dilation 4: 24 channels
-on a 16 x 16 grid (each output cell sees about the whole frame), then two heads: a 1x1 convolution to one logit per cell, whose softmax
-over the field's cells weights the cells' centres into the answer's position (a
-soft-argmax: sub-cell precision, trained on the distance itself); and the mean and maximum
-of the last features over the field, through a dense layer, to the logit that a lumen is in
-view.
+[-1, 1]) -> stride 2: 12 -> 16 -> stride 2: 24 -> dilation 2: 24 -> dilation 4: 24
+channels on a 16 x 16 grid (each output cell sees about the whole frame), then two heads: a
+1x1 convolution to one logit per cell, whose softmax over the field's cells weights the
+cells' centres into the answer's position (a soft-argmax: sub-cell precision, trained on the
+distance itself); and the mean and maximum of the last features over the field, through a
+dense layer, to the logit that a lumen is in view.
 
 Inference is numpy only (one frame: about a millisecond); the backward pass is here too, so
 that the training script and the gradient test share one implementation.
@@ -92,6 +92,9 @@ def cell_centres() -> np.ndarray:
     c = (np.arange(GRID, dtype=np.float32) + 0.5) / GRID * 2.0 - 1.0
     return np.stack([np.broadcast_to(c[None, :], (GRID, GRID)),
                      np.broadcast_to(c[:, None], (GRID, GRID))])
+
+
+CENTRES = cell_centres()
 
 
 def to_unit(pixel, shape) -> np.ndarray:
@@ -193,7 +196,7 @@ def init_weights(rng) -> dict:
 def forward(weights, x, cells):
     """x (N, 64, 64, 4), cells (N, 16, 16) bool -> (position (N, 2) in [-1, 1], visible
     logit (N,), cache for `backward`)."""
-    cache = {"x": x, "cells": cells, "acts": []}
+    cache = {"acts": []}
     h = x
     for name, _, _, stride, dilation in LAYERS:
         z = conv_forward(h, weights[name + "_w"], weights[name + "_b"], stride, dilation)
@@ -205,8 +208,7 @@ def forward(weights, x, cells):
     top = logits.max(axis=(1, 2), keepdims=True)
     e = np.where(cells, np.exp(logits - top), 0.0)
     prob = e / np.maximum(e.sum(axis=(1, 2), keepdims=True), 1e-30)
-    centres = cell_centres()
-    position = np.einsum("nhw,chw->nc", prob, centres)
+    position = np.einsum("nhw,chw->nc", prob, CENTRES)
     area = np.maximum(cells.sum(axis=(1, 2)), 1)[:, None]
     mean = np.einsum("nhwc,nhw->nc", h, cells) / area
     N, C = h.shape[0], h.shape[3]
@@ -214,7 +216,7 @@ def forward(weights, x, cells):
     peak = np.where(np.isfinite(peak), peak, 0.0)
     pooled = np.concatenate([mean, peak], axis=1)
     vis = pooled @ weights["vis_w"] + weights["vis_b"][0]
-    cache.update(prob=prob, position=position, pooled=pooled, mean_area=area)
+    cache.update(prob=prob, pooled=pooled, mean_area=area)
     return position, vis, cache
 
 
@@ -226,7 +228,7 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
     target (N, 2) in [-1, 1]; visible (N,) bool. Returns (loss, grads, parts)."""
     position, vis, cache = forward(weights, x, cells)
     N = len(x)
-    grads = {key: np.zeros_like(value) for key, value in weights.items()}
+    grads = {}
     # position loss
     d = np.where(visible[:, None], position - target, 0.0)
     dist = np.sqrt((d ** 2).sum(axis=1) + 1e-12)
@@ -243,8 +245,8 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
     loss_vis = float(np.mean(np.logaddexp(0.0, vis) - y * vis))
     dvis = ((p - y) / N).astype(weights["vis_w"].dtype)
     # heads
-    grads["vis_w"] = (cache["pooled"].T @ dvis).astype(np.float32)
-    grads["vis_b"] = np.array([dvis.sum()], np.float32)
+    grads["vis_w"] = cache["pooled"].T @ dvis
+    grads["vis_b"] = np.array([dvis.sum()], dvis.dtype)
     dpooled = dvis[:, None] * weights["vis_w"][None, :]
     h = cache["h"]
     C = h.shape[3]
@@ -258,11 +260,10 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
     np.put_along_axis(dpeak, arg[:, None, :], dpooled[:, None, C:], axis=1)
     dh = dh + dpeak.reshape(h.shape)
     prob = cache["prob"]
-    centres = cell_centres()
-    dprob = np.einsum("nc,chw->nhw", dpos, centres)
+    dprob = np.einsum("nc,chw->nhw", dpos, CENTRES)
     dlogits = prob * (dprob - (dprob * prob).sum(axis=(1, 2), keepdims=True))
-    grads["heat_w"] = np.einsum("nhwc,nhw->c", h, dlogits).astype(np.float32)
-    grads["heat_b"] = np.array([dlogits.sum()], np.float32)
+    grads["heat_w"] = np.einsum("nhwc,nhw->c", h, dlogits)
+    grads["heat_b"] = np.array([dlogits.sum()], dlogits.dtype)
     dh = dh + dlogits[..., None] * weights["heat_w"]
     # trunk
     for depth, ((name, _, _, stride, dilation), (h_in, z)) in enumerate(
@@ -270,8 +271,8 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
         dz = dh * (z > 0)
         dx, dw, db = conv_backward(h_in, weights[name + "_w"], stride, dilation, dz,
                                    need_dx=depth < len(LAYERS) - 1)
-        grads[name + "_w"] = dw.astype(np.float32)
-        grads[name + "_b"] = db.astype(np.float32)
+        grads[name + "_w"] = dw
+        grads[name + "_b"] = db
         dh = dx
     return loss_pos + loss_vis, grads, {"position": loss_pos, "visible": loss_vis}
 

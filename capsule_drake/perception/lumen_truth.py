@@ -194,10 +194,16 @@ class LumenTruth(LeafSystem):
                                      {self._cache.ticket()})
         self.DeclareVectorOutputPort("lumen_point_W", 4, self._calc_point,
                                      {self._cache.ticket()})
+        self._far_cache = CacheRef(self, self.DeclareCacheEntry(
+            description="image-side lumen truth",
+            value_producer=ValueProducer(
+                allocate=AbstractValue.Make((np.zeros(2), False)).Clone,
+                calc=weak_method(self._calc_far_truth)),
+            prerequisites_of_calc={self._depth_port.ticket()}))
         self.DeclareVectorOutputPort("far_pixel", 2, self._calc_far_pixel,
-                                     {self._depth_port.ticket()})
+                                     {self._far_cache.ticket()})
         self.DeclareVectorOutputPort("far_visible", 1, self._calc_far_visible,
-                                     {self._depth_port.ticket()})
+                                     {self._far_cache.ticket()})
 
     def camera_pose(self, state) -> RigidTransform:
         """X_WC from the capsule state vector."""
@@ -224,32 +230,29 @@ class LumenTruth(LeafSystem):
         pixel, visible, point_W, s = self.truth_at(X_WC, depth)
         abstract_value.set_value((pixel, 1.0 if visible else 0.0, np.append(point_W, s)))
 
-    def _far_truth(self, context):
+    def _calc_far_truth(self, context, abstract_value):
         """(pixel, visible) of the image-side truth for the depth input's frame."""
-        if not self._depth_port.HasValue(context):
-            return np.full(2, np.nan), False
-        image = self._depth_port.Eval(context)
-        if image.width() == 0:
-            return np.full(2, np.nan), False
-        depth = image.data[:, :, 0]
-        # Drake invalidates the input at every step; the frame's depth changes only with a
-        # new frame, so its truth is kept by the image's content.
-        key = hash(depth.tobytes())
-        if self._far_memo is None or self._far_memo[0] != key:
-            field = self._field if self._field is not None else np.ones(depth.shape, bool)
-            if depth.shape != field.shape or not np.isfinite(depth).any():
-                answer = (np.full(2, np.nan), False)
-            else:
-                region = far_region(depth, field, self._far)
-                answer = (region.pixel, bool(region.visible))
-            self._far_memo = (key, answer)
-        return self._far_memo[1]
+        answer = (np.full(2, np.nan), False)
+        image = self._depth_port.Eval(context) if self._depth_port.HasValue(context) else None
+        if image is not None and image.width() > 0:
+            depth = image.data[:, :, 0]
+            # Drake invalidates the input at every step; the frame's depth changes only with
+            # a new frame, so its truth is kept by the image's content.
+            key = hash(depth.tobytes())
+            if self._far_memo is None or self._far_memo[0] != key:
+                field = self._field if self._field is not None else np.ones(depth.shape, bool)
+                if depth.shape == field.shape and np.isfinite(depth).any():
+                    region = far_region(depth, field, self._far)
+                    answer = (region.pixel, bool(region.visible))
+                self._far_memo = (key, answer)
+            answer = self._far_memo[1]
+        abstract_value.set_value(answer)
 
     def _calc_far_pixel(self, context, output: BasicVector):
-        output.SetFromVector(self._far_truth(context)[0])
+        output.SetFromVector(self._far_cache.Eval(context)[0])
 
     def _calc_far_visible(self, context, output: BasicVector):
-        output.SetAtIndex(0, 1.0 if self._far_truth(context)[1] else 0.0)
+        output.SetAtIndex(0, 1.0 if self._far_cache.Eval(context)[1] else 0.0)
 
     def _calc_pixel(self, context, output: BasicVector):
         output.SetFromVector(self._cache.Eval(context)[0])
