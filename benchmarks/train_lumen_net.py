@@ -129,9 +129,14 @@ def evaluate(weights, data, batch=256):
     return out
 
 
-def train(data, valid, epochs, batch, rate, seed, log=print):
+def train(data, valid, epochs, batch, rate, seed, log=print, start=None):
+    """Adam on a cosine schedule from `rate`, from He-initialised weights or from `start`
+    (weights to go on from); returns the weights of the epoch whose worst validation p90
+    was lowest."""
     rng = np.random.default_rng(seed)
     weights = lumen_net.init_weights(rng)
+    if start is not None:
+        weights = {key: w.copy() for key, w in start.items()}
     moments = {key: (np.zeros_like(w), np.zeros_like(w)) for key, w in weights.items()}
     beta1, beta2, step = 0.9, 0.999, 0
     best, best_score = None, np.inf
@@ -183,6 +188,8 @@ def main(argv=None) -> int:
     fit.add_argument("--rate", type=float, default=2e-3)
     fit.add_argument("--seed", type=int, default=0)
     fit.add_argument("--out", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
+    fit.add_argument("--init", type=Path, default=None,
+                     help="go on training these weights (a second cosine cycle)")
     args = parser.parse_args(argv)
     if args.command == "data":
         generate(parse_seeds(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
@@ -197,10 +204,23 @@ def main(argv=None) -> int:
             raise SystemExit(f"train_lumen_net: no frames at {', '.join(missing)}; run 'data' first")
         return paths
 
+    start, before = None, []
+    if args.init is not None:
+        try:
+            first = lumen_net.LumenNet.load(args.init)
+        except ValueError as e:
+            raise SystemExit(f"train_lumen_net: --init: {e}")
+        start = first.weights
+        before = [str(x) for x in np.atleast_1d(first.info.get("cycles", first.info.get(
+            "epochs", "?")))]
+        for key in ("train_seeds", "valid_seeds"):
+            if str(first.info.get(key)) != getattr(args, key):
+                raise SystemExit(f"train_lumen_net: --init {args.init} was trained with "
+                                 f"{key} {first.info.get(key)}, not {getattr(args, key)}")
     weights = train(load(files(args.train_seeds)), load(files(args.valid_seeds)), args.epochs,
-                    args.batch, args.rate, args.seed)
+                    args.batch, args.rate, args.seed, start=start)
     info = {"train_seeds": args.train_seeds, "valid_seeds": args.valid_seeds,
-            "epochs": args.epochs}
+            "epochs": args.epochs, "cycles": " ".join(before + [f"{args.epochs}@{args.rate:g}"])}
     lumen_net.LumenNet(weights, info).save(args.out)
     print(f"wrote {args.out}")
     return 0

@@ -119,6 +119,10 @@ def test_missing_or_foreign_weights_are_one_line_errors(tmp_path):
     assert again.info["epochs"] == 3
     for key, value in net.weights.items():
         np.testing.assert_array_equal(again.weights[key], value)
+    wider = dict(net.weights, c5_b=np.zeros(32, np.float32))  # another network's layer
+    lumen_net.LumenNet(wider, {}).save(tmp_path / "wider.npz")
+    with pytest.raises(ValueError, match=r"c5_b is \(32,\), not the layer's \(24,\)"):
+        lumen_net.LumenNet.load(tmp_path / "wider.npz")
 # --- the shipped weights ------------------------------------------------------------------
 
 RADIUS = 0.025

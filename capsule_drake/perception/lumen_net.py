@@ -297,10 +297,14 @@ class LumenNet:
                        if not key.startswith("info_")}
             info = {key[len("info_"):]: data[key].tolist() for key in data.files
                     if key.startswith("info_")}
-        expected = set(init_weights(np.random.default_rng(0)))
-        if set(weights) != expected:
+        expected = init_weights(np.random.default_rng(0))
+        if set(weights) != set(expected):
             raise ValueError(f"lumen network weights {path} hold {sorted(weights)}, not the "
                              f"layers {sorted(expected)}")
+        for key, w in expected.items():
+            if weights[key].shape != w.shape:
+                raise ValueError(f"lumen network weights {path}: {key} is "
+                                 f"{weights[key].shape}, not the layer's {w.shape}")
         return cls(weights, info)
 
     def save(self, path: str | Path) -> None:
