@@ -150,6 +150,12 @@ def main(argv=None) -> int:
         return 1
     title = f"{args.navigator}, seed {args.seed} ({args.tier}): {ended}"
     print(title)
+    after = [f for f in frames if f["t"] >= furthest_t]
+    if after:
+        print(f"from the furthest point on ({len(after)} frames): the point 5 cm ahead in view "
+              f"in {sum('truth' in f for f in after)}, the far region in "
+              f"{sum('far' in f for f in after)}, a detection in "
+              f"{sum('tracker' in f for f in after)}")
     out = args.out or Path(f"failure_{args.navigator}_{args.seed}.png")
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), cv2.cvtColor(sheet(frames, colon, title, args.count), cv2.COLOR_RGB2BGR))
