@@ -129,14 +129,15 @@ def evaluate(weights, data, batch=256):
     return out
 
 
-def train(data, valid, epochs, batch, rate, seed, log=print, start=None):
-    """Adam on a cosine schedule from `rate`, from He-initialised weights or from `start`
-    (weights to go on from); returns the weights of the epoch whose worst validation p90
-    was lowest."""
+def train(data, valid, epochs, batch, rate, seed, log=print, start=None,
+          widths=lumen_net.WIDTHS):
+    """Adam on a cosine schedule from `rate`, from He-initialised weights of `widths` or
+    from `start` (weights to go on from, widened to `widths` if narrower); returns the
+    weights of the epoch whose worst validation p90 was lowest."""
     rng = np.random.default_rng(seed)
-    weights = lumen_net.init_weights(rng)
+    weights = lumen_net.init_weights(rng, widths)
     if start is not None:
-        weights = {key: w.copy() for key, w in start.items()}
+        weights = lumen_net.widen(start, widths, rng)
     moments = {key: (np.zeros_like(w), np.zeros_like(w)) for key, w in weights.items()}
     beta1, beta2, step = 0.9, 0.999, 0
     best, best_score = None, np.inf
@@ -188,6 +189,8 @@ def main(argv=None) -> int:
     fit.add_argument("--rate", type=float, default=2e-3)
     fit.add_argument("--seed", type=int, default=0)
     fit.add_argument("--out", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
+    fit.add_argument("--widths", default=",".join(map(str, lumen_net.WIDTHS)),
+                     help="the layers' widths (comma-separated, one per layer)")
     fit.add_argument("--init", type=Path, default=None,
                      help="go on training these weights (a second cosine cycle)")
     args = parser.parse_args(argv)
@@ -204,6 +207,13 @@ def main(argv=None) -> int:
             raise SystemExit(f"train_lumen_net: no frames at {', '.join(missing)}; run 'data' first")
         return paths
 
+    try:
+        widths = tuple(int(w) for w in args.widths.split(","))
+        if len(widths) != len(lumen_net.LAYERS) or min(widths) < 1:
+            raise ValueError
+    except ValueError:
+        raise SystemExit(f"train_lumen_net: --widths {args.widths}: give "
+                         f"{len(lumen_net.LAYERS)} positive integers")
     start, before = None, []
     if args.init is not None:
         try:
@@ -218,9 +228,10 @@ def main(argv=None) -> int:
                 raise SystemExit(f"train_lumen_net: --init {args.init} was trained with "
                                  f"{key} {first.info.get(key)}, not {getattr(args, key)}")
     weights = train(load(files(args.train_seeds)), load(files(args.valid_seeds)), args.epochs,
-                    args.batch, args.rate, args.seed, start=start)
+                    args.batch, args.rate, args.seed, start=start, widths=widths)
     info = {"train_seeds": args.train_seeds, "valid_seeds": args.valid_seeds,
-            "epochs": args.epochs, "cycles": " ".join(before + [f"{args.epochs}@{args.rate:g}"])}
+            "epochs": args.epochs, "widths": ",".join(map(str, widths)),
+            "cycles": " ".join(before + [f"{args.epochs}@{args.rate:g}"])}
     lumen_net.LumenNet(weights, info).save(args.out)
     print(f"wrote {args.out}")
     return 0

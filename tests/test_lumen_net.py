@@ -121,8 +121,33 @@ def test_missing_or_foreign_weights_are_one_line_errors(tmp_path):
         np.testing.assert_array_equal(again.weights[key], value)
     wider = dict(net.weights, c5_b=np.zeros(32, np.float32))  # another network's layer
     lumen_net.LumenNet(wider, {}).save(tmp_path / "wider.npz")
-    with pytest.raises(ValueError, match=r"c5_b is \(32,\), not the layer's \(24,\)"):
+    with pytest.raises(ValueError, match=r"wider.npz: c5_b is \(32,\), not \(24,\)"):
         lumen_net.LumenNet.load(tmp_path / "wider.npz")
+
+
+def test_widening_keeps_the_function_and_then_learns_on_the_new_channels():
+    """`widen` embeds trained weights in wider layers: the same outputs to rounding, and the
+    new channels' weights get gradients (so training can use them)."""
+    rng = np.random.default_rng(5)
+    narrow = lumen_net.init_weights(rng)
+    for key in narrow:
+        if key.endswith("_b"):
+            narrow[key] = 0.1 * rng.standard_normal(narrow[key].shape).astype(np.float32)
+    wide = lumen_net.widen(narrow, (16, 24, 32, 32, 32), rng)
+    assert lumen_net.widths_of(wide) == (16, 24, 32, 32, 32)
+    x = rng.standard_normal((2, 64, 64, 4)).astype(np.float32)
+    cells = np.ones((2, 16, 16), bool)
+    cells[1, :, :4] = False
+    position, vis, _ = lumen_net.forward(narrow, x, cells)
+    position_w, vis_w, _ = lumen_net.forward(wide, x, cells)
+    np.testing.assert_allclose(position_w, position, atol=1e-6)
+    np.testing.assert_allclose(vis_w, vis, rtol=1e-5, atol=1e-5)
+    _, grads, _ = lumen_net.loss_and_gradients(wide, x, cells, np.zeros((2, 2)),
+                                               np.array([True, True]))
+    assert np.abs(grads["c3_w"][:, 16:]).max() > 0     # the next layer's weights on new ones
+    assert np.abs(grads["heat_w"][24:]).max() > 0
+    with pytest.raises(ValueError, match="narrower"):
+        lumen_net.widen(wide, (12, 16, 24, 24, 24), rng)
 # --- the shipped weights ------------------------------------------------------------------
 
 RADIUS = 0.025

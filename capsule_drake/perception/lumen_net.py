@@ -13,8 +13,8 @@ conditions) of colon seeds that no reported figure uses, by
 
 Architecture (every layer a 3x3 convolution with ReLU unless said otherwise):
 input 64 x 64 x 4 (log intensity less the field's median, the field mask, x and y in
-[-1, 1]) -> stride 2: 12 -> 16 -> stride 2: 24 -> dilation 2: 24 -> dilation 4: 24
-channels on a 16 x 16 grid (each output cell sees about the whole frame), then two heads: a
+[-1, 1]) -> stride 2 -> plain -> stride 2 -> dilation 2 -> dilation 4 (LAYERS; each
+layer's width is its weights', WIDTHS for new ones) on a 16 x 16 grid (each output cell sees about the whole frame), then two heads: a
 1x1 convolution to one logit per cell, whose softmax over the field's cells weights the
 cells' centres into the answer's position (a soft-argmax: sub-cell precision, trained on the
 distance itself); and the mean and maximum of the last features over the field, through a
@@ -32,14 +32,15 @@ import numpy as np
 
 INPUT_SIZE = 64
 GRID = 16
-LAYERS = (  # (name, in channels, out channels, stride, dilation)
-    ("c1", 4, 12, 2, 1),
-    ("c2", 12, 16, 1, 1),
-    ("c3", 16, 24, 2, 1),
-    ("c4", 24, 24, 1, 2),
-    ("c5", 24, 24, 1, 4),
+INPUT_CHANNELS = 4
+LAYERS = (  # (name, stride, dilation); each layer's width is its weights' (WIDTHS: new ones)
+    ("c1", 2, 1),
+    ("c2", 1, 1),
+    ("c3", 2, 1),
+    ("c4", 1, 2),
+    ("c5", 1, 4),
 )
-FEATURES = LAYERS[-1][2]
+WIDTHS = (12, 16, 24, 24, 24)
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "lumen_net.npz"
 
 
@@ -177,20 +178,70 @@ def conv_backward(x, w, stride, dilation, grad, need_dx=True):
     return dxp[:, pad:pad + H, pad:pad + W], dw, db
 
 
-def init_weights(rng) -> dict:
-    """He-initialised weights for LAYERS and both heads."""
-    weights = {}
-    for name, cin, cout, _, _ in LAYERS:
+def init_weights(rng, widths=WIDTHS) -> dict:
+    """He-initialised weights for LAYERS, `widths` output channels each, and both heads."""
+    weights, cin = {}, INPUT_CHANNELS
+    for (name, _, _), cout in zip(LAYERS, widths, strict=True):
         weights[name + "_w"] = (rng.standard_normal((cout, cin, 3, 3))
                                 * np.sqrt(2.0 / (9 * cin))).astype(np.float32)
         weights[name + "_b"] = np.zeros(cout, np.float32)
-    weights["heat_w"] = (rng.standard_normal(FEATURES) * np.sqrt(1.0 / FEATURES)).astype(
-        np.float32)
+        cin = cout
+    weights["heat_w"] = (rng.standard_normal(cin) * np.sqrt(1.0 / cin)).astype(np.float32)
     weights["heat_b"] = np.zeros(1, np.float32)
-    weights["vis_w"] = (rng.standard_normal(2 * FEATURES) * np.sqrt(1.0 / FEATURES)).astype(
-        np.float32)
+    weights["vis_w"] = (rng.standard_normal(2 * cin) * np.sqrt(1.0 / cin)).astype(np.float32)
     weights["vis_b"] = np.zeros(1, np.float32)
     return weights
+
+
+def widths_of(weights) -> tuple:
+    """The layers' widths read from `weights`; ValueError naming the first tensor that does
+    not fit the one before it."""
+    expected = {name + suffix for name, _, _ in LAYERS for suffix in ("_w", "_b")} | {
+        "heat_w", "heat_b", "vis_w", "vis_b"}
+    if set(weights) != expected:
+        raise ValueError(f"hold {sorted(weights)}, not the layers {sorted(expected)}")
+    widths, cin = [], INPUT_CHANNELS
+    for name, _, _ in LAYERS:
+        w = weights[name + "_w"]
+        if w.ndim != 4 or w.shape[1:] != (cin, 3, 3):
+            raise ValueError(f"{name}_w is {w.shape}, not (width, {cin}, 3, 3)")
+        if weights[name + "_b"].shape != (w.shape[0],):
+            raise ValueError(f"{name}_b is {weights[name + '_b'].shape}, not ({w.shape[0]},)")
+        cin = w.shape[0]
+        widths.append(cin)
+    for key, shape in (("heat_w", (cin,)), ("heat_b", (1,)), ("vis_w", (2 * cin,)),
+                       ("vis_b", (1,))):
+        if weights[key].shape != shape:
+            raise ValueError(f"{key} is {weights[key].shape}, not {shape}")
+    return tuple(widths)
+
+
+def widen(weights, widths, rng, scale: float = 0.1) -> dict:
+    """The same function on wider layers: each layer's old channels keep their weights, its
+    new channels get small random ones (`scale` times He's) and nothing reads them yet (the
+    next layer's and the heads' weights on them are zero), so the output is unchanged and
+    training can put the new channels to use."""
+    old = widths_of(weights)
+    if any(n < o for n, o in zip(widths, old, strict=True)):
+        raise ValueError(f"widths {tuple(widths)} narrower than the weights' {old}")
+    wide = init_weights(rng, widths)
+    cin_old = INPUT_CHANNELS
+    for (name, _, _), cout_old in zip(LAYERS, old):
+        w = wide[name + "_w"]
+        w *= scale
+        w[:, cin_old:] = 0.0                      # inputs nothing produced before
+        w[:cout_old, :cin_old] = weights[name + "_w"]
+        wide[name + "_b"][:cout_old] = weights[name + "_b"]
+        cin_old = cout_old
+    c_old, c_new = old[-1], widths[-1]
+    wide["heat_w"][:] = 0.0
+    wide["heat_w"][:c_old] = weights["heat_w"]
+    wide["heat_b"][:] = weights["heat_b"]
+    wide["vis_w"][:] = 0.0
+    wide["vis_w"][:c_old] = weights["vis_w"][:c_old]                  # means
+    wide["vis_w"][c_new:c_new + c_old] = weights["vis_w"][c_old:]    # maxima
+    wide["vis_b"][:] = weights["vis_b"]
+    return wide
 
 
 def forward(weights, x, cells):
@@ -198,7 +249,7 @@ def forward(weights, x, cells):
     logit (N,), cache for `backward`)."""
     cache = {"acts": []}
     h = x
-    for name, _, _, stride, dilation in LAYERS:
+    for name, stride, dilation in LAYERS:
         z = conv_forward(h, weights[name + "_w"], weights[name + "_b"], stride, dilation)
         cache["acts"].append((h, z))
         h = np.maximum(z, 0.0)
@@ -266,7 +317,7 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
     grads["heat_b"] = np.array([dlogits.sum()], dlogits.dtype)
     dh = dh + dlogits[..., None] * weights["heat_w"]
     # trunk
-    for depth, ((name, _, _, stride, dilation), (h_in, z)) in enumerate(
+    for depth, ((name, stride, dilation), (h_in, z)) in enumerate(
             zip(LAYERS[::-1], cache["acts"][::-1])):
         dz = dh * (z > 0)
         dx, dw, db = conv_backward(h_in, weights[name + "_w"], stride, dilation, dz,
@@ -297,14 +348,10 @@ class LumenNet:
                        if not key.startswith("info_")}
             info = {key[len("info_"):]: data[key].tolist() for key in data.files
                     if key.startswith("info_")}
-        expected = init_weights(np.random.default_rng(0))
-        if set(weights) != set(expected):
-            raise ValueError(f"lumen network weights {path} hold {sorted(weights)}, not the "
-                             f"layers {sorted(expected)}")
-        for key, w in expected.items():
-            if weights[key].shape != w.shape:
-                raise ValueError(f"lumen network weights {path}: {key} is "
-                                 f"{weights[key].shape}, not the layer's {w.shape}")
+        try:
+            widths_of(weights)
+        except ValueError as e:
+            raise ValueError(f"lumen network weights {path}: {e}") from None
         return cls(weights, info)
 
     def save(self, path: str | Path) -> None:
