@@ -77,8 +77,11 @@ def drawn_lumen(params: ColonParams) -> DrawnLumen | None:
 
 def geometry_params(params: ColonParams) -> ColonParams:
     """`params` as far as the colon's wall goes: the lumen's state only through the
-    segments it narrows (resolved for the seed), its fluid and bubbles aside, so that
-    patients who differ only in those share one built colon and its cached files."""
+    segments it narrows (resolved for the seed), its fluid and bubbles aside, and no
+    lesions (geometry of their own, anatomy/lesions.py), so that patients who differ only
+    in those share one built colon and its cached files."""
+    if params.lesions is not None:
+        params = dataclasses.replace(params, lesions=None)
     state = drawn_lumen(params)
     if state is None:
         return params

@@ -124,6 +124,43 @@ class LumenState:
     bubbles: int | None = None
 
 
+PARIS_TYPES = ("0-Ip", "0-Is", "0-IIa")
+"""Polyp shapes by the Paris classification: pedunculated, sessile, flat elevated."""
+
+
+@dataclass
+class PlacedLesion:
+    """A lesion placed by hand (`colon.lesions.placed`)."""
+
+    # "0-Ip", "0-Is", "0-IIa" (a polyp by the Paris classification) or "diverticulum".
+    kind: str = "0-Is"
+    # Largest diameter [mm] (a diverticulum's: its neck).
+    size_mm: float = 6.0
+    # The segment it lies in (SEGMENT_NAMES) and where along it, 0 at the end nearer the
+    # anus to 1 at the other.
+    segment: str = "sigmoid"
+    along: float = 0.5
+    # Where around the lumen [deg]: 0 on the floor (the dependent side), 180 on the roof.
+    around_deg: float = 90.0
+
+
+@dataclass
+class Lesions:
+    """Polyps and diverticula in the patient (anatomy/lesions.py; docs/sources.md section
+    3.4): drawn for a seed from published prevalence, size, shape and location, placed by
+    hand, or both. `colon.lesions: null` (the default): none."""
+
+    # Draw the patient's lesions from the population.
+    drawn: bool = True
+    # The seed they are drawn for; null: colon.seed (a patient keeps their lesions).
+    seed: int | None = None
+    # Lesions placed by hand, besides the drawn ones.
+    placed: list[PlacedLesion] = field(default_factory=list)
+    # Which kinds are drawn: polyps, diverticula.
+    polyps: bool = True
+    diverticula: bool = True
+
+
 ColonSource = Procedural | Population | ExVivo | Imported
 """Where a colon comes from (`colon.source`): one of the four, by its YAML tag."""
 
@@ -354,6 +391,8 @@ class ColonParams:
     # null: distended and clean. Fluid pools in colons of every source; only a procedural
     # or population colon has segments to narrow.
     lumen: LumenState | None = None
+    # Polyps and diverticula (Lesions); null: none.
+    lesions: Lesions | None = None
 
     @property
     def procedural(self) -> bool:
@@ -538,6 +577,22 @@ def check_colon_params(params: ColonParams) -> None:
                  lumen.bubbles)
         bound("lumen.collapsed_fraction", "[0.3, 1]", "",
               "of the distended diameter (the capsule must still pass the folds)")
+    if params.lesions is not None:
+        for k, lesion in enumerate(params.lesions.placed):
+            where = f"lesions.placed[{k}]"
+            need(lesion.kind in PARIS_TYPES + ("diverticulum",), f"{where}.kind",
+                 f"must be one of {', '.join(PARIS_TYPES)} or diverticulum", lesion.kind)
+            need(1.0 <= lesion.size_mm <= 50.0, f"{where}.size_mm", "must be in [1, 50] mm",
+                 lesion.size_mm)
+            need(lesion.segment in SEGMENT_NAMES, f"{where}.segment",
+                 f"must be one of {', '.join(SEGMENT_NAMES)}", lesion.segment)
+            need(0.0 <= lesion.along <= 1.0, f"{where}.along", "must be in [0, 1]",
+                 lesion.along)
+            need(np.isfinite(lesion.around_deg), f"{where}.around_deg", "must be finite",
+                 lesion.around_deg)
+        seed = params.lesions.seed
+        need(seed is None or (isinstance(seed, int) and seed >= 0), "lesions.seed",
+             "must be a non-negative integer or null", seed)
     m = params.mucosa
     for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
         value = getattr(m, field_name)
