@@ -24,6 +24,8 @@ from .cache import ColonAssets, write_atomic
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
+from .lesion_geometry import PlacedPolyp, place_polyps
+from .lesions import drawn_lesions
 from .lumen_state import BUBBLE_RADIUS, drawn_lumen, geometry_params
 from .mesh import write_obj
 from .params import ColonParams
@@ -88,8 +90,18 @@ class FluidScene:
     bubbles_obj: Path | None = None   # the bubbles on it, one OBJ; None without any
 
 
+@dataclasses.dataclass
+class LesionScene:
+    """What the lesions of a colon add to the scene: the polyps on its wall, each with its
+    mesh's OBJ (world coordinates, written beside the colon's cached files)."""
+
+    polyps: list[PlacedPolyp]
+    objs: list[Path]
+
+
 _log = logging.getLogger("capsule_drake.anatomy")
 _SCENES: dict[str, FluidScene] = {}
+_LESION_SCENES: dict[str, LesionScene] = {}
 
 
 def _fluid_scene(key: str, params: ColonParams, folder: str) -> FluidScene:
@@ -150,3 +162,27 @@ def fluid_scene(params: ColonParams) -> FluidScene:
             _SCENES.pop(next(iter(_SCENES)))
         _SCENES[key] = _fluid_scene(key, params, str(folder))
     return _SCENES[key]
+
+
+def lesion_scene(params: ColonParams) -> LesionScene:
+    """The polyps of the colon of `params` (anatomy/lesions.py, anatomy/lesion_geometry.py)
+    placed on its wall, and their OBJs, once per process for equal parameters; empty when
+    `params.lesions` is null."""
+    if params.lesions is None:
+        return LesionScene([], [])
+    key = yaml_dump_typed(params)
+    if key not in _LESION_SCENES:
+        if len(_LESION_SCENES) >= 8:
+            _LESION_SCENES.pop(next(iter(_LESION_SCENES)))
+        colon = load_colon(params)[0]
+        polyps = place_polyps(colon, drawn_lesions(params))
+        folder = colon_assets(params).visual_obj.parent
+        stem = f"lesion_{hashlib.sha256(key.encode()).hexdigest()[:16]}"
+        objs = []
+        for polyp in polyps:
+            path = folder / f"{stem}_{polyp.index:03d}.obj"
+            if not path.exists():
+                write_atomic(path, lambda tmp, m=polyp.mesh: write_obj(tmp, m, normals=True))
+            objs.append(path)
+        _LESION_SCENES[key] = LesionScene(polyps, objs)
+    return _LESION_SCENES[key]

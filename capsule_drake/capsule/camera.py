@@ -31,6 +31,7 @@ from pydrake.geometry import (
     QueryObject,
     RenderCameraCore,
     RenderEngineVtkParams,
+    RenderLabel,
     Rgba,
     Role,
 )
@@ -43,7 +44,8 @@ from pydrake.common import RandomDistribution
 
 from capsule_drake.anatomy import colon_assets
 from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
-from capsule_drake.anatomy.source import fluid_scene
+from capsule_drake.anatomy.lesion_geometry import polyp_rgba
+from capsule_drake.anatomy.source import fluid_scene, lesion_scene
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.lifetime import weak_method
@@ -53,6 +55,8 @@ from capsule_drake.scene import block
 from capsule_drake.schema import need_range
 
 FPS_MODES = ("fixed", "adaptive")
+LESION_LINK_PREFIX = "lesion_"
+"""The camera walls' link of lesion k is LESION_LINK_PREFIX + f"{k:03d}"."""
 DEFAULT_RENDERER = "capsule_camera"
 
 # Faces of the cube map: optical axis and image "down" of each, in the camera frame C.
@@ -442,6 +446,25 @@ class LensRenderer:
                   dst=out, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         out[..., 3] = 255
         return out
+
+    def render_label(self, query_object: QueryObject, parent_frame: FrameId,
+                     X_PC: RigidTransform, renderer: str | None = None) -> np.ndarray:
+        """(H, W) int16 render labels through the lens (each pixel the label of the geometry
+        it sees, taken from the nearest pixel of the views: labels do not blend);
+        RenderLabel.kDontCare outside the lens's field, RenderLabel.kEmpty where nothing is
+        within range. `renderer` as for `render_rgba`."""
+        cameras = self.cameras(renderer)
+        outside = int(RenderLabel.kDontCare)
+        if self._identity:
+            return np.array(query_object.RenderLabelImage(
+                cameras[0][0], parent_frame, X_PC).data[..., 0], dtype=np.int16)
+        atlas = np.full(self.atlas_shape, outside, dtype=np.int16)
+        for view, (color_camera, _) in zip(self.views, cameras):
+            image = query_object.RenderLabelImage(color_camera, parent_frame,
+                                                  X_PC.multiply(view.X_CF))
+            atlas[view.row:view.row + view.height, :view.width] = image.data[..., 0]
+        return cv2.remap(atlas, self._fixed_maps[0], self._fixed_maps[1], cv2.INTER_NEAREST,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=outside)
 
     def render_range(self, query_object: QueryObject, parent_frame: FrameId,
                      X_PC: RigidTransform, out: np.ndarray | None = None,
@@ -858,10 +881,19 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
         body += (f"<visual name='{name}'><geometry><mesh><uri>{path.resolve().as_uri()}"
                  f"</uri></mesh></geometry><material><diffuse>{rgba}</diffuse></material>"
                  f"{accepting}</visual>")
+    # Each polyp a link of its own, so that the plant gives it a render label of its own
+    # (a body's index): the label image is then each lesion's instance mask.
+    lesions = lesion_scene(colon_params)
+    rgba = " ".join(f"{c:g}" for c in polyp_rgba(colon_params.mucosa.base_color))
+    links = "".join(
+        f"<link name='{LESION_LINK_PREFIX}{polyp.index:03d}'><visual name='polyp'><geometry>"
+        f"<mesh><uri>{path.resolve().as_uri()}</uri></mesh></geometry><material><diffuse>"
+        f"{rgba}</diffuse></material>{accepting}</visual></link>"
+        for polyp, path in zip(lesions.polyps, lesions.objs))
     sdf = ("<?xml version='1.0'?><sdf version='1.9' xmlns:drake='http://drake.mit.edu'>"
            f"<model name='camera_walls_{config.renderer_name}'><static>true</static>"
            f"<link name='walls'>{body}"
-           "</link></model></sdf>")
+           f"</link>{links}</model></sdf>")
     instance, = Parser(plant).AddModelsFromString(sdf, "sdf")
     for index in plant.GetBodyIndices(instance):
         for geometry_id in plant.GetVisualGeometriesForBody(plant.get_body(index)):

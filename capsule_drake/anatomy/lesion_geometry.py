@@ -1,0 +1,169 @@
+"""Polyps placed on a built colon's wall, each a mesh of its own (anatomy/lesions.py draws
+them; the camera sees each with a render label of its own, the capsule touches them).
+
+A polyp stands on the wall where its segment, its place along it and its angle around the
+lumen put it (the angle from the floor, the side gravity pulls toward, about the
+centreline's tangent), its axis along the wall's inward normal there, its base sunk into the
+wall far enough to close the gap a curved wall leaves under a flat base. Shapes, by the
+Paris classification (docs/sources.md section 3.4), each a surface of revolution:
+- 0-Is (sessile): a half-ellipsoid, base diameter d, height max(d / 2, 2.5 mm) but at most
+  0.9 d: the Paris cut between 0-Is and 0-IIa is a height of 2.5 mm.
+- 0-IIa (flat elevated): a plateau (a super-ellipse profile) of height min(0.3 d, 2 mm).
+- 0-Ip (pedunculated): a head (an ellipsoid d wide, 0.9 d tall) on a stalk 0.35 d thick
+  and 0.8 d long. It stands straight out of the wall (U: a real stalk bends and sways).
+Diverticula have no geometry yet (their pouches need the wall itself opened).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import trimesh
+
+from .lesions import DrawnLesion
+
+ADENOMA_LAB_SHIFT = (-2.4, 1.6, 1.6)
+"""A polyp's colour against the mucosa's, in CIELAB (L*, a*, b*): darker and browner (the
+NICE classification's adenoma, "browner relative to background"; the direction: S), by a
+colour difference of 3.3 (the measured mean contrast of adenomas against the mucosa
+around them, delta E 3.3 +- 1.8, hyperplastic polyps 1.3; docs/sources.md section 3.4)."""
+PARIS_IS_HEIGHT = 0.0025
+"""The Paris classification's height between 0-Is and 0-IIa (m; about a closed biopsy
+forceps' cup)."""
+POINTS_AROUND = 24
+
+
+@dataclasses.dataclass(frozen=True)
+class PlacedPolyp:
+    """A polyp on the wall: where it stands and its mesh in the world frame."""
+
+    index: int                 # its place in the patient's list of lesions
+    lesion: DrawnLesion
+    s: float                   # arc length of its foot on the centreline (m)
+    theta: float               # angle around the centreline (rad, the centreline's frame)
+    base_W: np.ndarray         # centre of its base on the wall (m)
+    axis_W: np.ndarray         # unit inward normal: the way it stands
+    height: float              # from the wall to its top (m)
+    mesh: trimesh.Trimesh      # closed, in the world frame
+
+    @property
+    def top_W(self) -> np.ndarray:
+        return self.base_W + self.height * self.axis_W
+
+
+def profile(kind: str, diameter: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(radius (K,), height (K,), top height) of the shape's outline from its base (z = 0)
+    to its tip (r = 0), in metres."""
+    a = 0.5 * diameter
+    if kind == "0-Is":
+        h = min(max(0.5 * diameter, PARIS_IS_HEIGHT), 0.9 * diameter)
+        t = np.linspace(0.0, 0.5 * np.pi, 16)
+        return a * np.cos(t), h * np.sin(t), h
+    if kind == "0-IIa":
+        h = min(0.3 * diameter, 0.8 * PARIS_IS_HEIGHT)
+        t = np.linspace(0.0, 0.5 * np.pi, 16)
+        return a * np.cos(t) ** 0.5, h * np.sin(t) ** 0.5, h
+    if kind == "0-Ip":
+        stalk, length = 0.175 * diameter, 0.8 * diameter
+        c = 0.45 * diameter                      # the head's half height
+        # The head's lower half from where it is as wide as the stalk, then its upper half.
+        lower = np.arcsin(np.clip(stalk / a, 0.0, 1.0))
+        t = np.concatenate([np.linspace(-0.5 * np.pi + lower, 0.0, 8)[:-1],
+                            np.linspace(0.0, 0.5 * np.pi, 12)])
+        z0 = length + c * np.cos(lower)          # the head's centre height
+        r = np.concatenate([[stalk], a * np.cos(t)])
+        z = np.concatenate([[0.0], z0 + c * np.sin(t)])
+        return r, z, float(z[-1])
+    raise ValueError(f"no shape for lesion kind {kind!r}")
+
+
+def revolve(radius, height, sink: float, around: int = POINTS_AROUND) -> trimesh.Trimesh:
+    """The closed surface of revolution of the outline (radius, height) about z, extended
+    `sink` below z = 0 (into the wall) and closed by a flat bottom and a point at its tip."""
+    r = np.concatenate([[radius[0]], radius])
+    z = np.concatenate([[-sink], height])
+    r[-1] = 0.0
+    k = len(r)
+    phi = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    rings = np.stack([np.outer(r[:-1], np.cos(phi)), np.outer(r[:-1], np.sin(phi)),
+                      np.repeat(z[:-1, None], around, axis=1)], axis=-1).reshape(-1, 3)
+    tip, bottom = (k - 1) * around, (k - 1) * around + 1
+    vertices = np.vstack([rings, [[0.0, 0.0, z[-1]], [0.0, 0.0, -sink]]])
+    faces = []
+    for i in range(k - 2):
+        for j in range(around):
+            a, b = i * around + j, i * around + (j + 1) % around
+            c, d = a + around, b + around
+            faces += [[a, b, d], [a, d, c]]
+    last = (k - 2) * around
+    faces += [[last + j, last + (j + 1) % around, tip] for j in range(around)]
+    faces += [[(j + 1) % around, j, bottom] for j in range(around)]
+    mesh = trimesh.Trimesh(vertices, np.array(faces), process=False)
+    mesh.fix_normals()
+    return mesh
+
+
+def polyp_rgba(mucosa_rgb) -> tuple[float, float, float, float]:
+    """The diffuse colour of a polyp on mucosa of colour `mucosa_rgb` (sRGB in [0, 1]):
+    shifted by ADENOMA_LAB_SHIFT in CIELAB."""
+    rgb = np.asarray(mucosa_rgb, np.float32).reshape(1, 1, 3)
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab) + np.asarray(ADENOMA_LAB_SHIFT, np.float32)
+    out = np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB).reshape(3), 0.0, 1.0)
+    return (float(out[0]), float(out[1]), float(out[2]), 1.0)
+
+
+def floor_angle(colon, s: float) -> float:
+    """The angle theta (the centreline's frame at s) of the lumen's floor: the direction
+    gravity (-z) takes in the plane across the lumen."""
+    t, n, b = colon.centerline.frame_at(s)
+    down = np.array([0.0, 0.0, -1.0])
+    across = down - (down @ t) * t
+    if np.linalg.norm(across) < 1e-9:      # the lumen runs vertically: any angle is the floor
+        return 0.0
+    return float(np.arctan2(across @ b, across @ n))
+
+
+def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
+    """`lesion` (a polyp) standing on the wall of `colon` (any TubeColon)."""
+    if not lesion.polyp:
+        raise ValueError("diverticula have no geometry yet")
+    cl = colon.centerline
+    start, end = cl.segment_ranges()[lesion.segment]
+    margin = min(0.01, 0.25 * (end - start))
+    s = float(start + margin + lesion.along * (end - start - 2 * margin))
+    theta = floor_angle(colon, s) + np.radians(lesion.around_deg)
+    t, n, b = cl.frame_at(s)
+    radial = np.cos(theta) * n + np.sin(theta) * b
+    r = float(colon.wall_radius(np.array([s]), np.array([theta]))[0])
+    base = cl.point_at(s) + r * radial
+    # The inward normal: minus the gradient of F = rho - r(s, theta) (TubeColon.excursion).
+    h_s, h_theta = 2.0e-4, 1.0e-2
+    dr_ds = float((colon.wall_radius(np.array([s + h_s]), np.array([theta]))
+                   - colon.wall_radius(np.array([s - h_s]), np.array([theta])))[0] / (2 * h_s))
+    dr_dt = float((colon.wall_radius(np.array([s]), np.array([theta + h_theta]))
+                   - colon.wall_radius(np.array([s]), np.array([theta - h_theta])))[0]
+                  / (2 * h_theta))
+    tangential = np.cos(theta) * b - np.sin(theta) * n
+    outward = radial - dr_ds * t - (dr_dt / r) * tangential
+    axis = -outward / np.linalg.norm(outward)
+    diameter = 1e-3 * lesion.size_mm
+    radius, height, top = profile(lesion.kind, diameter)
+    # Deep enough that no part of the base floats over the wall's curve (its sagitta across
+    # the base, plus a millimetre).
+    sink = 0.001 + (0.5 * diameter) ** 2 / (2.0 * r)
+    mesh = revolve(radius, height, sink)
+    x = np.cross(axis, t)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else n
+    y = np.cross(axis, x)
+    transform = np.eye(4)
+    transform[:3, :3] = np.column_stack([x, y, axis])
+    transform[:3, 3] = base
+    mesh.apply_transform(transform)
+    return PlacedPolyp(index, lesion, s, float(theta), base, axis, top, mesh)
+
+
+def place_polyps(colon, lesions: list[DrawnLesion]) -> list[PlacedPolyp]:
+    """The polyps of `lesions` on the wall of `colon`, indexed by their place in the list."""
+    return [place(colon, lesion, k) for k, lesion in enumerate(lesions) if lesion.polyp]
