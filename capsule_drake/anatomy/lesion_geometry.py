@@ -3,8 +3,9 @@ them; the camera sees each with a render label of its own, the capsule touches t
 
 A polyp stands on the wall where its segment, its place along it and its angle around the
 lumen put it (the angle from the floor, the side gravity pulls toward, about the
-centreline's tangent), its axis along the wall's inward normal there, its base sunk into the
-wall far enough to close the gap a curved wall leaves under a flat base. Shapes, by the
+centreline's tangent), its axis along the wall's inward normal there, its shape draped on
+the wall (every height counted from the mucosa under it, across the lumen's curve and a
+fold's slope) and its base sunk a millimetre into the wall. Shapes, by the
 Paris classification (docs/sources.md section 3.4), each a surface of revolution:
 - 0-Is (sessile): a half-ellipsoid, base diameter d, height max(d / 2, 2.5 mm) but at most
   0.9 d: the Paris cut between 0-Is and 0-IIa is a height of 2.5 mm.
@@ -33,6 +34,8 @@ PARIS_IS_HEIGHT = 0.0025
 """The Paris classification's height between 0-Is and 0-IIa (m; about a closed biopsy
 forceps' cup)."""
 POINTS_AROUND = 24
+SINK = 0.001
+"""How far a polyp's base reaches into the wall (m): no seam shows where they meet."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,10 +153,7 @@ def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
     axis = -outward / np.linalg.norm(outward)
     diameter = 1e-3 * lesion.size_mm
     radius, height, top = profile(lesion.kind, diameter)
-    # Deep enough that no part of the base floats over the wall's curve (its sagitta across
-    # the base, plus a millimetre).
-    sink = 0.001 + (0.5 * diameter) ** 2 / (2.0 * r)
-    mesh = revolve(radius, height, sink)
+    mesh = revolve(radius, height, SINK)
     x = np.cross(axis, t)
     x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else n
     y = np.cross(axis, x)
@@ -161,6 +161,13 @@ def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
     transform[:3, :3] = np.column_stack([x, y, axis])
     transform[:3, 3] = base
     mesh.apply_transform(transform)
+    # Draped on the wall: each vertex raised by how far the wall lies above the base plane
+    # under it (TubeColon.excursion of its foot on the plane), so that heights count from
+    # the mucosa across the lumen's curve and a fold's slope, as a lesion grows on it.
+    vertices = np.array(mesh.vertices)
+    foot = vertices - np.outer((vertices - base) @ axis, axis)
+    vertices += np.outer(colon.excursion(foot), axis)
+    mesh = trimesh.Trimesh(vertices, mesh.faces, process=False)
     return PlacedPolyp(index, lesion, s, float(theta), base, axis, top, mesh)
 
 

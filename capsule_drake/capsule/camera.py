@@ -55,6 +55,9 @@ from capsule_drake.scene import block
 from capsule_drake.schema import need_range
 
 FPS_MODES = ("fixed", "adaptive")
+LABEL_FACE_SCALE = 4.0
+"""How much denser the faces of a fisheye's label images are than its colour's
+(LensRenderer's label_scale)."""
 LESION_LINK_PREFIX = "lesion_"
 """The camera walls' link of lesion k is LESION_LINK_PREFIX + f"{k:03d}"."""
 DEFAULT_RENDERER = "capsule_camera"
@@ -317,10 +320,18 @@ class LensRenderer:
 
     Args:
         config: the camera configuration (lens, clipping, renderer name).
+        label_scale: the label images' faces are this much denser than the colour's: a
+            label is sampled from the nearest face pixel, not blended. Against the
+            projection of the polyps' geometry (tests/test_lesion_render.py, fisheye, masks
+            of 100-2,200 px) the IoU was 0.74-0.94 at the colour's density, 0.83-0.97 at
+            twice it and 0.91-0.99 at four times (measured; a label image then costs ~1.5
+            colour images).
     """
 
-    def __init__(self, config: CameraConfig):
+    def __init__(self, config: CameraConfig, label_scale: float = LABEL_FACE_SCALE):
         self.config = config
+        self._label_scale = float(label_scale)
+        self._labels = None   # the renderer of the label images (denser faces), made once
         self.lens = Lens(config.lens)
         self.width, self.height = self.lens.width, self.lens.height
         rays, in_field = self.lens.pixel_rays()
@@ -453,6 +464,12 @@ class LensRenderer:
         it sees, taken from the nearest pixel of the views: labels do not blend);
         RenderLabel.kDontCare outside the lens's field, RenderLabel.kEmpty where nothing is
         within range. `renderer` as for `render_rgba`."""
+        if not self._identity and self._label_scale != 1.0:
+            if self._labels is None:
+                self._labels = LensRenderer(dataclasses.replace(
+                    self.config, face_resolution_scale=self._label_scale
+                    * self.config.face_resolution_scale), label_scale=1.0)
+            return self._labels.render_label(query_object, parent_frame, X_PC, renderer)
         cameras = self.cameras(renderer)
         outside = int(RenderLabel.kDontCare)
         if self._identity:
