@@ -4,10 +4,14 @@ used to draw them."""
 
 import numpy as np
 import pytest
+from pydrake.systems.analysis import Simulator
 
 from capsule_drake.anatomy import lesions as L
+from capsule_drake.anatomy import load_colon
+from capsule_drake.anatomy.lesion_geometry import floor_angle
 from capsule_drake.anatomy.params import SEGMENT_NAMES, ColonParams, Lesions, PlacedLesion
 from capsule_drake.scenario import ScenarioError, load_scenario
+from capsule_drake.station import make_station
 
 PATIENTS = 1000
 # The published figures, written out here (not read from the module under test).
@@ -118,3 +122,27 @@ def test_a_wrong_lesion_is_one_line_at_load(text, key):
         load_scenario(override=text)
     message = str(error.value)
     assert key in message and "\n" not in message
+
+
+@pytest.mark.slow
+def test_the_capsule_rests_on_a_polyp_under_it():
+    """Felt by the capsule: a sessile polyp placed where the default capsule rests against
+    the wall (after 1 s) lifts it off the wall toward the centreline, a larger one more."""
+    def rest(text: str):
+        station = make_station(load_scenario(name="Default", override=text))
+        simulator = Simulator(station)
+        simulator.AdvanceTo(1.0)
+        return station.GetOutputPort("capsule.state").Eval(simulator.get_context())[4:7]
+
+    colon, _ = load_colon(load_scenario(name="Default").colon)
+    s, radial, theta = colon.centerline.closest(rest("{}"))
+    start, end = colon.centerline.segment_ranges()["rectum"]
+    margin = min(0.01, 0.25 * (end - start))
+    along = (s - start - margin) / (end - start - 2 * margin)
+    around = np.degrees(theta - floor_angle(colon, s))
+    lifted = []
+    for size in (6.0, 14.0):
+        text = (f"{{colon: {{lesions: {{drawn: false, placed: [{{kind: 0-Is, size_mm: {size},"
+                f" segment: rectum, along: {along:.5f}, around_deg: {around:.3f}}}]}}}}}}")
+        lifted.append(radial - colon.centerline.closest(rest(text))[1])
+    assert lifted[1] > 1e-3 and lifted[1] > lifted[0] > 0.0, lifted

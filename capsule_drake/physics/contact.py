@@ -20,7 +20,8 @@ from pydrake.multibody.tree import QuaternionFloatingJoint
 
 from capsule_drake.anatomy import colon_assets, colon_wall_pieces
 from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
-from capsule_drake.anatomy.source import fluid_scene
+from capsule_drake.anatomy.lesion_geometry import polyp_rgba
+from capsule_drake.anatomy.source import fluid_scene, lesion_scene
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.schema import need_range
 
@@ -113,8 +114,16 @@ def contact_properties(config: ContactConfig) -> ProximityProperties:
 
 def add_colon_wall(plant, config: ContactConfig, colon_params, colon) -> int:
     """Registers the colon wall's collision geometry on the world body, by the contact
-    model; returns how many geometries it took."""
+    model, and its polyps' (each its convex hull: a pedunculated polyp's head and stalk
+    become a cone, U); returns how many geometries it took."""
     world = plant.world_body()
+    polyps = lesion_scene(colon_params)
+    for polyp, path in zip(polyps.polyps, polyps.objs):
+        props = contact_properties(config)
+        if config.model != "convex_pieces":
+            AddRigidHydroelasticProperties(properties=props)
+        plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(str(path)),
+                                        f"polyp_{polyp.index:03d}", props)
     if config.model == "convex_pieces":
         pieces = colon_wall_pieces(colon_params, config.piece_axial_length,
                                    config.piece_max_chord_depth)
@@ -122,7 +131,7 @@ def add_colon_wall(plant, config: ContactConfig, colon_params, colon) -> int:
             name = f"colon_piece_{i:04d}"
             plant.RegisterCollisionGeometry(world, RigidTransform(), Convex(vertices, name),
                                             name, contact_properties(config))
-        return len(pieces)
+        return len(pieces) + len(polyps.polyps)
     chunks = colon_assets(colon_params).collision_objs
     for i, chunk in enumerate(chunks):
         props = contact_properties(config)
@@ -135,7 +144,7 @@ def add_colon_wall(plant, config: ContactConfig, colon_params, colon) -> int:
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(centre), Box(*extents),
                                         f"colon_surround_{i:02d}", props)
-    return len(chunks) + len(boxes)
+    return len(chunks) + len(boxes) + len(polyps.polyps)
 
 
 def add_colon_visuals(plant, colon_params, colon, perception: bool = True):
@@ -163,6 +172,13 @@ def add_colon_visuals(plant, colon_params, colon, perception: bool = True):
             properties = PerceptionProperties()
             properties.AddProperty("phong", "diffuse", Rgba(*colour))
             instance.set_perception_properties(properties)
+        plant.RegisterVisualGeometry(world, instance)
+    polyp_colour = list(polyp_rgba(colon_params.mucosa.base_color))
+    polyps = lesion_scene(colon_params)
+    for polyp, path in zip(polyps.polyps, polyps.objs):   # drawn (the cameras' are their own)
+        instance = GeometryInstance(RigidTransform(), Mesh(str(path)),
+                                    f"polyp_{polyp.index:03d}")
+        instance.set_illustration_properties(MakePhongIllustrationProperties(polyp_colour))
         plant.RegisterVisualGeometry(world, instance)
 
 
