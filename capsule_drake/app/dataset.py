@@ -15,6 +15,8 @@ per sequence here, without the `_<seq>` suffixes) with the sensor streams added:
       SavedRotationQuaternion.txt   per frame: qx qy qz qw, camera-to-world rotation
       frames.csv                    per frame: index, exposure time (s)
       lumen_truth.csv               per frame: where the lumen is in the image
+      Frames/Lesions_0000.png, lesions.csv, lesion_frames.csv, lesions_coco.json
+                                    with polyps in the colon: app/lesion_dataset.py
       <stream>.csv                  one per sensor stream (imu, ahrs, magnetometer, ground_truth)
 
 One quaternion order in every file: x, y, z, w (scalar last), as SimCol3D's
@@ -50,8 +52,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import EventStatus, LeafSystem
-from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
+from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
+from capsule_drake.app.lesion_dataset import LesionRecorder
 from capsule_drake.app.outputs import OutputError
 from capsule_drake.perception.lumen_truth import far_region
 
@@ -173,6 +176,7 @@ class DatasetWriter(LeafSystem):
         - depth
         - frame_time
         - frame_pose
+        - labels (with polyps)
         - <stream> (one per sensor stream)
 
     rgb, depth: the camera's images (depth: range in metres, +inf beyond the far clip).
@@ -195,11 +199,16 @@ class DatasetWriter(LeafSystem):
         plant_step: the discrete plant's time step (s; 0: continuous), for `state_time`.
         plant_step_first: whether the plant steps before the sensors' discrete updates at the
             same time (an unrestricted update: Drake's default with sampled output ports).
+        polyps: the colon's placed polyps (anatomy/lesion_geometry.PlacedPolyp); with any,
+            the `labels` input (the camera's label image) is written as instance masks and
+            a COCO file (app/lesion_dataset.py).
+        lesion_labels: {render label: polyp index} of that label image.
     """
 
     def __init__(self, out_dir, frame_check_period: float, frame_check_offset: float = 0.0,
                  streams=(), mask=None, depth_full_scale: float = 0.2, lumen_truth=None,
-                 texts=None, plant_step: float = 0.0, plant_step_first: bool = True):
+                 texts=None, plant_step: float = 0.0, plant_step_first: bool = True,
+                 polyps=(), lesion_labels=None):
         super().__init__()
         self._plant_step = float(plant_step)
         self._plant_step_first = bool(plant_step_first)
@@ -230,6 +239,19 @@ class DatasetWriter(LeafSystem):
             self._open("lumen", "lumen_truth.csv",
                        "index,time_s,u_px,v_px,visible,x_m,y_m,z_m,s_m,far_u_px,far_v_px,"
                        "far_visible")
+        self._lesions = None
+        if polyps:
+            self._labels = self.DeclareAbstractInputPort(
+                "labels", AbstractValue.Make(ImageLabel16I()))
+            width, height = (self._mask.shape[1], self._mask.shape[0]) if (
+                self._mask is not None) else (0, 0)
+            try:
+                self._lesions = LesionRecorder(self._out, lesion_labels or {}, polyps,
+                                               (width, height))
+            except OSError as e:
+                self.close()
+                raise OutputError(f"{self._out}: cannot write the dataset's lesion files "
+                                  f"({e.strerror or e})") from None
         self._frames_written = 0
         self._last_frame_time = None
         # Just after the frame's delivery: at the tick itself a publish runs before the
@@ -304,6 +326,9 @@ class DatasetWriter(LeafSystem):
         self._write("position", f"{p[0]:.9f} {p[1]:.9f} {p[2]:.9f}")
         self._write("rotation", " ".join(f"{c:.9f}" for c in quaternion_xyzw(X_WC.rotation())))
         self._write("frames", f"{index},{frame_time:.6f}")
+        if self._lesions is not None:
+            self._lesions.add(index, f"Frames/FrameBuffer_{index:04d}.png",
+                              self._labels.Eval(context).data[:, :, 0])
         if self._lumen_truth is not None:
             pixel, visible, point_W, s = self._lumen_truth(X_WC, depth)
             x, y, z = point_W
@@ -315,6 +340,10 @@ class DatasetWriter(LeafSystem):
         return EventStatus.Succeeded()
 
     def close(self):
-        """Closes the files (they are flushed after every line already)."""
+        """Closes the files (they are flushed after every line already) and writes the
+        lesions' COCO file."""
         for f in self._files.values():
             f.close()
+        if self._lesions is not None:
+            lesions, self._lesions = self._lesions, None
+            lesions.close()

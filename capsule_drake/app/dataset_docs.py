@@ -43,6 +43,8 @@ class DatasetDescription:
     # How much later than its tick a sensor's sample measures the state (s): the plant's
     # step when it steps before the sensors (app/dataset.py, state_time); 0 otherwise.
     sensor_lag: float = 0.0
+    # Polyps in the colon (their files are written when there is any).
+    polyps: int = 0
 
 
 def _pose(X: RigidTransform) -> dict:
@@ -316,6 +318,20 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         out.append(f"| `ground_truth.csv` | sample (every {names['ground_truth'].period:g} s) | "
                    "the capsule's "
                    "true pose and velocity (below) |")
+    if d.polyps:
+        out += [
+            "| `Frames/Lesions_XXXX.png` | frame | 16-bit instance mask: 0 where no polyp is "
+            "seen, k + 1 on polyp k |",
+            f"| `lesions.csv` | polyp ({d.polyps}) | Paris type, size (mm), size class, "
+            "segment, arc length (m), its top in W (m), frames that show it, their largest "
+            "pixel area |",
+            "| `lesion_frames.csv` | polyp seen in a frame | `frame, polyp, pixel_area, "
+            "box_x_px, box_y_px, box_w_px, box_h_px` |",
+            "| `lesions_coco.json` | (one) | COCO instances: every frame an image, one "
+            "annotation per polyp it shows (mask as compressed RLE, box, area; "
+            "`lesion_index`, `size_mm`, `size_class`, `segment`); categories the Paris types "
+            "(written at the end; `lesion_frames.jsonl` holds its rows as they come) |",
+        ]
     out += [
         "| `camera.yaml` | (one) | lens model, intrinsics K and distortion D (OpenCV's "
         "order), image size, mounting T_body_camera, frame rate, depth encoding |",

@@ -12,7 +12,8 @@ from capsule_drake.app.mcap_log import add_mcap_logger
 from capsule_drake.app.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
-from capsule_drake.capsule.camera import CameraConfig, camera_tick
+from capsule_drake.anatomy.source import lesion_scene
+from capsule_drake.capsule.camera import CameraConfig, camera_tick, lesion_labels
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
@@ -91,19 +92,22 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                 after_update=name != "ground_truth",
                 first_sample=imu_period if name == "ahrs" else 0.0, order=order))
             sources.append((name, parts))
+        polyps = lesion_scene(scenario.colon).polyps if station.HasOutputPort(
+            "capsule.camera.label_image") else []
         description = DatasetDescription(
             lens=camera.lens, camera=camera_config, X_BC=X_BC, streams=streams,
             imu=scenario.capsule.imu, magnetometer=scenario.capsule.magnetometer,
             ahrs=scenario.capsule.ahrs, scenario_name=scenario_name,
             colon_seed=getattr(scenario.colon, "seed", 0), random_seed=scenario.random_seed,
             duration=scenario.duration, depth_full_scale=camera_config.far,
-            sensor_lag=sensor_lag)
+            sensor_lag=sensor_lag, polyps=len(polyps))
         lumen = station.GetSubsystemByName("capsule.lumen")
         writer = builder.AddNamedSystem("dataset_writer", DatasetWriter(
             out_dir, frame_check_period=tick, frame_check_offset=camera_config.latency,
             streams=streams, mask=camera.lens.pixel_rays()[1],
             depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
-            plant_step=plant_step, plant_step_first=plant_step_first,
+            plant_step=plant_step, plant_step_first=plant_step_first, polyps=polyps,
+            lesion_labels=lesion_labels(plant, camera_config.renderer_name),
             texts={"README.md": dataset_readme(description),
                    "camera.yaml": camera_yaml(description),
                    "sensors.yaml": sensors_yaml(description)}))
@@ -113,6 +117,9 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                         writer.GetInputPort("depth"))
         builder.Connect(station.GetOutputPort("capsule.camera.frame_pose"),
                         writer.GetInputPort("frame_pose"))
+        if polyps:
+            builder.Connect(station.GetOutputPort("capsule.camera.label_image"),
+                            writer.GetInputPort("labels"))
         # frame_info = [exposure time of the last frame, frames taken, took-a-frame flag, rate].
         frame_info = builder.AddNamedSystem("frame_info", Demultiplexer([1, 3]))
         builder.Connect(station.GetOutputPort("capsule.camera.frame_info"),

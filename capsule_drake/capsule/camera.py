@@ -39,7 +39,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.primitives import RandomSource
-from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageRgba8U
+from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageLabel16I, ImageRgba8U
 from pydrake.common import RandomDistribution
 
 from capsule_drake.anatomy import colon_assets
@@ -558,6 +558,7 @@ class CapsuleCamera(LeafSystem):
         - depth_image
         - frame_info
         - frame_pose
+        - label_image (with static_scene)
 
     condition_draw: two uniform numbers in [0, 1) read at each frame (a RandomSource at
     the camera's tick): which image condition of `config.conditions` the frame meets, and
@@ -571,6 +572,8 @@ class CapsuleCamera(LeafSystem):
     camera's last event delivered a frame else 0, current frame rate (1/s)].
     frame_pose: the camera's pose at that frame's exposure, [R_WC row-major (9), p_WC (3)]
     (NaN before the first frame).
+    label_image: ImageLabel16I (H x W), the RenderLabel each pixel of that frame sees
+    (`LensRenderer.render_label`), drawn when first read: a lesion's label is its own.
 
     Args:
         config: CameraConfig (lens, frame rate, clipping, light, renderer name). The
@@ -641,6 +644,16 @@ class CapsuleCamera(LeafSystem):
                 {self.discrete_state_ticket(self._frame_pose_index)})
         else:
             self._depth_port = self.DeclareStateOutputPort("depth_image", self._depth_index)
+        # Render labels of the last frame (static scene), drawn when read, like the lazy
+        # depth: each pixel the RenderLabel of what it sees (a lesion's is its own: an
+        # instance mask for free; station.lesion_labels names them).
+        self._label_memo = None   # (frame pose bytes, label image) of the last one drawn
+        self._label_port = None
+        if static_scene:
+            self._label_port = self.DeclareAbstractOutputPort(
+                "label_image", lambda: AbstractValue.Make(ImageLabel16I(W, H)),
+                weak_method(self._calc_label),
+                {self.discrete_state_ticket(self._frame_pose_index)})
         self._frame_info_port = self.DeclareStateOutputPort("frame_info", self._info_index)
         # A frame in flight (latency > 0): [exposed (0/1), exposure time, pose (12)].
         self._exposure_index = self.DeclareDiscreteState(np.full(14, np.nan))
@@ -761,6 +774,21 @@ class CapsuleCamera(LeafSystem):
         self._renderer.render_range(query_object, query_object.inspector().world_frame_id(),
                                     X_WC, out=depth.mutable_data[..., 0], renderer=renderer)
         self._depth_memo = (key, depth.data[..., 0].copy())
+
+    def _calc_label(self, context, value):
+        pose = context.get_discrete_state(self._frame_pose_index).value()
+        labels = value.get_mutable_value().mutable_data[..., 0]
+        if not np.all(np.isfinite(pose)):  # no frame yet
+            labels[...] = int(RenderLabel.kEmpty)
+            return
+        key = pose.tobytes()
+        if self._label_memo is None or self._label_memo[0] != key:
+            query_object = self._query_object_port.Eval(context)
+            X_WC, renderer = self._view_at(pose)
+            self._label_memo = (key, self._renderer.render_label(
+                query_object, query_object.inspector().world_frame_id(), X_WC,
+                renderer=renderer))
+        labels[...] = self._label_memo[1]
 
     def _camera_pose_vector(self, query_object) -> np.ndarray:
         X_WC = query_object.GetPoseInWorld(self._parent_frame).multiply(self._X_PC)
@@ -930,6 +958,18 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
     return CameraWalls(windows, names, colon.centerline)
 
 
+def lesion_labels(plant, renderer_name: str = DEFAULT_RENDERER) -> dict[int, int]:
+    """{render label: lesion index} of the lesions a camera drawing with `renderer_name`
+    sees (the links of its camera walls, `add_camera_walls`)."""
+    model = f"camera_walls_{renderer_name}"
+    if not plant.HasModelInstanceNamed(model):
+        return {}
+    instance = plant.GetModelInstanceByName(model)
+    return {int(index): int(plant.get_body(index).name()[len(LESION_LINK_PREFIX):])
+            for index in plant.GetBodyIndices(instance)
+            if plant.get_body(index).name().startswith(LESION_LINK_PREFIX)}
+
+
 @block(CameraConfig)
 def add_camera(builder, parts, config: CameraConfig):
     """`capsule.camera` at the capsule's `camera` frame (its own renderers, light at the
@@ -950,8 +990,9 @@ def add_camera(builder, parts, config: CameraConfig):
         draws = builder.AddNamedSystem("capsule.camera.condition_draws", RandomSource(
             RandomDistribution.kUniform, 2, camera.tick()))
         builder.Connect(draws.get_output_port(), camera.GetInputPort("condition_draw"))
-    for name in ("rgb_image", "depth_image", "frame_info", "frame_pose"):
-        parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
+    for name in ("rgb_image", "depth_image", "frame_info", "frame_pose", "label_image"):
+        if camera.HasOutputPort(name):
+            parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
     add_lumen_truth(builder, parts, camera)
     return camera
 
