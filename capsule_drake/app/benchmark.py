@@ -48,7 +48,11 @@ from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.population import patient_label
 from capsule_drake.app.run import simulate
 from capsule_drake.io.metrics import pressure_metrics
+from capsule_drake.anatomy.lesions import SIZE_CLASSES
+from capsule_drake.anatomy.source import lesion_scene
+from capsule_drake.capsule.camera import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
+from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.scenario import load_scenario
 
@@ -71,7 +75,9 @@ COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to
            "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
            "detection_error_pct", "detection_rate", "detection_fp_rate",
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
-           "epm_path_m", "coverage", "sim_time_s", "wall_time_s", "status", "error")
+           "epm_path_m", "coverage", "polyps_diminutive", "seen_diminutive", "polyps_small",
+           "seen_small", "polyps_large", "seen_large", "sim_time_s", "wall_time_s", "status",
+           "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
 # cecum, the guard, an error inside the simulation), or it failed (`error` says how: its
 # process crashed, it outlived its wall-time limit, or it raised before it could simulate).
@@ -150,6 +156,8 @@ def run_task(task: Task, progress=None) -> dict:
     period = scenario.outputs.log_period
     extra = {}
     last_report, simulating_since = [-np.inf], [0.0]
+    polyps = lesion_scene(scenario.colon).polyps
+    lesion_views = []
 
     def extend(builder, station):
         if station.HasOutputPort("capsule.camera.rgb_image"):
@@ -164,6 +172,16 @@ def run_task(task: Task, progress=None) -> dict:
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
+            if polyps and station.HasOutputPort("capsule.camera.label_image"):
+                plant = station.GetSubsystemByName("plant")
+                views = builder.AddNamedSystem("lesion_views", LesionViews(
+                    lesion_labels(plant, scenario.capsule.camera.renderer_name), len(polyps),
+                    int(camera.lens.pixel_rays()[1].sum()), camera.tick(),
+                    camera.latency() + 1e-6))
+                for name in ("label_image", "depth_image", "frame_info"):
+                    builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
+                                    views.GetInputPort(name))
+                lesion_views.append(views)
         if station.HasOutputPort("capsule.localizer.pose"):
             extra["localizer_pose"] = LogVectorOutput(
                 station.GetOutputPort("capsule.localizer.pose"), builder, period)
@@ -197,6 +215,8 @@ def run_task(task: Task, progress=None) -> dict:
     if result.status == "diverged":  # nothing measured in such a run means anything
         row.update({key: np.nan for key in DIVERGED_NAN})
         row.update(reached_cecum=False, segments_passed=[])
+    row.update(lesion_columns(polyps, lesion_views[0].final_shown(
+        lesion_views[0].GetMyContextFromRoot(result.context)) if lesion_views else None))
     row["patient"] = patient_label(scenario.colon)
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
@@ -205,6 +225,18 @@ def run_task(task: Task, progress=None) -> dict:
     step = max(1, int(round(1.0 / period)))
     return {"row": row, "curve": (result.times[::step].tolist(), s[::step].tolist()),
             "segments": colon.centerline.segment_ranges(), "worker_pid": os.getpid()}
+
+
+def lesion_columns(polyps, shown_s) -> dict:
+    """Per size class, the polyps in the colon and those the run showed for at least
+    SEEN_SECONDS (navigation/lesions_seen.py); NaN counts seen without a camera."""
+    out = {}
+    for size_class in SIZE_CLASSES:
+        mine = [k for k, p in enumerate(polyps) if p.lesion.size_class == size_class]
+        out[f"polyps_{size_class}"] = len(mine)
+        out[f"seen_{size_class}"] = (np.nan if shown_s is None else
+                                     int(sum(shown_s[k] >= SEEN_SECONDS for k in mine)))
+    return out
 
 
 def _rounded(value, digits: int) -> float:
@@ -941,8 +973,20 @@ def summary(results: list[dict]) -> list[dict]:
                        for key in ("loc_pos_err_median_mm", "loc_pos_err_p95_mm",
                                    "loc_rot_err_median_deg")
                        for suffix, how in (("", mean), ("_worst", worst))},
-                    "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage")})
+                    "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage"),
+                    **{f"seen_{size_class}": _seen(rows, size_class)
+                       for size_class in SIZE_CLASSES}})
     return out
+
+
+def _seen(rows, size_class: str) -> str:
+    """"seen/present" polyps of a size class over the runs that counted them ("-": none)."""
+    counted = [row for row in rows
+               if np.isfinite(float(row.get(f"seen_{size_class}", np.nan)))]
+    present = sum(int(row[f"polyps_{size_class}"]) for row in counted)
+    if not present:
+        return "-"
+    return f"{sum(int(row[f'seen_{size_class}']) for row in counted)}/{present}"
 
 
 def breakdown(results: list[dict]) -> list[dict]:
