@@ -5,16 +5,16 @@ reaches another."""
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I
+from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from capsule_drake.app import benchmark
-from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
+from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews, detection_points
 
 
-def _run(views, frames):
+def _run(views, frames, simulator=None):
     """Feeds `views` the frames [(exposure t, frame count, {label: (pixels, range m)})],
     each from its tick to the next, and returns its context."""
-    simulator = Simulator(views)
+    simulator = simulator or Simulator(views)
     context = simulator.get_mutable_context()
     for t, count, polyps in frames:
         labels, depth = ImageLabel16I(10, 10), ImageDepth32F(10, 10)
@@ -55,6 +55,34 @@ def test_time_in_view_counts_frames_near_and_large_enough():
     assert SEEN_SECONDS == pytest.approx(0.2)
 
 
+def test_a_detector_is_scored_per_polyp_and_per_minute():
+    # Frame 1: a point on polyp 0 (label 7, the first 4 pixels of row 0) and one on the wall;
+    # frame 2: a box whose centre is on polyp 1 (label 9, pixels 4-28 of the rows); frame 3:
+    # the detector fails.
+    answers = iter([[(1.0, 0.0), (9.0, 9.0)], [(4.0, 1.0, 4.0, 2.0)], RuntimeError("no")])
+
+    def detector(rgb):
+        answer = next(answers)
+        if isinstance(answer, Exception):
+            raise answer
+        return answer
+
+    views = LesionViews({7: 0, 9: 1}, 2, field_pixels=100, period=0.1, detector=detector)
+    simulator = Simulator(views)
+    views.GetInputPort("rgb_image").FixValue(simulator.get_mutable_context(),
+                                             ImageRgba8U(10, 10))
+    views_context = _run(views, FRAMES, simulator)
+    score = views.detector_score(seen=views.final_shown(views_context) >= 0.1)
+    np.testing.assert_array_equal(score["detected_frames"], [1, 1])
+    assert (score["frames"], score["failures"], score["false_positives"]) == (3, 1, 1)
+    # One false positive over 0.3 s of frames (0 to 0.2 s, and the last frame's period).
+    assert score["fp_per_min"] == pytest.approx(1 / (0.3 / 60))
+    assert (score["seen"], score["seen_detected"]) == (2, 2)
+    assert detection_points([(1, 2), (0, 0, 4, 6)]) == [(1.0, 2.0), (2.0, 3.0)]
+    with pytest.raises(ValueError):
+        detection_points([(1, 2, 3)])
+
+
 @pytest.mark.slow
 def test_a_run_sees_the_polyp_it_passes_and_not_the_one_it_never_reaches():
     # A large sessile polyp on the rectum's wall 5 cm ahead of the capsule's start, which
@@ -62,9 +90,13 @@ def test_a_run_sees_the_polyp_it_passes_and_not_the_one_it_never_reaches():
     text = ("{colon: {lesions: {drawn: false, placed: [{kind: 0-Is, size_mm: 12, segment: "
             "rectum, along: 0.7, around_deg: 200}, {kind: 0-Is, size_mm: 7, segment: cecum, "
             "along: 0.5, around_deg: 0}]}}}")
-    row = benchmark.run_task(benchmark.Task("autonomy-truth", 4, duration=4.0,
-                                            scenario_text=text))["row"]
+    row = benchmark.run_task(benchmark.Task(
+        "autonomy-truth", 4, duration=4.0, scenario_text=text,
+        polyp_detector="tests.plugins.polyp_detectors:brightest_spot"))["row"]
     assert (row["polyps_large"], row["seen_large"]) == (1, 1)
     assert (row["polyps_small"], row["seen_small"]) == (1, 0)
     assert (row["polyps_diminutive"], row["seen_diminutive"]) == (0, 0)
     assert benchmark.summary([{"row": row}])[0]["seen_large"] == "1/1"
+    # The trivial detector is scored (what it scores is not the point): over the one seen.
+    assert row["polyps_detected"] in (0, 1) and row["polyp_fp_per_min"] >= 0.0
+    assert benchmark.summary([{"row": row}])[0]["polyp_sensitivity"] in ("0/1", "1/1")

@@ -54,6 +54,7 @@ from capsule_drake.capsule.camera import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator
+from capsule_drake.plugins import load_function
 from capsule_drake.scenario import load_scenario
 
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
@@ -76,8 +77,8 @@ COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to
            "detection_error_pct", "detection_rate", "detection_fp_rate",
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
            "epm_path_m", "coverage", "polyps_diminutive", "seen_diminutive", "polyps_small",
-           "seen_small", "polyps_large", "seen_large", "sim_time_s", "wall_time_s", "status",
-           "error")
+           "seen_small", "polyps_large", "seen_large", "polyps_detected", "polyp_fp_per_min",
+           "sim_time_s", "wall_time_s", "status", "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
 # cecum, the guard, an error inside the simulation), or it failed (`error` says how: its
 # process crashed, it outlived its wall-time limit, or it raised before it could simulate).
@@ -119,6 +120,9 @@ class Task:
     log_period: float = 0.1
     # The scenario file the named scenarios come from (default diagrams/default.yaml).
     scenario_file: str | None = None
+    # A user's polyp detector, "package.module:function" (navigation/lesions_seen.py),
+    # scored on every frame; "": none.
+    polyp_detector: str = ""
 
 
 def task_scenario(task: Task):
@@ -158,6 +162,8 @@ def run_task(task: Task, progress=None) -> dict:
     last_report, simulating_since = [-np.inf], [0.0]
     polyps = lesion_scene(scenario.colon).polyps
     lesion_views = []
+    detector = (load_function("polyp detector", task.polyp_detector, "a function")
+                if task.polyp_detector else None)
 
     def extend(builder, station):
         if station.HasOutputPort("capsule.camera.rgb_image"):
@@ -172,13 +178,14 @@ def run_task(task: Task, progress=None) -> dict:
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
-            if polyps and station.HasOutputPort("capsule.camera.label_image"):
+            if (polyps or detector) and station.HasOutputPort("capsule.camera.label_image"):
                 plant = station.GetSubsystemByName("plant")
                 views = builder.AddNamedSystem("lesion_views", LesionViews(
                     lesion_labels(plant, scenario.capsule.camera.renderer_name), len(polyps),
                     int(camera.lens.pixel_rays()[1].sum()), camera.tick(),
-                    camera.latency() + 1e-6))
-                for name in ("label_image", "depth_image", "frame_info"):
+                    camera.latency() + 1e-6, detector=detector))
+                for name in ("label_image", "depth_image", "frame_info") + (
+                        ("rgb_image",) if detector else ()):
                     builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
                                     views.GetInputPort(name))
                 lesion_views.append(views)
@@ -215,8 +222,13 @@ def run_task(task: Task, progress=None) -> dict:
     if result.status == "diverged":  # nothing measured in such a run means anything
         row.update({key: np.nan for key in DIVERGED_NAN})
         row.update(reached_cecum=False, segments_passed=[])
-    row.update(lesion_columns(polyps, lesion_views[0].final_shown(
-        lesion_views[0].GetMyContextFromRoot(result.context)) if lesion_views else None))
+    shown = (lesion_views[0].final_shown(lesion_views[0].GetMyContextFromRoot(result.context))
+             if lesion_views else None)
+    row.update(lesion_columns(polyps, shown))
+    score = (lesion_views[0].detector_score(None if shown is None else shown >= SEEN_SECONDS)
+             if lesion_views and detector else None)
+    row.update(polyps_detected=np.nan if score is None else score["seen_detected"],
+               polyp_fp_per_min=np.nan if score is None else round(score["fp_per_min"], 2))
     row["patient"] = patient_label(scenario.colon)
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
@@ -975,8 +987,20 @@ def summary(results: list[dict]) -> list[dict]:
                        for suffix, how in (("", mean), ("_worst", worst))},
                     "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage"),
                     **{f"seen_{size_class}": _seen(rows, size_class)
-                       for size_class in SIZE_CLASSES}})
+                       for size_class in SIZE_CLASSES},
+                    "polyp_sensitivity": _sensitivity(rows),
+                    "polyp_fp_per_min": mean("polyp_fp_per_min")})
     return out
+
+
+def _sensitivity(rows) -> str:
+    """"detected/seen" polyps over the runs that scored a polyp detector ("-": none)."""
+    scored = [row for row in rows if np.isfinite(float(row.get("polyps_detected", np.nan)))]
+    seen = sum(int(row[f"seen_{c}"]) for row in scored for c in SIZE_CLASSES
+               if np.isfinite(float(row[f"seen_{c}"])))
+    if not scored:
+        return "-"
+    return f"{sum(int(row['polyps_detected']) for row in scored)}/{seen}"
 
 
 def _seen(rows, size_class: str) -> str:

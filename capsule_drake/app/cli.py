@@ -40,6 +40,7 @@ from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITI
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE
 from capsule_drake.perception.lumen import load_detector
+from capsule_drake.plugins import load_function
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_scenario,
                                     scenario_names)
 
@@ -177,6 +178,10 @@ def _parser() -> argparse.ArgumentParser:
                             "the built-in navigators are named scenarios of their own")
     bench.add_argument("--scenario-text", default="", metavar="YAML",
                        help="YAML layered on every run's scenario")
+    bench.add_argument("--polyp-detector", default="", metavar="MODULE:FUNCTION",
+                       help="a polyp detector (a function of the RGB frame returning points "
+                            "(u, v) or boxes (x, y, w, h)) scored on every frame: per polyp "
+                            "seen and false positives per minute")
     bench.add_argument("--workers", type=int, default=2, help="parallel runs (default 2)")
     bench.add_argument("--run-timeout", type=float, metavar="S",
                        help="wall seconds a run may take before it is stopped and marked "
@@ -423,8 +428,13 @@ def _benchmark(args) -> int:
                    else args.run_timeout)
     if not (np.isfinite(run_timeout) and 0 < run_timeout <= 1e7):
         raise ScenarioError(f"--run-timeout must be > 0 and <= 1e7 s, got {run_timeout}")
+    if args.polyp_detector:
+        try:
+            load_function("polyp detector", args.polyp_detector, "a function")
+        except ValueError as e:
+            raise ScenarioError(f"--polyp-detector: {e}") from None
     tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text,
-                  tier_text=tier_text)
+                  tier_text=tier_text, polyp_detector=args.polyp_detector)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
     names = scenario_names(DEFAULT_SCENARIO_FILE)

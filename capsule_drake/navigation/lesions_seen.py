@@ -13,12 +13,26 @@ field and some of it within SEEN_RANGE of the camera:
   S, product summaries).
 A clinical study counts a polyp found if a detector flags it in one frame; these
 thresholds ask more of the view, and each is a parameter of `LesionViews`.
+
+A user's polyp detector (a function of the RGB frame returning detections, each a point
+(u, v) or a box (x, y, width, height) whose centre counts) is scored on every frame the way
+the MICCAI 2015 polyp-detection challenge scores one (docs/sources.md section 3.4): a
+detection whose point falls on a polyp's pixels of the label image is a true positive of
+that polyp (several on one polyp count once), one that falls on none is a false positive.
+A polyp is detected when it had a true positive in any frame (the clinical rule);
+sensitivity is over the polyps seen, false positives are per minute of frames. A detector
+that raises or returns something malformed counts a failure for that frame; the run goes on.
 """
+
+import logging
+
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
-from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I
+from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
+
+log = logging.getLogger(__name__)
 
 SEEN_SECONDS = 0.2
 SEEN_AREA = 0.005
@@ -51,8 +65,14 @@ class LesionViews(LeafSystem):
     """
 
     def __init__(self, labels: dict[int, int], count: int, field_pixels: int, period: float,
-                 delay: float = 1e-6, area: float = SEEN_AREA, max_range: float = SEEN_RANGE):
+                 delay: float = 1e-6, area: float = SEEN_AREA, max_range: float = SEEN_RANGE,
+                 detector=None):
         super().__init__()
+        self._detector = detector
+        # The detector's score: [frames, failures, false positives, first and last frame's
+        # time] and per polyp the frames it was detected in.
+        self._score = np.array([0.0, 0.0, 0.0, np.nan, np.nan])
+        self._detected = np.zeros(int(count))
         self._labels = dict(labels)
         self._count = int(count)
         self._min_pixels = area * field_pixels
@@ -63,6 +83,8 @@ class LesionViews(LeafSystem):
         self._depth = self.DeclareAbstractInputPort("depth_image",
                                                     AbstractValue.Make(ImageDepth32F()))
         self._info = self.DeclareVectorInputPort("frame_info", 4)
+        self._rgb = (self.DeclareAbstractInputPort("rgb_image", AbstractValue.Make(
+            ImageRgba8U())) if detector is not None else None)
         # [last frame count, last exposure time, last frame's qualifying (count)...,
         #  shown_s (count), frames in view (count), largest area (count), nearest (count)]
         n = self._count
@@ -90,7 +112,7 @@ class LesionViews(LeafSystem):
     def _update(self, context, state):
         info = self._info.Eval(context)
         values = context.get_discrete_state(self._state).value().copy()
-        if info[1] == values[0] or self._count == 0:
+        if info[1] == values[0]:
             return EventStatus.DidNothing()
         n = self._count
         qualifying = values[2:2 + n]
@@ -111,11 +133,72 @@ class LesionViews(LeafSystem):
             qualifying[k] = float(count >= self._min_pixels and nearest <= self._max_range)
         values[2:2 + n] = qualifying
         values[0], values[1] = info[1], info[0]
+        if self._detector is not None:
+            self._score_detector(self._rgb.Eval(context).data[..., :3], labels, info[0])
         state.get_mutable_discrete_state(self._state).set_value(values)
         return EventStatus.Succeeded()
+
+    def _score_detector(self, rgb, labels, t: float) -> None:
+        score = self._score
+        score[0] += 1.0
+        score[3] = t if not np.isfinite(score[3]) else score[3]
+        score[4] = t
+        try:
+            points = detection_points(self._detector(rgb.copy()))
+        except Exception as e:   # a user's detector must not stop the simulation
+            log.warning("polyp detector failed on a frame: %s: %s", type(e).__name__, e)
+            score[1] += 1.0
+            return
+        height, width = labels.shape
+        hit = set()
+        for u, v in points:
+            col, row = int(round(u)), int(round(v))
+            k = (self._labels.get(int(labels[row, col]))
+                 if 0 <= row < height and 0 <= col < width else None)
+            if k is None:
+                score[2] += 1.0
+            else:
+                hit.add(k)
+        for k in hit:
+            self._detected[k] += 1.0
+
+    def detector_score(self, seen=None) -> dict:
+        """The detector's score so far: frames, failures, false positives and their rate
+        per minute of frames (over the time from the first frame to the last plus one
+        period), frames detected per polyp, and (given `seen`, per polyp bools) the polyps
+        seen and the seen ones detected."""
+        frames, failures, false_positives, first, last = self._score
+        minutes = ((last - first) + self._period) / 60.0 if frames else np.nan
+        out = {"frames": int(frames), "failures": int(failures),
+               "false_positives": int(false_positives),
+               "fp_per_min": false_positives / minutes if frames else np.nan,
+               "detected_frames": self._detected.copy()}
+        if seen is not None:
+            seen = np.asarray(seen, dtype=bool)
+            out["seen"] = int(seen.sum())
+            out["seen_detected"] = int((seen & (self._detected > 0)).sum())
+        return out
 
     def final_shown(self, context) -> np.ndarray:
         """shown_s with the last frame counted for one camera period."""
         v = context.get_discrete_state(self._state).value()
         n = self._count
         return v[2 + n:2 + 2 * n] + v[2:2 + n] * self._period
+
+
+def detection_points(detections) -> list[tuple[float, float]]:
+    """The points (u, v) of a detector's answer: each detection a point (u, v) or a box
+    (x, y, width, height), whose centre counts. ValueError for anything else."""
+    points = []
+    for detection in detections if detections is not None else ():
+        values = np.asarray(detection, dtype=float).ravel()
+        if values.size == 2:
+            u, v = values
+        elif values.size == 4:
+            u, v = values[0] + 0.5 * values[2], values[1] + 0.5 * values[3]
+        else:
+            raise ValueError(f"a detection must be (u, v) or (x, y, w, h), not {detection!r}")
+        if not (np.isfinite(u) and np.isfinite(v)):
+            raise ValueError(f"a detection is not finite: {detection!r}")
+        points.append((float(u), float(v)))
+    return points
