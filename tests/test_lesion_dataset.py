@@ -1,6 +1,7 @@
 """A recorded dataset's lesion ground truth (app/lesion_dataset.py), read with pycocotools:
 the COCO file loads, and each annotation's mask decodes to exactly the pixels of that
-polyp in the frame's mask PNG; our RLE encoder against pycocotools' own."""
+polyp in the frame's mask PNG; our RLE encoder against pycocotools' own; the MCAP log's
+lesion boxes against the dataset's."""
 
 import csv
 import json
@@ -8,6 +9,8 @@ import json
 import cv2
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from pycocotools import mask as coco_mask
 from pycocotools.coco import COCO
 
@@ -45,11 +48,12 @@ def test_our_rle_is_pycocotools_rle(shape, fill):
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
-    out = tmp_path_factory.mktemp("lesions") / "batch"
-    code = cli_main(["record", "--seeds", str(SEED), "--duration", "0.35", "--scenario-text",
-                     TEXT, "--out", str(out), "--quiet"])
+    out = tmp_path_factory.mktemp("lesions") / "recording"
+    text = TEXT.replace("{colon: {", f"{{colon: {{seed: {SEED}, ", 1)
+    code = cli_main(["record", "--duration", "0.35", "--scenario-text", text, "--out",
+                     str(out), "--mcap", str(out.parent / "run.mcap"), "--quiet"])
     assert code == 0
-    return out / f"seed_{SEED:04d}"
+    return out
 
 
 @pytest.mark.slow
@@ -83,3 +87,26 @@ def test_the_coco_file_loads_and_its_masks_are_the_mask_pngs(folder):
     for row in rows:
         count = sum(a["lesion_index"] == int(row["polyp"]) for a in shown)
         assert int(row["frames_shown"]) == count
+
+
+@pytest.mark.slow
+def test_the_mcap_log_boxes_the_polyps_the_dataset_annotates(folder):
+    """/capsule/lesions/marker: per frame, each polyp in view as a box, the same boxes as
+    the dataset's lesion_frames.csv of the same run."""
+    boxes = {}
+    with open(folder.parent / "run.mcap", "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, _, marker in reader.iter_decoded_messages(
+                topics=["/capsule/lesions/marker"]):
+            if marker.action == 0:
+                stamp = marker.header.stamp.sec + 1e-9 * marker.header.stamp.nanosec
+                xs = [p.x for p in marker.points]
+                ys = [p.y for p in marker.points]
+                boxes[(round(stamp, 4), marker.id)] = (min(xs) + 0.5, min(ys) + 0.5,
+                                                       max(xs) - min(xs), max(ys) - min(ys))
+    times = {int(r["index"]): float(r["time_s"])
+             for r in csv.DictReader(open(folder / "frames.csv"))}
+    expected = {(round(times[int(r["frame"])], 4), int(r["polyp"])): tuple(
+        float(r[k]) for k in ("box_x_px", "box_y_px", "box_w_px", "box_h_px"))
+        for r in csv.DictReader(open(folder / "lesion_frames.csv"))}
+    assert expected and boxes == expected

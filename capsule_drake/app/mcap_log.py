@@ -20,6 +20,8 @@ writes, for whatever the scenario has (a topic whose source is switched off is a
     /capsule/lumen_truth/far_marker    visualization_msgs ImageMarker   each frame
     /capsule/lumen_tracker/pixel       geometry_msgs PointStamped   each frame; capsule_camera_image
     /capsule/lumen_tracker/marker      visualization_msgs ImageMarker   each frame
+    /capsule/lesions/marker            visualization_msgs ImageMarker   each frame (with polyps):
+                                       each polyp in view its box (POLYGON, id = its index)
     /capsule/imu/data                  sensor_msgs Imu              its rate; capsule_imu
     /capsule/magnetometer              sensor_msgs MagneticField T  its rate; capsule_magnetometer
     /capsule/magnetic_array/hall_<i>   sensor_msgs MagneticField T  its rate; capsule_hall_<i>
@@ -73,14 +75,16 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import EventStatus, LeafSystem
-from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
+from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
+from capsule_drake.capsule.camera import lesion_labels
 from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
 from capsule_drake.lifetime import id_values
 from capsule_drake.app.dataset import READ_DELAY, sample_tick, state_time
+from capsule_drake.app.lesion_dataset import box_of
 from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsule_mcap
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
@@ -550,7 +554,8 @@ class _CameraStream(_Stream):
     """
 
     def __init__(self, lens, tick: float, latency: float, render_depth: bool,
-                 with_tracker: bool, timing: PlantTiming = PlantTiming()):
+                 with_tracker: bool, timing: PlantTiming = PlantTiming(),
+                 lesion_labels: dict | None = None):
         self.period = tick
         self.offset = latency + 2.0 * READ_DELAY
         self.timing = timing
@@ -572,8 +577,38 @@ class _CameraStream(_Stream):
             self.inputs.update({"capsule.lumen_tracker.lumen_pixel": 2,
                                 "capsule.lumen_tracker.lumen_confidence": 1,
                                 "capsule.lumen_tracker.lumen_visible": 1})
+        self._lesions = dict(lesion_labels or {})
+        self._lesions_shown: set[int] = set()
+        if self._lesions:
+            self.inputs["capsule.camera.label_image"] = AbstractValue.Make(ImageLabel16I(W, H))
         self._last_count = None
         self.frames = 0
+
+    def _write_lesions(self, log, stamp, now, labels):
+        """Each polyp in view as a box (ImageMarker POLYGON, ns "lesions", id its index);
+        one that has left the view since the last frame, a REMOVE."""
+        shown = set()
+        for label in np.unique(labels):
+            k = self._lesions.get(int(label))
+            if k is None:
+                continue
+            x, y, w, h = box_of(labels == label)
+            corners = [(x - 0.5, y - 0.5), (x + w - 0.5, y - 0.5), (x + w - 0.5, y + h - 0.5),
+                       (x - 0.5, y + h - 0.5)]
+            log.write("/capsule/lesions/marker", "visualization_msgs/msg/ImageMarker", {
+                "header": header(stamp, CAMERA), "ns": "lesions", "id": k, "type": 3,
+                "action": 0, "position": {"x": 0.0, "y": 0.0, "z": 0.0}, "scale": 1.0,
+                "outline_color": {"r": 1.0, "g": 0.9, "b": 0.1, "a": 1.0}, "filled": 0,
+                "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0},
+                "lifetime": {"sec": 0, "nanosec": 0},
+                "points": [{"x": float(u), "y": float(v), "z": 0.0} for u, v in corners],
+                "outline_colors": []}, now)
+            shown.add(k)
+        for k in sorted(self._lesions_shown - shown):
+            log.write("/capsule/lesions/marker", "visualization_msgs/msg/ImageMarker",
+                      dict(_image_marker(stamp, "lesions", (0.0, 0.0), False, 1.0,
+                                         (1.0, 0.9, 0.1)), id=k), now)
+        self._lesions_shown = shown
 
     def write(self, log, t, values):
         exposure, count = float(values["capsule.camera.frame_info"][0]), \
@@ -630,6 +665,9 @@ class _CameraStream(_Stream):
             log.write("/capsule/lumen_tracker/marker", "visualization_msgs/msg/ImageMarker",
                       _image_marker(stamp, "lumen_tracker", detected, found,
                                     self._marker_radius, (1.0, 0.6, 0.1)), now)
+        if self._lesions:
+            self._write_lesions(log, stamp, now,
+                                values["capsule.camera.label_image"].data[:, :, 0])
         self.frames += 1
 
 
@@ -739,9 +777,12 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
     if "capsule.camera.rgb_image" in outputs:
         camera = station.GetSubsystemByName("capsule.camera")
         static.append((CAPSULE, CAMERA, plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()))
+        labels = (lesion_labels(plant, camera.config.renderer_name)
+                  if "capsule.camera.label_image" in outputs else {})
         streams.append(_CameraStream(camera.lens, camera.tick(), camera.latency(),
                                      camera.config.render_depth,
-                                     "capsule.lumen_tracker.lumen_pixel" in outputs, timing))
+                                     "capsule.lumen_tracker.lumen_pixel" in outputs, timing,
+                                     lesion_labels=labels))
     if "capsule.imu.accel" in outputs:
         static.append((CAPSULE, IMU, capsule.imu.X_BS()))
         streams.append(_ImuStream(capsule.imu, "capsule.ahrs.q_WB" in outputs, timing))
