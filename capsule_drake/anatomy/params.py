@@ -591,8 +591,9 @@ def check_colon_params(params: ColonParams) -> None:
             need(np.isfinite(lesion.around_deg), f"{where}.around_deg", "must be finite",
                  lesion.around_deg)
         seed = params.lesions.seed
-        need(seed is None or (isinstance(seed, int) and seed >= 0), "lesions.seed",
-             "must be a non-negative integer or null", seed)
+        need(seed is None or (isinstance(seed, int) and 0 <= seed <= 2**32 - 1),
+             "lesions.seed", f"must be null or an integer in {SEED_RANGE} (a 32-bit seed)",
+             seed)
     m = params.mucosa
     for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
         value = getattr(m, field_name)
