@@ -19,7 +19,7 @@ import numpy as np
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.params import ColonParams, Lesions, PlacedLesion
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import LESION_LINK_PREFIX, CameraConfig, capsule_camera_for_frame
+from capsule_drake.capsule.camera import CameraConfig, capsule_camera_for_frame, lesion_labels
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception.views import camera_scene
 
@@ -45,7 +45,7 @@ def frame(seed: int, segment: str, kind: str, size: float, back: float, around: 
     X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
     rgb = camera.renderer.render_rgba(query, frame_id, X_BC, renderer=renderer)[..., :3].copy()
     label = camera.renderer.render_label(query, frame_id, X_BC, renderer=renderer)
-    mask = label == int(plant.GetBodyByName(f"{LESION_LINK_PREFIX}000").index())
+    mask = label == next(iter(lesion_labels([polyp])))
     return rgb, mask
 
 

@@ -10,8 +10,8 @@ import pytest
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.params import ColonParams, Lesions, PlacedLesion
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import (LESION_LINK_PREFIX, CameraConfig,
-                                          capsule_camera_for_frame)
+from capsule_drake.capsule.camera import (CameraConfig, capsule_camera_for_frame,
+                                          lesion_labels)
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.views import camera_scene
@@ -48,8 +48,7 @@ class Scene:
         self.body = self.plant.GetBodyByName(CAPSULE_BODY)
         self.frame_id = self.plant.GetBodyFrameIdOrThrow(self.body.index())
         self.X_BC = self.plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
-        self.labels = {p.index: int(self.plant.GetBodyByName(
-            f"{LESION_LINK_PREFIX}{p.index:03d}").index()) for p in self.polyps}
+        self.labels = {k: label for label, k in lesion_labels(self.polyps).items()}
 
     def look(self, s: float):
         """(label image, X_WC) from the centreline at arc length s, looking down the lumen."""

@@ -179,9 +179,8 @@ def run_task(task: Task, progress=None) -> dict:
                                               builder, period)
             extra["camera"] = camera
             if (polyps or detector) and station.HasOutputPort("capsule.camera.label_image"):
-                plant = station.GetSubsystemByName("plant")
                 views = builder.AddNamedSystem("lesion_views", LesionViews(
-                    lesion_labels(plant, scenario.capsule.camera.renderer_name), len(polyps),
+                    lesion_labels(polyps), len(polyps),
                     int(camera.lens.pixel_rays()[1].sum()), camera.tick(),
                     camera.latency() + 1e-6, detector=detector))
                 for name in ("label_image", "depth_image", "frame_info") + (

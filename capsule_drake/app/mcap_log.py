@@ -77,6 +77,7 @@ from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
+from capsule_drake.anatomy.source import lesion_scene
 from capsule_drake.capsule.camera import lesion_labels
 from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
@@ -777,7 +778,7 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
     if "capsule.camera.rgb_image" in outputs:
         camera = station.GetSubsystemByName("capsule.camera")
         static.append((CAPSULE, CAMERA, plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()))
-        labels = (lesion_labels(plant, camera.config.renderer_name)
+        labels = (lesion_labels(lesion_scene(scenario.colon).polyps)
                   if "capsule.camera.label_image" in outputs else {})
         streams.append(_CameraStream(camera.lens, camera.tick(), camera.latency(),
                                      camera.config.render_depth,

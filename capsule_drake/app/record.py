@@ -107,7 +107,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
             streams=streams, mask=camera.lens.pixel_rays()[1],
             depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
             plant_step=plant_step, plant_step_first=plant_step_first, polyps=polyps,
-            lesion_labels=lesion_labels(plant, camera_config.renderer_name),
+            lesion_labels=lesion_labels(polyps),
             texts={"README.md": dataset_readme(description),
                    "camera.yaml": camera_yaml(description),
                    "sensors.yaml": sensors_yaml(description)}))
