@@ -13,8 +13,8 @@ Written beside the frames (app/dataset.py) when the colon has polyps:
                               (its mask as compressed RLE, its box and area, and the lesion's
                               index, size, size class and segment)
 
-The masks come from the camera's label image (`CapsuleCamera`'s label_image: each polyp is
-a link of its own, so its render label is its own), so the COCO masks decode to exactly the
+The masks come from the camera's label image (`CapsuleCamera`'s label_image: each polyp has
+its own render label, LESION_LABEL_BASE + its index), so the COCO masks decode to exactly the
 pixels of the mask PNGs (tested with pycocotools). Every per-frame row is written and
 flushed as the run goes; the COCO file, which holds them all, is written at the end (and
 rebuilt from lesion_frames.jsonl by `write_coco` if a run was cut off).
