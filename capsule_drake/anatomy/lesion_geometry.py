@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 
 from .lesions import DrawnLesion
+from .mesh import cap_faces, tube_faces
 
 ADENOMA_LAB_SHIFT = (-2.4, 1.6, 1.6)
 """A polyp's colour against the mucosa's, in CIELAB (L*, a*, b*): darker and browner (the
@@ -94,17 +95,11 @@ def revolve(radius, height, sink: float, around: int = POINTS_AROUND) -> trimesh
                       np.repeat(z[:-1, None], around, axis=1)], axis=-1).reshape(-1, 3)
     tip, bottom = (k - 1) * around, (k - 1) * around + 1
     vertices = np.vstack([rings, [[0.0, 0.0, z[-1]], [0.0, 0.0, -sink]]])
-    faces = []
-    for i in range(k - 2):
-        for j in range(around):
-            a, b = i * around + j, i * around + (j + 1) % around
-            c, d = a + around, b + around
-            faces += [[a, b, d], [a, d, c]]
-    last = (k - 2) * around
-    faces += [[last + j, last + (j + 1) % around, tip] for j in range(around)]
-    faces += [[(j + 1) % around, j, bottom] for j in range(around)]
-    mesh = trimesh.Trimesh(vertices, np.array(faces), process=False)
-    mesh.fix_normals()
+    faces = np.concatenate([tube_faces(k - 1, around),
+                            cap_faces((k - 2) * around, around, tip, at_start=False),
+                            cap_faces(0, around, bottom, at_start=True)])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    mesh.fix_normals()   # outward (the wall's helpers wind theirs toward its centreline)
     return mesh
 
 

@@ -202,13 +202,12 @@ class DatasetWriter(LeafSystem):
         polyps: the colon's placed polyps (anatomy/lesion_geometry.PlacedPolyp); with any,
             the `labels` input (the camera's label image) is written as instance masks and
             a COCO file (app/lesion_dataset.py).
-        lesion_labels: {render label: polyp index} of that label image.
     """
 
     def __init__(self, out_dir, frame_check_period: float, frame_check_offset: float = 0.0,
                  streams=(), mask=None, depth_full_scale: float = 0.2, lumen_truth=None,
                  texts=None, plant_step: float = 0.0, plant_step_first: bool = True,
-                 polyps=(), lesion_labels=None):
+                 polyps=()):
         super().__init__()
         self._plant_step = float(plant_step)
         self._plant_step_first = bool(plant_step_first)
@@ -243,11 +242,8 @@ class DatasetWriter(LeafSystem):
         if polyps:
             self._labels = self.DeclareAbstractInputPort(
                 "labels", AbstractValue.Make(ImageLabel16I()))
-            width, height = (self._mask.shape[1], self._mask.shape[0]) if (
-                self._mask is not None) else (0, 0)
             try:
-                self._lesions = LesionRecorder(self._out, lesion_labels or {}, polyps,
-                                               (width, height))
+                self._lesions = LesionRecorder(self._out, polyps)
             except OSError as e:
                 self.close()
                 raise OutputError(f"{self._out}: cannot write the dataset's lesion files "

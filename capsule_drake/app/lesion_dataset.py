@@ -29,6 +29,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from capsule_drake.capsule.camera import lesion_labels
+
 PARIS_CATEGORIES = {"0-Ip": 1, "0-Is": 2, "0-IIa": 3}
 """COCO category id of each Paris type (supercategory "polyp")."""
 
@@ -71,16 +73,15 @@ class LesionRecorder:
 
     Args:
         out_dir: the dataset folder (Frames/ exists).
-        labels: {render label: polyp index} of the camera's label image.
-        polyps: the placed polyps (anatomy/lesion_geometry.PlacedPolyp), by index.
-        image_size: (width, height) of the frames.
+        polyps: the placed polyps (anatomy/lesion_geometry.PlacedPolyp), by index; the
+            camera's label image labels them (`capsule.camera.lesion_labels`).
     """
 
-    def __init__(self, out_dir, labels: dict[int, int], polyps, image_size):
+    def __init__(self, out_dir, polyps):
         self._out = Path(out_dir)
-        self._labels = dict(labels)
+        self._labels = lesion_labels(polyps)
         self._polyps = {p.index: p for p in polyps}
-        self._width, self._height = image_size
+        self._size = (0, 0)   # (width, height) of the frames, from the first one
         self._frames_shown = {k: 0 for k in self._polyps}
         self._largest = {k: 0 for k in self._polyps}
         self._lookup = np.zeros(1 << 16, dtype=np.uint16)   # label (as uint16) -> k + 1
@@ -96,6 +97,7 @@ class LesionRecorder:
     def add(self, index: int, file_name: str, label_image: np.ndarray) -> None:
         """Frame `index` (its colour file `file_name`): writes its mask PNG and rows."""
         instances = self._lookup[np.asarray(label_image).astype(np.uint16)]
+        self._size = (instances.shape[1], instances.shape[0])
         path = self._out / "Frames" / f"Lesions_{index:04d}.png"
         if not cv2.imwrite(str(path), instances):
             raise OSError(f"could not write {path}")
@@ -133,7 +135,7 @@ class LesionRecorder:
                                  polyp.lesion.size_class, polyp.lesion.segment,
                                  f"{polyp.s:.4f}", *(f"{c:.5f}" for c in top),
                                  self._frames_shown[k], self._largest[k]])
-        write_coco(self._out, self._polyps, (self._width, self._height))
+        write_coco(self._out, self._polyps, self._size)
 
 
 def write_coco(out_dir, polyps, image_size) -> Path:

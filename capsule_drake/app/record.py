@@ -13,7 +13,7 @@ from capsule_drake.app.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import CameraConfig, camera_tick, lesion_labels
+from capsule_drake.capsule.camera import CameraConfig, camera_tick
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
@@ -107,7 +107,6 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
             streams=streams, mask=camera.lens.pixel_rays()[1],
             depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
             plant_step=plant_step, plant_step_first=plant_step_first, polyps=polyps,
-            lesion_labels=lesion_labels(polyps),
             texts={"README.md": dataset_readme(description),
                    "camera.yaml": camera_yaml(description),
                    "sensors.yaml": sensors_yaml(description)}))

@@ -935,25 +935,6 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
            f"<link name='walls'>{body}"
            "</link></model></sdf>")
     instance, = Parser(plant).AddModelsFromString(sdf, "sdf")
-    # Each polyp on the world body (anchored: a renderer never re-poses it) with a render
-    # label of its own, so that the label image is each lesion's instance mask. Once for
-    # every camera: pydrake cannot name accepting renderers, so every renderer draws them.
-    # (Links of their own would give them their bodies' labels, but a body's geometry is
-    # re-posed in every renderer at every step: Navigation's real-time factor fell 37 %.)
-    inspector = scene_graph.model_inspector()
-    named = {inspector.GetName(g) for g in inspector.GetAllGeometryIds(Role.kPerception)}
-    lesions = lesion_scene(colon_params)
-    colour = Rgba(*polyp_rgba(colon_params.mucosa.base_color))
-    for polyp, path in zip(lesions.polyps, lesions.objs):
-        name = f"polyp_label_{polyp.index:03d}"
-        if name in named:
-            continue
-        properties = PerceptionProperties()
-        properties.AddProperty("phong", "diffuse", colour)
-        properties.AddProperty("label", "id", RenderLabel(LESION_LABEL_BASE + polyp.index))
-        geometry = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
-        geometry.set_perception_properties(properties)
-        plant.RegisterVisualGeometry(plant.world_body(), geometry)
     for index in plant.GetBodyIndices(instance):
         for geometry_id in plant.GetVisualGeometriesForBody(plant.get_body(index)):
             scene_graph.RemoveRole(plant.get_source_id(), geometry_id, Role.kIllustration)
@@ -966,11 +947,26 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
     for geometry_id in inspector.GetAllGeometryIds(Role.kPerception):
         if not inspector.BelongsToSource(geometry_id, source):
             continue
-        if inspector.GetName(geometry_id).startswith("polyp_label_"):
-            continue
         body = plant.GetBodyFromFrameId(inspector.GetFrameId(geometry_id))
         if not plant.GetModelInstanceName(body.model_instance()).startswith("camera_walls_"):
             scene_graph.RemoveRole(source, geometry_id, Role.kPerception)
+    # Then each polyp on the world body (anchored: a renderer never re-poses it) with a
+    # render label of its own, so that the label image is each lesion's instance mask.
+    # Every renderer draws them (pydrake cannot name accepting renderers); a later camera's
+    # walls strip them above and register them again, so there is one set whatever the
+    # number of cameras. (Links of their own would give them their bodies' labels, but a
+    # body's geometry is re-posed in every renderer at every step: Navigation's real-time
+    # factor fell 37 %.)
+    lesions = lesion_scene(colon_params)
+    colour = Rgba(*polyp_rgba(colon_params.mucosa.base_color))
+    for polyp, path in zip(lesions.polyps, lesions.objs):
+        name = f"polyp_label_{polyp.index:03d}"
+        properties = PerceptionProperties()
+        properties.AddProperty("phong", "diffuse", colour)
+        properties.AddProperty("label", "id", RenderLabel(LESION_LABEL_BASE + polyp.index))
+        geometry = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
+        geometry.set_perception_properties(properties)
+        plant.RegisterVisualGeometry(plant.world_body(), geometry)
     return CameraWalls(windows, names, colon.centerline)
 
 
