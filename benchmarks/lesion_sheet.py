@@ -1,10 +1,10 @@
-"""Contact sheet of polyps of each Paris type and size class in the capsule camera's frames.
+"""Contact sheet of polyps of each Paris type and size class, and of diverticula, in the capsule camera's frames.
 
     .venv/bin/python benchmarks/lesion_sheet.py [--out docs/lesions_contact_sheet.jpg]
         [--seed 0] [--segment descending] [--back 0.04]
 
 Each row a Paris type (0-Is, 0-IIa, 0-Ip), each column a size (4, 8 and 15 mm: diminutive,
-small, large), each polyp placed alone on the wall of the colon of `--seed` and seen from
+small, large), then a row of diverticula (necks of 5, 7.5 and 10 mm), each lesion placed alone on the wall of the colon of `--seed` and seen from
 the centreline `--back` metres before it, looking down the lumen, through the default
 fisheye. Left of each pair the colour frame, right the same frame with the polyp's pixels
 of the label image outlined (the instance mask a dataset records).
@@ -23,15 +23,16 @@ from capsule_drake.capsule.camera import CameraConfig, capsule_camera_for_frame,
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception.views import camera_scene
 
-KINDS = ("0-Is", "0-IIa", "0-Ip")
+KINDS = ("0-Is", "0-IIa", "0-Ip", "diverticulum")
 SIZES_MM = (4.0, 8.0, 15.0)
+NECKS_MM = (5.0, 7.5, 10.0)
 
 
 def frame(seed: int, segment: str, kind: str, size: float, back: float, around: float):
     params = ColonParams(seed=seed, lesions=Lesions(drawn=False, placed=[PlacedLesion(
         kind=kind, size_mm=size, segment=segment, along=0.5, around_deg=around)]))
     colon, _ = load_colon(params)
-    polyp = lesion_scene(params).polyps[0]
+    polyp = lesion_scene(params).lesions[0]
     config = CameraConfig()
     diagram, context, plant, scene_graph, renderer_for = camera_scene(0.3, config, params)
     camera = capsule_camera_for_frame(plant, plant.GetFrameByName("camera"), config,
@@ -61,19 +62,19 @@ def main(argv=None) -> int:
     rows = []
     for kind in KINDS:
         tiles = []
-        for size in SIZES_MM:
+        for size in NECKS_MM if kind == "diverticulum" else SIZES_MM:
             rgb, mask = frame(args.seed, args.segment, kind, size, args.back, args.around)
             outlined = rgb.copy()
             contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
                                            cv2.CHAIN_APPROX_NONE)
             cv2.drawContours(outlined, contours, -1, (0, 255, 0), 1)
             for image in (rgb, outlined):
-                cv2.putText(image, f"{kind} {size:.0f} mm", (6, 16), cv2.FONT_HERSHEY_SIMPLEX,
+                cv2.putText(image, f"{kind} {size:g} mm", (6, 16), cv2.FONT_HERSHEY_SIMPLEX,
                             0.45, (255, 255, 255), 1, cv2.LINE_AA)
             cv2.putText(outlined, f"mask {int(mask.sum())} px", (6, 248),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
             tiles += [rgb, outlined]
-            print(f"{kind:6s} {size:4.0f} mm: {int(mask.sum()):5d} mask px")
+            print(f"{kind:12s} {size:4g} mm: {int(mask.sum()):5d} mask px")
         rows.append(np.hstack(tiles))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))

@@ -23,7 +23,8 @@ SEED = 4
 # A sessile polyp on the wall of the rectum where the default capsule looks at it.
 TEXT = ("{colon: {lesions: {drawn: false, placed: [{kind: 0-Is, size_mm: 10, "
         "segment: rectum, along: 0.3, around_deg: 200}, {kind: 0-Ip, size_mm: 7, "
-        "segment: rectum, along: 0.45, around_deg: 60}]}}}")
+        "segment: rectum, along: 0.45, around_deg: 60}, {kind: diverticulum, size_mm: 8, "
+        "segment: rectum, along: 0.4, around_deg: 300}]}}}")
 
 
 @pytest.mark.parametrize("shape, fill", [((5, 7), "random"), ((64, 48), "random"),
@@ -61,7 +62,8 @@ def test_the_coco_file_loads_and_its_masks_are_the_mask_pngs(folder):
     coco = COCO(str(folder / "lesions_coco.json"))
     frames = sorted((folder / "Frames").glob("FrameBuffer_*.png"))
     assert len(coco.getImgIds()) == len(frames) >= 3
-    assert {c["name"] for c in coco.loadCats(coco.getCatIds())} == {"0-Ip", "0-Is", "0-IIa"}
+    assert {c["name"] for c in coco.loadCats(coco.getCatIds())} == {"0-Ip", "0-Is", "0-IIa",
+                                                                     "diverticulum"}
     annotated = 0
     for image in coco.loadImgs(coco.getImgIds()):
         assert (folder / image["file_name"]).exists()
@@ -79,7 +81,7 @@ def test_the_coco_file_loads_and_its_masks_are_the_mask_pngs(folder):
             annotated += 1
     assert annotated >= 3       # the sessile polyp is in view from the start
     rows = list(csv.DictReader(open(folder / "lesions.csv")))
-    assert [r["paris_type"] for r in rows] == ["0-Is", "0-Ip"]
+    assert [r["paris_type"] for r in rows] == ["0-Is", "0-Ip", "diverticulum"]
     readme = (folder / "README.md").read_text()
     for name in ("Lesions_XXXX.png", "lesions.csv", "lesion_frames.csv", "lesions_coco.json"):
         assert name in readme

@@ -12,6 +12,8 @@ import numpy as np
 from .abdomen import Abdomen
 from .centerline import Centerline, rotation_minimising_frame
 from .course import nominal_radius, solve_course
+from .diverticula import place_diverticula, pouched_chunks, pouched_mesh, pouched_textured
+from .lesions import drawn_lesions
 from .cache import ColonAssets, asset_paths, build_once, default_cache_root, params_hash, write_asset_files
 from .mesh import closed_tube, ring_stations, textured_tube, tube_chunks
 from .params import SEGMENT_NAMES, ColonParams
@@ -28,6 +30,8 @@ class TubeColon:
     centerline: Centerline
     # (extents, centre) boxes around the colon the capsule can touch (e.g. a tray).
     collision_boxes: tuple = ()
+    # Pouches cut into its meshes (anatomy/diverticula.py PlacedDiverticulum).
+    diverticula: tuple = ()
 
     def wall_radius(self, s, theta) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -103,7 +107,8 @@ class Colon(TubeColon):
     def visual_mesh(self):
         """Closed wall at visual resolution (trimesh), normals into the lumen."""
         p = self.params
-        return closed_tube(self, self._visual_stations(), p.visual_points_around)
+        return pouched_mesh(closed_tube(self, self._visual_stations(), p.visual_points_around),
+                            self.diverticula, self.centerline)
 
     def _visual_stations(self):
         p = self.params
@@ -116,9 +121,11 @@ class Colon(TubeColon):
         the seam column and the caps' rims are duplicated, so it is not watertight)."""
         p = self.params
         m = p.mucosa
-        return textured_tube(self, self._visual_stations(), p.visual_points_around,
-                             m.texels_per_metre / m.texels_along,
-                             m.texels_per_metre / m.texels_around)
+        return pouched_textured(textured_tube(self, self._visual_stations(),
+                                              p.visual_points_around,
+                                              m.texels_per_metre / m.texels_along,
+                                              m.texels_per_metre / m.texels_around),
+                                self.diverticula, self.centerline)
 
     def camera_mesh(self):
         """The textured wall at camera resolution (`TexturedMesh`), what capsule cameras
@@ -128,9 +135,10 @@ class Colon(TubeColon):
         stations = ring_stations(self, p.camera_axial_step,
                                  p.camera_tolerance if p.camera_tolerance > 0 else None,
                                  min(p.camera_min_step, p.camera_axial_step))
-        return textured_tube(self, stations, p.camera_points_around,
-                             m.texels_per_metre / m.texels_along,
-                             m.texels_per_metre / m.texels_around)
+        return pouched_textured(textured_tube(self, stations, p.camera_points_around,
+                                              m.texels_per_metre / m.texels_along,
+                                              m.texels_per_metre / m.texels_around),
+                                self.diverticula, self.centerline)
 
     def texture_seed(self) -> list[int]:
         """Seed of the mucosa texture: the patient seed's own stream (the wall uses [seed, 1])."""
@@ -142,7 +150,8 @@ class Colon(TubeColon):
         stations = ring_stations(self, p.collision_axial_step,
                                  p.collision_tolerance if p.collision_tolerance > 0 else None,
                                  p.collision_min_step)
-        return tube_chunks(self, stations, p.collision_points_around, p.collision_chunks)
+        return pouched_chunks(tube_chunks(self, stations, p.collision_points_around,
+                                          p.collision_chunks), self.diverticula, self.centerline)
 
 
 COURSE_FILE = "course.npz"
@@ -175,8 +184,11 @@ def build_colon(params: ColonParams, course_file: Path | None = None) -> Colon:
     normals = rotation_minimising_frame(points, tangents, np.array([0.0, 0.0, 1.0]))
     centerline = Centerline(s, points, normals, radius, segment, SEGMENT_NAMES)
     wall = HaustralWall(params, centerline, np.random.default_rng([params.seed, 1]))
-    return Colon(params, centerline, wall, Abdomen(params.abdomen), targets,
-                 course=(s, points, boundaries))
+    colon = Colon(params, centerline, wall, Abdomen(params.abdomen), targets,
+                  course=(s, points, boundaries))
+    # Pouches in the wall (their meshes are cut for them); polyps are geometry of their own.
+    colon.diverticula = tuple(place_diverticula(colon, drawn_lesions(params)))
+    return colon
 
 
 def write_course(colon: Colon, path: Path) -> None:

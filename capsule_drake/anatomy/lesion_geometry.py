@@ -123,15 +123,29 @@ def floor_angle(colon, s: float) -> float:
     return float(np.arctan2(across @ b, across @ n))
 
 
-def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
-    """`lesion` (a polyp) standing on the wall of `colon` (any TubeColon)."""
-    if not lesion.polyp:
-        raise ValueError("diverticula have no geometry yet")
-    cl = colon.centerline
-    start, end = cl.segment_ranges()[lesion.segment]
+@dataclasses.dataclass(frozen=True)
+class WallSite:
+    """Where a lesion sits on the wall: its arc length, its angle and the frame there."""
+
+    s: float
+    theta: float            # the centreline's frame at s
+    base_W: np.ndarray      # the point on the wall
+    axis_W: np.ndarray      # the wall's unit inward normal there
+    tangent_W: np.ndarray   # the centreline's tangent at s
+    normal_W: np.ndarray    # the centreline frame's normal at s
+
+
+def segment_s(colon, lesion: DrawnLesion) -> float:
+    """The arc length of `lesion`'s place along its segment (1 cm kept from the ends, or a
+    quarter of a short segment)."""
+    start, end = colon.centerline.segment_ranges()[lesion.segment]
     margin = min(0.01, 0.25 * (end - start))
-    s = float(start + margin + lesion.along * (end - start - 2 * margin))
-    theta = floor_angle(colon, s) + np.radians(lesion.around_deg)
+    return float(start + margin + lesion.along * (end - start - 2 * margin))
+
+
+def wall_site(colon, s: float, theta: float) -> WallSite:
+    """The wall of `colon` (any TubeColon) at (s, theta) and its inward normal."""
+    cl = colon.centerline
     t, n, b = cl.frame_at(s)
     radial = np.cos(theta) * n + np.sin(theta) * b
     r = float(colon.wall_radius(np.array([s]), np.array([theta]))[0])
@@ -145,25 +159,42 @@ def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
                   / (2 * h_theta))
     tangential = np.cos(theta) * b - np.sin(theta) * n
     outward = radial - dr_ds * t - (dr_dt / r) * tangential
-    axis = -outward / np.linalg.norm(outward)
+    return WallSite(float(s), float(theta), base, -outward / np.linalg.norm(outward), t, n)
+
+
+def site_frame(site: WallSite) -> np.ndarray:
+    """4x4 pose of a lesion's frame: z along the inward normal, x across the lumen's axis."""
+    axis, t = site.axis_W, site.tangent_W
+    x = np.cross(axis, t)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else site.normal_W
+    transform = np.eye(4)
+    transform[:3, :3] = np.column_stack([x, np.cross(axis, x), axis])
+    transform[:3, 3] = site.base_W
+    return transform
+
+
+def drape(colon, vertices: np.ndarray, base: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """`vertices` each raised along `axis` by how far the wall lies above the plane through
+    `base` normal to `axis` under it (TubeColon.excursion of its foot on the plane), so that
+    heights count from the mucosa across the lumen's curve and a fold's slope."""
+    foot = vertices - np.outer((vertices - base) @ axis, axis)
+    return vertices + np.outer(colon.excursion(foot), axis)
+
+
+def place(colon, lesion: DrawnLesion, index: int = 0) -> PlacedPolyp:
+    """`lesion` (a polyp) standing on the wall of `colon` (any TubeColon)."""
+    if not lesion.polyp:
+        raise ValueError("a diverticulum is placed by anatomy/diverticula.py")
+    s = segment_s(colon, lesion)
+    site = wall_site(colon, s, floor_angle(colon, s) + np.radians(lesion.around_deg))
     diameter = 1e-3 * lesion.size_mm
     radius, height, top = profile(lesion.kind, diameter)
     mesh = revolve(radius, height, SINK)
-    x = np.cross(axis, t)
-    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else n
-    y = np.cross(axis, x)
-    transform = np.eye(4)
-    transform[:3, :3] = np.column_stack([x, y, axis])
-    transform[:3, 3] = base
-    mesh.apply_transform(transform)
-    # Draped on the wall: each vertex raised by how far the wall lies above the base plane
-    # under it (TubeColon.excursion of its foot on the plane), so that heights count from
-    # the mucosa across the lumen's curve and a fold's slope, as a lesion grows on it.
-    vertices = np.array(mesh.vertices)
-    foot = vertices - np.outer((vertices - base) @ axis, axis)
-    vertices += np.outer(colon.excursion(foot), axis)
+    mesh.apply_transform(site_frame(site))
+    # Draped on the wall, as a lesion grows on it.
+    vertices = drape(colon, np.array(mesh.vertices), site.base_W, site.axis_W)
     mesh = trimesh.Trimesh(vertices, mesh.faces, process=False)
-    return PlacedPolyp(index, lesion, s, float(theta), base, axis, top, mesh)
+    return PlacedPolyp(index, lesion, site.s, site.theta, site.base_W, site.axis_W, top, mesh)
 
 
 def place_polyps(colon, lesions: list[DrawnLesion]) -> list[PlacedPolyp]:

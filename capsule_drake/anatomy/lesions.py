@@ -72,8 +72,11 @@ class DrawnLesion:
 
     @property
     def size_class(self) -> str:
-        """diminutive (<= 5 mm), small (6-9 mm) or large (>= 10 mm): the classes are read
-        with the sizes rounded to the millimetre, as endoscopists report them."""
+        """A polyp's: diminutive (<= 5 mm), small (6-9 mm) or large (>= 10 mm), read with
+        the sizes rounded to the millimetre, as endoscopists report them; "diverticulum"
+        for a diverticulum."""
+        if not self.polyp:
+            return "diverticulum"
         size = round(self.size_mm)
         return "diminutive" if size <= 5 else "small" if size <= 9 else "large"
 

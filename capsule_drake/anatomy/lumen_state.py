@@ -24,7 +24,8 @@ import dataclasses
 
 import numpy as np
 
-from .params import SEGMENT_NAMES, ColonParams, LumenState
+from .lesions import drawn_lesions
+from .params import SEGMENT_NAMES, ColonParams, Lesions, LumenState, PlacedLesion
 
 FLUID_ML = (149.0, 107.0)
 """Residual fluid (ml), mean and SD pooled over Pickhardt et al.'s two preparations."""
@@ -77,11 +78,17 @@ def drawn_lumen(params: ColonParams) -> DrawnLumen | None:
 
 def geometry_params(params: ColonParams) -> ColonParams:
     """`params` as far as the colon's wall goes: the lumen's state only through the
-    segments it narrows (resolved for the seed), its fluid and bubbles aside, and no
-    lesions (geometry of their own, anatomy/lesions.py), so that patients who differ only
-    in those share one built colon and its cached files."""
+    segments it narrows (resolved for the seed), its fluid and bubbles aside, and of the
+    lesions only the diverticula (pouches cut into the wall, resolved for the seed into
+    placements; polyps are geometry of their own), so that patients who differ only in
+    those share one built colon and its cached files."""
     if params.lesions is not None:
-        params = dataclasses.replace(params, lesions=None)
+        pouches = ([lesion for lesion in drawn_lesions(params) if not lesion.polyp]
+                   if params.procedural else [])
+        params = dataclasses.replace(params, lesions=Lesions(
+            drawn=False, polyps=False, diverticula=False,
+            placed=[PlacedLesion(p.kind, p.size_mm, p.segment, p.along, p.around_deg)
+                    for p in pouches]) if pouches else None)
     state = drawn_lumen(params)
     if state is None:
         return params

@@ -24,6 +24,7 @@ from .cache import ColonAssets, write_atomic
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
+from .diverticula import PlacedDiverticulum
 from .lesion_geometry import PlacedPolyp, place_polyps
 from .lesions import drawn_lesions
 from .lumen_state import BUBBLE_RADIUS, drawn_lumen, geometry_params
@@ -97,6 +98,15 @@ class LesionScene:
 
     polyps: list[PlacedPolyp]
     objs: list[Path]
+    # The pouches cut into the wall (anatomy/diverticula.py) and each one's sac as an OBJ
+    # (the colon's meshes already have the hole and its collar).
+    diverticula: list[PlacedDiverticulum] = dataclasses.field(default_factory=list)
+    sac_objs: list[Path] = dataclasses.field(default_factory=list)
+
+    @property
+    def lesions(self) -> list:
+        """Polyps and diverticula, by index."""
+        return sorted(self.polyps + self.diverticula, key=lambda lesion: lesion.index)
 
 
 _log = logging.getLogger("capsule_drake.anatomy")
@@ -175,14 +185,20 @@ def lesion_scene(params: ColonParams) -> LesionScene:
         if len(_LESION_SCENES) >= 8:
             _LESION_SCENES.pop(next(iter(_LESION_SCENES)))
         colon = load_colon(params)[0]
-        polyps = place_polyps(colon, drawn_lesions(params))
+        lesions = drawn_lesions(params)
+        polyps = place_polyps(colon, lesions)
+        # The colon's pouches, in the order of the patient's list (their indices there).
+        pouch_index = [k for k, lesion in enumerate(lesions) if not lesion.polyp]
+        pouches = [dataclasses.replace(pouch, index=pouch_index[pouch.index])
+                   for pouch in colon.diverticula]
         folder = colon_assets(params).visual_obj.parent
         stem = f"lesion_{hashlib.sha256(key.encode()).hexdigest()[:16]}"
-        objs = []
-        for polyp in polyps:
-            path = folder / f"{stem}_{polyp.index:03d}.obj"
+        objs, sacs = [], []
+        for lesion, mesh, out in ([(p, p.mesh, objs) for p in polyps]
+                                  + [(p, p.sac, sacs) for p in pouches]):
+            path = folder / f"{stem}_{lesion.index:03d}.obj"
             if not path.exists():
-                write_atomic(path, lambda tmp, m=polyp.mesh: write_obj(tmp, m, normals=True))
-            objs.append(path)
-        _LESION_SCENES[key] = LesionScene(polyps, objs)
+                write_atomic(path, lambda tmp, m=mesh: write_obj(tmp, m, normals=True))
+            out.append(path)
+        _LESION_SCENES[key] = LesionScene(polyps, objs, pouches, sacs)
     return _LESION_SCENES[key]

@@ -320,9 +320,10 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
                    "true pose and velocity (below) |")
     if d.polyps:
         out += [
-            "| `Frames/Lesions_XXXX.png` | frame | 16-bit instance mask: 0 where no polyp is "
-            "seen, k + 1 on polyp k |",
-            f"| `lesions.csv` | polyp ({d.polyps}) | Paris type, size (mm), size class, "
+            "| `Frames/Lesions_XXXX.png` | frame | 16-bit instance mask: 0 where no lesion is "
+            "seen, k + 1 on lesion k (a polyp, or a diverticulum's sac seen through its neck) |",
+            f"| `lesions.csv` | lesion ({d.polyps}) | Paris type (or `diverticulum`), size (mm; "
+            "a diverticulum's neck), size class, "
             "segment, arc length (m), its top in W (m), frames that show it, their largest "
             "pixel area |",
             "| `lesion_frames.csv` | polyp seen in a frame | `frame, polyp, pixel_area, "
@@ -330,6 +331,7 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
             "| `lesions_coco.json` | (one) | COCO instances: every frame an image, one "
             "annotation per polyp it shows (mask as compressed RLE, box, area; "
             "`lesion_index`, `size_mm`, `size_class`, `segment`); categories the Paris types "
+            "and diverticulum "
             "(written at the end; `lesion_frames.jsonl` holds its rows as they come) |",
         ]
     out += [

@@ -1,6 +1,8 @@
 """Lesion ground truth of a recorded dataset: per-frame instance masks and a COCO file.
 
-Written beside the frames (app/dataset.py) when the colon has polyps:
+Written beside the frames (app/dataset.py) when the colon has polyps or diverticula (a
+diverticulum counts as a lesion like a polyp: its mask is the sac seen through its neck, its
+"Paris type" and size class "diverticulum", its size the neck's diameter):
 
     Frames/Lesions_0000.png   16-bit instance mask: 0 where no polyp is seen, k + 1 where
                               polyp k (its index in lesions.csv) is
@@ -31,8 +33,9 @@ import numpy as np
 
 from capsule_drake.capsule.camera import lesion_labels
 
-PARIS_CATEGORIES = {"0-Ip": 1, "0-Is": 2, "0-IIa": 3}
-"""COCO category id of each Paris type (supercategory "polyp")."""
+PARIS_CATEGORIES = {"0-Ip": 1, "0-Is": 2, "0-IIa": 3, "diverticulum": 4}
+"""COCO category id of each Paris type (supercategory "polyp") and of a diverticulum
+(supercategory "diverticulum")."""
 
 
 def rle_encode(mask: np.ndarray) -> dict:
@@ -160,7 +163,8 @@ def write_coco(out_dir, polyps, image_size) -> Path:
                     "size_class": lesion.size_class, "segment": lesion.segment})
     coco = {"info": {"description": "capsule_drake lesion ground truth (app/lesion_dataset.py)"},
             "images": images, "annotations": annotations,
-            "categories": [{"id": i, "name": name, "supercategory": "polyp"}
+            "categories": [{"id": i, "name": name,
+                            "supercategory": "diverticulum" if name == "diverticulum" else "polyp"}
                            for name, i in PARIS_CATEGORIES.items()]}
     path = out / "lesions_coco.json"
     path.write_text(json.dumps(coco))

@@ -778,7 +778,7 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
     if "capsule.camera.rgb_image" in outputs:
         camera = station.GetSubsystemByName("capsule.camera")
         static.append((CAPSULE, CAMERA, plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()))
-        labels = (lesion_labels(lesion_scene(scenario.colon).polyps)
+        labels = (lesion_labels(lesion_scene(scenario.colon).lesions)
                   if "capsule.camera.label_image" in outputs else {})
         streams.append(_CameraStream(camera.lens, camera.tick(), camera.latency(),
                                      camera.config.render_depth,

@@ -92,7 +92,7 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
                 after_update=name != "ground_truth",
                 first_sample=imu_period if name == "ahrs" else 0.0, order=order))
             sources.append((name, parts))
-        polyps = lesion_scene(scenario.colon).polyps if station.HasOutputPort(
+        polyps = lesion_scene(scenario.colon).lesions if station.HasOutputPort(
             "capsule.camera.label_image") else []
         description = DatasetDescription(
             lens=camera.lens, camera=camera_config, X_BC=X_BC, streams=streams,

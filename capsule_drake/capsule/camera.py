@@ -957,23 +957,30 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
     # number of cameras. (Links of their own would give them their bodies' labels, but a
     # body's geometry is re-posed in every renderer at every step: Navigation's real-time
     # factor fell 37 %.)
+    # A diverticulum's sac likewise (its neck's collar is part of the wall), in the mucosa's
+    # own colour.
     lesions = lesion_scene(colon_params)
-    colour = Rgba(*polyp_rgba(colon_params.mucosa.base_color))
-    for polyp, path in zip(lesions.polyps, lesions.objs):
-        name = f"polyp_label_{polyp.index:03d}"
+    polyp_colour = Rgba(*polyp_rgba(colon_params.mucosa.base_color))
+    sac_colour = Rgba(*colon_params.mucosa.base_color, 1.0)
+    for lesion, path, colour, kind in (
+            [(p, o, polyp_colour, "polyp") for p, o in zip(lesions.polyps, lesions.objs)]
+            + [(d, o, sac_colour, "diverticulum")
+               for d, o in zip(lesions.diverticula, lesions.sac_objs)]):
+        name = f"{kind}_label_{lesion.index:03d}"
         properties = PerceptionProperties()
         properties.AddProperty("phong", "diffuse", colour)
-        properties.AddProperty("label", "id", RenderLabel(LESION_LABEL_BASE + polyp.index))
+        properties.AddProperty("label", "id", RenderLabel(LESION_LABEL_BASE + lesion.index))
         geometry = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
         geometry.set_perception_properties(properties)
         plant.RegisterVisualGeometry(plant.world_body(), geometry)
     return CameraWalls(windows, names, colon.centerline)
 
 
-def lesion_labels(polyps) -> dict[int, int]:
-    """{render label: polyp index} of the placed polyps (anatomy/lesion_geometry.py) in a
-    camera's label image (`add_camera_walls` labels them)."""
-    return {LESION_LABEL_BASE + p.index: p.index for p in polyps}
+def lesion_labels(lesions) -> dict[int, int]:
+    """{render label: lesion index} of placed polyps (anatomy/lesion_geometry.py) or
+    diverticula (anatomy/diverticula.py) in a camera's label image (`add_camera_walls`
+    labels them)."""
+    return {LESION_LABEL_BASE + p.index: p.index for p in lesions}
 
 
 @block(CameraConfig)

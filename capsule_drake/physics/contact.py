@@ -115,7 +115,9 @@ def contact_properties(config: ContactConfig) -> ProximityProperties:
 def add_colon_wall(plant, config: ContactConfig, colon_params, colon) -> int:
     """Registers the colon wall's collision geometry on the world body, by the contact
     model, and its polyps' (each its convex hull: a pedunculated polyp's head and stalk
-    become a cone, U); returns how many geometries it took."""
+    become a cone, U); returns how many geometries it took. Diverticula are in the wall's
+    own meshes (its last chunk holds their collars and sacs); the convex pieces, which wrap
+    the analytic wall, bridge their necks."""
     world = plant.world_body()
     polyps = lesion_scene(colon_params)
     for polyp, path in zip(polyps.polyps, polyps.objs):
@@ -174,11 +176,15 @@ def add_colon_visuals(plant, colon_params, colon, perception: bool = True):
             instance.set_perception_properties(properties)
         plant.RegisterVisualGeometry(world, instance)
     polyp_colour = list(polyp_rgba(colon_params.mucosa.base_color))
-    polyps = lesion_scene(colon_params)
-    for polyp, path in zip(polyps.polyps, polyps.objs):   # drawn (the cameras' are their own)
-        instance = GeometryInstance(RigidTransform(), Mesh(str(path)),
-                                    f"polyp_{polyp.index:03d}")
-        instance.set_illustration_properties(MakePhongIllustrationProperties(polyp_colour))
+    sac_colour = list(colon_params.mucosa.base_color) + [1.0]
+    lesions = lesion_scene(colon_params)
+    for name, path, colour in (   # drawn (the cameras' are their own)
+            [(f"polyp_{p.index:03d}", o, polyp_colour)
+             for p, o in zip(lesions.polyps, lesions.objs)]
+            + [(f"diverticulum_{d.index:03d}", o, sac_colour)
+               for d, o in zip(lesions.diverticula, lesions.sac_objs)]):
+        instance = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
+        instance.set_illustration_properties(MakePhongIllustrationProperties(colour))
         plant.RegisterVisualGeometry(world, instance)
 
 
