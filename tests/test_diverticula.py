@@ -211,3 +211,46 @@ def test_the_label_image_shows_each_sac_through_its_neck():
             assert iou >= 0.9, (pouch.index, back, iou, int(got.sum()), int(expected.sum()))
             checked += 1
     assert checked >= 3
+
+
+def test_a_capsule_nose_enters_a_wide_neck():
+    """Felt by the capsule (the hydroelastic wall, the default): its nose pushed 3 mm past
+    the wall's surface straight down the axis of a 16 mm neck touches nothing (its 5.8 mm
+    radius clears the neck), and 20 mm down it meets the sac's bottom (16 mm deep); the
+    3 mm pose where there is no pouch is in contact. (The convex pieces wrap the analytic
+    wall and bridge every neck.)"""
+    from pydrake.geometry import HydroelasticContactRepresentation
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from capsule_drake.capsule.model import capsule_model
+    from capsule_drake.scenario import load_scenario
+    from capsule_drake.station import make_station
+
+    placed = ("{drawn: false, placed: [{kind: diverticulum, size_mm: 16, segment: rectum, "
+              "along: 0.5, around_deg: 120}]}")
+    pouch = lesion_scene(load_scenario(
+        name="Default", override=f"{{colon: {{lesions: {placed}}}}}").colon).diverticula[0]
+    shape = capsule_model()
+    z = -pouch.axis_W
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    R = RotationMatrix(np.column_stack([x, np.cross(z, x), z]))
+    nose = shape.half_length                 # the body's origin to its nose tip
+    surfaces = {}
+    for name, lesions in (("pouch", placed), ("plain", "null")):
+        station = make_station(load_scenario(
+            name="Default", override=f"{{colon: {{lesions: {lesions}}}}}"))
+        context = station.CreateDefaultContext()
+        plant = station.GetSubsystemByName("plant")
+        scene_graph = station.GetSubsystemByName("scene_graph")
+        for depth in (0.003, 0.020):
+            tip = pouch.base_W - depth * pouch.axis_W
+            plant.SetFreeBodyPose(plant.GetMyMutableContextFromRoot(context),
+                                  plant.GetBodyByName(CAPSULE_BODY),
+                                  RigidTransform(R, tip - nose * z))
+            query = scene_graph.get_query_output_port().Eval(
+                scene_graph.GetMyContextFromRoot(context))
+            surfaces[name, depth] = len(query.ComputeContactSurfaces(
+                HydroelasticContactRepresentation.kPolygon))
+    assert surfaces["pouch", 0.003] == 0 and surfaces["plain", 0.003] >= 1, surfaces
+    assert surfaces["pouch", 0.020] >= 1, surfaces

@@ -116,6 +116,10 @@ def test_a_patient_keeps_their_lesions():
     ("{colon: {lesions: {placed: [{along: 2}]}}}", "colon.lesions.placed[0].along"),
     ("{colon: {lesions: {seed: -1}}}", "colon.lesions.seed"),
     ("{colon: {lesions: {polyp: true}}}", "colon.lesions.polyp"),
+    ("{colon: {lesions: {placed: [{kind: diverticulum, size_mm: 30}]}}}",
+     "colon.lesions.placed[0].size_mm"),
+    ("{colon: {source: !ExVivo {}, lesions: {placed: [{kind: diverticulum}]}}}",
+     "colon.lesions.placed[0].kind"),
 ])
 def test_a_wrong_lesion_is_one_line_at_load(text, key):
     with pytest.raises(ScenarioError) as error:

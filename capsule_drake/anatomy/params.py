@@ -582,6 +582,11 @@ def check_colon_params(params: ColonParams) -> None:
             where = f"lesions.placed[{k}]"
             need(lesion.kind in PARIS_TYPES + ("diverticulum",), f"{where}.kind",
                  f"must be one of {', '.join(PARIS_TYPES)} or diverticulum", lesion.kind)
+            need(lesion.kind != "diverticulum" or params.procedural, f"{where}.kind",
+                 "a diverticulum is cut into a procedural or population colon's wall, not "
+                 f"into colon.source {params.source_name()}", lesion.kind)
+            need(lesion.kind != "diverticulum" or lesion.size_mm <= 20.0, f"{where}.size_mm",
+                 "a diverticulum's neck must be at most 20 mm", lesion.size_mm)
             need(1.0 <= lesion.size_mm <= 50.0, f"{where}.size_mm", "must be in [1, 50] mm",
                  lesion.size_mm)
             need(lesion.segment in SEGMENT_NAMES, f"{where}.segment",

@@ -186,6 +186,10 @@ def lesion_scene(params: ColonParams) -> LesionScene:
             _LESION_SCENES.pop(next(iter(_LESION_SCENES)))
         colon = load_colon(params)[0]
         lesions = drawn_lesions(params)
+        if not params.procedural and any(not lesion.polyp for lesion in lesions):
+            _log.warning(f"colon.lesions: the diverticula drawn for this patient are not "
+                         f"cut into colon.source {params.source_name()} (only a procedural "
+                         "or population colon's wall is); its polyps are placed")
         polyps = place_polyps(colon, lesions)
         # The colon's pouches, in the order of the patient's list (their indices there).
         pouch_index = [k for k, lesion in enumerate(lesions) if not lesion.polyp]
