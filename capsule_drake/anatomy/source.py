@@ -16,6 +16,7 @@ import hashlib
 import logging
 from pathlib import Path
 
+import cv2
 import numpy as np
 import trimesh
 from pydrake.common.yaml import yaml_dump_typed
@@ -25,10 +26,11 @@ from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
 from .diverticula import PlacedDiverticulum
-from .lesion_geometry import PlacedPolyp, place_polyps
+from .lesion_geometry import POINTS_AROUND, PlacedPolyp, place_polyps, polyp_rgba
+from .lesion_texture import polyp_texture, textured_revolution
 from .lesions import drawn_lesions
 from .lumen_state import BUBBLE_RADIUS, drawn_lumen, geometry_params
-from .mesh import write_obj
+from .mesh import mucosa_mtl, write_obj, write_textured_obj
 from .params import ColonParams
 from .pieces import wall_pieces
 
@@ -98,6 +100,9 @@ class LesionScene:
 
     polyps: list[PlacedPolyp]
     objs: list[Path]
+    # Each polyp's textured surface (anatomy/lesion_texture.py): an OBJ with its material
+    # and texture, what cameras render.
+    surface_objs: list[Path] = dataclasses.field(default_factory=list)
     # The pouches cut into the wall (anatomy/diverticula.py) and each one's sac as an OBJ
     # (the colon's meshes already have the hole and its collar).
     diverticula: list[PlacedDiverticulum] = dataclasses.field(default_factory=list)
@@ -174,6 +179,30 @@ def fluid_scene(params: ColonParams) -> FluidScene:
     return _SCENES[key]
 
 
+def _polyp_surface(folder: Path, stem: str, polyp: PlacedPolyp, params: ColonParams) -> Path:
+    """The polyp's textured OBJ, its material and its texture (anatomy/lesion_texture.py),
+    written once beside the colon's files; returns the OBJ's path."""
+    obj = folder / f"{stem}_surface.obj"
+    if obj.exists():
+        return obj
+    mucosa = params.mucosa
+    diameter = 1e-3 * polyp.lesion.size_mm
+    image, _ = polyp_texture(polyp_rgba(mucosa.base_color), np.pi * diameter,
+                             polyp.height + 0.5 * diameter, [params.seed, 23, 2, polyp.index])
+    png, mtl = f"{stem}_surface.png", f"{stem}_surface.mtl"
+
+    def write_png(tmp):
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"could not write the polyp texture {png}")
+
+    write_atomic(folder / png, write_png)
+    write_atomic(folder / mtl, lambda tmp: Path(tmp).write_text(
+        mucosa_mtl(png, mucosa.specular, mucosa.shininess)))
+    mesh = textured_revolution(polyp.mesh, POINTS_AROUND)
+    write_atomic(obj, lambda tmp: write_textured_obj(tmp, mesh, (mtl, "mucosa")))
+    return obj
+
+
 def lesion_scene(params: ColonParams) -> LesionScene:
     """The polyps of the colon of `params` (anatomy/lesions.py, anatomy/lesion_geometry.py)
     placed on its wall, and their OBJs, once per process for equal parameters; empty when
@@ -204,5 +233,7 @@ def lesion_scene(params: ColonParams) -> LesionScene:
             if not path.exists():
                 write_atomic(path, lambda tmp, m=mesh: write_obj(tmp, m, normals=True))
             out.append(path)
-        _LESION_SCENES[key] = LesionScene(polyps, objs, pouches, sacs)
+        surfaces = [_polyp_surface(folder, f"{stem}_{p.index:03d}", p, params)
+                    for p in polyps]
+        _LESION_SCENES[key] = LesionScene(polyps, objs, surfaces, pouches, sacs)
     return _LESION_SCENES[key]

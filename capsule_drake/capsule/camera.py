@@ -47,7 +47,6 @@ from pydrake.common import RandomDistribution
 
 from capsule_drake.anatomy import colon_assets
 from capsule_drake.anatomy.lumen_state import BUBBLE_RGBA, FLUID_RGBA
-from capsule_drake.anatomy.lesion_geometry import polyp_rgba
 from capsule_drake.anatomy.source import fluid_scene, lesion_scene
 from capsule_drake.anatomy.windows import CameraWindows, camera_windows
 from capsule_drake.capsule.render_worker import RenderWorker
@@ -960,15 +959,16 @@ def add_camera_walls(plant, scene_graph, colon_params, colon,
     # A diverticulum's sac likewise (its neck's collar is part of the wall), in the mucosa's
     # own colour.
     lesions = lesion_scene(colon_params)
-    polyp_colour = Rgba(*polyp_rgba(colon_params.mucosa.base_color))
     sac_colour = Rgba(*colon_params.mucosa.base_color, 1.0)
+    # A polyp's look is its surface's own material and texture (anatomy/lesion_texture.py).
     for lesion, path, colour, kind in (
-            [(p, o, polyp_colour, "polyp") for p, o in zip(lesions.polyps, lesions.objs)]
+            [(p, o, None, "polyp") for p, o in zip(lesions.polyps, lesions.surface_objs)]
             + [(d, o, sac_colour, "diverticulum")
                for d, o in zip(lesions.diverticula, lesions.sac_objs)]):
         name = f"{kind}_label_{lesion.index:03d}"
         properties = PerceptionProperties()
-        properties.AddProperty("phong", "diffuse", colour)
+        if colour is not None:
+            properties.AddProperty("phong", "diffuse", colour)
         properties.AddProperty("label", "id", RenderLabel(LESION_LABEL_BASE + lesion.index))
         geometry = GeometryInstance(RigidTransform(), Mesh(str(path)), name)
         geometry.set_perception_properties(properties)
