@@ -86,10 +86,13 @@ def test_a_detector_is_scored_per_polyp_and_per_minute():
 @pytest.mark.slow
 def test_a_run_sees_the_polyp_it_passes_and_not_the_one_it_never_reaches():
     # A large sessile polyp on the rectum's wall 5 cm ahead of the capsule's start, which
-    # it passes, and a small one in the cecum, which 4 s of following never reaches.
+    # it passes, and a small one in the cecum, which 4 s of following never reaches; a
+    # diverticulum in the rectum before the polyp, and one in the ascending colon.
     text = ("{colon: {lesions: {drawn: false, placed: [{kind: 0-Is, size_mm: 12, segment: "
             "rectum, along: 0.7, around_deg: 200}, {kind: 0-Is, size_mm: 7, segment: cecum, "
-            "along: 0.5, around_deg: 0}]}}}")
+            "along: 0.5, around_deg: 0}, {kind: diverticulum, size_mm: 9, segment: rectum, "
+            "along: 0.45, around_deg: 160}, {kind: diverticulum, size_mm: 9, segment: "
+            "ascending, along: 0.5, around_deg: 160}]}}}")
     row = benchmark.run_task(benchmark.Task(
         "autonomy-truth", 4, duration=4.0, scenario_text=text,
         polyp_detector="tests.plugins.polyp_detectors:brightest_spot"))["row"]
@@ -97,6 +100,8 @@ def test_a_run_sees_the_polyp_it_passes_and_not_the_one_it_never_reaches():
     assert (row["polyps_small"], row["seen_small"]) == (1, 0)
     assert (row["polyps_diminutive"], row["seen_diminutive"]) == (0, 0)
     assert benchmark.summary([{"row": row}])[0]["seen_large"] == "1/1"
+    assert (row["diverticula"], row["seen_diverticula"]) == (2, 1)
+    assert benchmark.summary([{"row": row}])[0]["seen_diverticula"] == "1/2"
     # The trivial detector is scored (what it scores is not the point): over the one seen.
     assert row["polyps_detected"] in (0, 1) and row["polyp_fp_per_min"] >= 0.0
     assert benchmark.summary([{"row": row}])[0]["polyp_sensitivity"] in ("0/1", "1/1")

@@ -78,7 +78,7 @@ COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
            "epm_path_m", "coverage", "polyps_diminutive", "seen_diminutive", "polyps_small",
            "seen_small", "polyps_large", "seen_large", "polyps_detected", "polyp_fp_per_min",
-           "sim_time_s", "wall_time_s", "status", "error")
+           "diverticula", "seen_diverticula", "sim_time_s", "wall_time_s", "status", "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
 # cecum, the guard, an error inside the simulation), or it failed (`error` says how: its
 # process crashed, it outlived its wall-time limit, or it raised before it could simulate).
@@ -160,8 +160,9 @@ def run_task(task: Task, progress=None) -> dict:
     period = scenario.outputs.log_period
     extra = {}
     last_report, simulating_since = [-np.inf], [0.0]
-    polyps = lesion_scene(scenario.colon).polyps
-    lesion_views = []
+    lesions = lesion_scene(scenario.colon)
+    polyps, pouches = lesions.polyps, lesions.diverticula
+    lesion_views, pouch_views = [], []
     detector = (load_function("polyp detector", task.polyp_detector, "a function")
                 if task.polyp_detector else None)
 
@@ -178,16 +179,23 @@ def run_task(task: Task, progress=None) -> dict:
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
             extra["camera"] = camera
-            if (polyps or detector) and station.HasOutputPort("capsule.camera.label_image"):
-                views = builder.AddNamedSystem("lesion_views", LesionViews(
-                    lesion_labels(polyps), len(polyps),
+            labelled = station.HasOutputPort("capsule.camera.label_image")
+            # The polyps (scored with a detector, if any) and the diverticula apart: a
+            # polyp detector's mark on a diverticulum is a false positive.
+            for name, mine, scorer, out in (("lesion_views", polyps, detector, lesion_views),
+                                            ("diverticulum_views", pouches, None,
+                                             pouch_views)):
+                if not labelled or not (mine or scorer):
+                    continue
+                views = builder.AddNamedSystem(name, LesionViews(
+                    {label: k for k, label in enumerate(lesion_labels(mine))}, len(mine),
                     int(camera.lens.pixel_rays()[1].sum()), camera.tick(),
-                    camera.latency() + 1e-6, detector=detector))
-                for name in ("label_image", "depth_image", "frame_info") + (
-                        ("rgb_image",) if detector else ()):
-                    builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
-                                    views.GetInputPort(name))
-                lesion_views.append(views)
+                    camera.latency() + 1e-6, detector=scorer))
+                for port in ("label_image", "depth_image", "frame_info") + (
+                        ("rgb_image",) if scorer else ()):
+                    builder.Connect(station.GetOutputPort(f"capsule.camera.{port}"),
+                                    views.GetInputPort(port))
+                out.append(views)
         if station.HasOutputPort("capsule.localizer.pose"):
             extra["localizer_pose"] = LogVectorOutput(
                 station.GetOutputPort("capsule.localizer.pose"), builder, period)
@@ -224,6 +232,13 @@ def run_task(task: Task, progress=None) -> dict:
     shown = (lesion_views[0].final_shown(lesion_views[0].GetMyContextFromRoot(result.context))
              if lesion_views else None)
     row.update(lesion_columns(polyps, shown))
+    pouches_shown = (pouch_views[0].final_shown(pouch_views[0].GetMyContextFromRoot(
+        result.context)) if pouch_views else None)
+    row["diverticula"] = len(pouches)
+    row["seen_diverticula"] = (
+        np.nan if pouches_shown is None and pouches else
+        int(np.sum(np.asarray(pouches_shown if pouches_shown is not None else [])
+                   >= SEEN_SECONDS)))
     score = (lesion_views[0].detector_score(None if shown is None else shown >= SEEN_SECONDS)
              if lesion_views and detector else None)
     row.update(polyps_detected=np.nan if score is None else score["seen_detected"],
@@ -987,6 +1002,7 @@ def summary(results: list[dict]) -> list[dict]:
                     "epm_path_m": mean("epm_path_m"), "coverage": mean("coverage"),
                     **{f"seen_{size_class}": _seen(rows, size_class)
                        for size_class in SIZE_CLASSES},
+                    "seen_diverticula": _seen(rows, "diverticula"),
                     "polyp_sensitivity": _sensitivity(rows),
                     "polyp_fp_per_min": mean("polyp_fp_per_min")})
     return out
@@ -1003,10 +1019,12 @@ def _sensitivity(rows) -> str:
 
 
 def _seen(rows, size_class: str) -> str:
-    """"seen/present" polyps of a size class over the runs that counted them ("-": none)."""
+    """"seen/present" polyps of a size class (or "diverticula") over the runs that counted
+    them ("-": none)."""
     counted = [row for row in rows
                if np.isfinite(float(row.get(f"seen_{size_class}", np.nan)))]
-    present = sum(int(row[f"polyps_{size_class}"]) for row in counted)
+    present = sum(int(row[f"polyps_{size_class}" if size_class in SIZE_CLASSES
+                          else size_class]) for row in counted)
     if not present:
         return "-"
     return f"{sum(int(row[f'seen_{size_class}']) for row in counted)}/{present}"
