@@ -12,7 +12,7 @@ Paris classification (docs/sources.md section 3.4), each a surface of revolution
 - 0-IIa (flat elevated): a plateau (a super-ellipse profile) of height min(0.3 d, 2 mm).
 - 0-Ip (pedunculated): a head (an ellipsoid d wide, 0.9 d tall) on a stalk 0.35 d thick
   and 0.8 d long. It stands straight out of the wall (U: a real stalk bends and sways).
-Diverticula have no geometry yet (their pouches need the wall itself opened).
+Diverticula are pouches cut into the wall itself (anatomy/diverticula.py).
 """
 
 from __future__ import annotations
