@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+from pydrake.geometry import Role
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.colon import build_colon
@@ -182,6 +183,12 @@ def test_the_label_image_shows_each_sac_through_its_neck():
     frame_id = plant.GetBodyFrameIdOrThrow(body.index())
     X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
     labels = {k: label for label, k in lesion_labels(pouches).items()}
+    # Each sac hangs on the world frame (anchored: no renderer re-poses it at a step).
+    inspector = scene_graph.model_inspector()
+    sacs = [g for g in inspector.GetAllGeometryIds(Role.kPerception)
+            if inspector.GetName(g).startswith("diverticulum_label_")]
+    assert len(sacs) == len(pouches) == 3
+    assert all(inspector.GetFrameId(g) == inspector.world_frame_id() for g in sacs)
     lens = camera.lens
     _, field = lens.pixel_rays()
     checked = 0
