@@ -146,7 +146,7 @@ def add_scene(builder, scenario, meshcat=None) -> StationParts:
 def add_table_and_colon(parts: StationParts, scenario, perception: bool):
     """The table, and the colon's wall (by scenario.contact's model) and visuals.
     `perception`: the mucosa is seen by every renderer (no capsule camera: a capsule camera
-    sees walls of its own, capsule/camera_walls.py)."""
+    sees walls of its own: capsule/camera.py, `add_camera_walls`)."""
     parts.parser.AddModels(url=model_url("table.sdf"))
     add_colon_wall(parts.plant, scenario.contact, scenario.colon, parts.colon)
     add_colon_visuals(parts.plant, scenario.colon, parts.colon, perception=perception)
