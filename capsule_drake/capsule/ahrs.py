@@ -32,7 +32,6 @@ import dataclasses
 import math
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RotationMatrix
 from pydrake.systems.framework import LeafSystem
 

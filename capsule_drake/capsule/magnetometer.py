@@ -216,9 +216,6 @@ class Magnetometer(LeafSystem):
         self._bias_port = self.DeclareStateOutputPort("bias", self._bias)
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
 
-    def config(self) -> MagnetometerConfig:
-        return copy.deepcopy(self._config)
-
     @property
     def config(self) -> MagnetometerConfig:
         """The magnetometer's settings (a copy)."""

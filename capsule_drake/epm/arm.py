@@ -14,7 +14,6 @@ track in the plant. The magnet's reaction wrench loads the arm through those ser
 import dataclasses
 
 import numpy as np
-from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.inverse_kinematics import (
     DifferentialInverseKinematicsParameters,

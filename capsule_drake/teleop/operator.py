@@ -204,7 +204,6 @@ class SimulatedOperator(LeafSystem):
         front = -self._half[2] * c.stroke_fraction
         rear = self._half[2] * c.stroke_fraction
         dt = c.period
-        turned_back = False
         if c.cruise_offset > 0.0 and c.turn_back_deg > 0.0 and self._way.HasValue(context):
             way = np.asarray(self._way.Eval(context), dtype=float)
             if np.all(np.isfinite(way)) and np.linalg.norm(way) > 0.5 \
@@ -212,7 +211,6 @@ class SimulatedOperator(LeafSystem):
                 # Looking back the way it came: what is in view is the way out. Search,
                 # turning toward the way forward (its side in the image; right if straight
                 # behind).
-                turned_back = True
                 seen_visible = False
                 side = np.array([way[0], -way[1]])
                 seen_offset = side if np.linalg.norm(side) > 0.05 else np.array([1.0, 0.0])
