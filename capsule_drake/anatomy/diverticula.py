@@ -203,6 +203,10 @@ def place_diverticula(colon, lesions: list[DrawnLesion]) -> list[PlacedDiverticu
     return placed
 
 
+class CollarFoldsOver(ValueError):
+    """A cut's collar would fold over (its triangles turn their backs to the lumen)."""
+
+
 @dataclasses.dataclass
 class Cut:
     """A mesh's triangles around one neck removed and the hole joined to the neck.
@@ -224,14 +228,14 @@ def cut(vertices: np.ndarray, faces: np.ndarray, pouch: PlacedDiverticulum,
         centerline) -> Cut:
     """Where a mesh of the wall is cut for `pouch` (`cut_once`): with a margin of one cell
     around the neck, or of two or three where the collar would fold over with one (a fold's
-    flank or a steep flexure within the first)."""
-    for cells in (1, 2, 3):
+    flank or a steep flexure within the first: one of 200 drawn necks on seeds 0-39, in
+    two of its three meshes)."""
+    for cells in (1, 2):
         try:
             return cut_once(vertices, faces, pouch, centerline, cells)
-        except ValueError as error:
-            if cells == 3 or "folds over" not in str(error):
-                raise
-    raise AssertionError("unreachable")
+        except CollarFoldsOver:
+            pass
+    return cut_once(vertices, faces, pouch, centerline, 3)
 
 
 def cut_once(vertices: np.ndarray, faces: np.ndarray, pouch: PlacedDiverticulum,
@@ -269,7 +273,6 @@ def cut_once(vertices: np.ndarray, faces: np.ndarray, pouch: PlacedDiverticulum,
     if len(removed) == 0:
         raise ValueError(f"diverticulum {pouch.index}: no wall triangles at its neck")
     # Topology by position: vertices repeated at seams or chunk borders are one.
-    used = np.unique(faces[near])
     _, first, canon_used = np.unique(np.round(vertices[used] / 1e-8).astype(np.int64),
                                      axis=0, return_index=True, return_inverse=True)
     canon = np.full(len(vertices), -1)
@@ -325,7 +328,7 @@ def cut_once(vertices: np.ndarray, faces: np.ndarray, pouch: PlacedDiverticulum,
     e1, e2 = flat[:, 1] - flat[:, 0], flat[:, 2] - flat[:, 0]
     area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     if np.any(area <= 0.0):
-        raise ValueError(f"diverticulum {pouch.index}: the collar folds over")
+        raise CollarFoldsOver(f"diverticulum {pouch.index}: the collar folds over")
     return Cut(keep, loop, collar, removed)
 
 
@@ -356,9 +359,9 @@ def _zip(outer_angle: np.ndarray, inner_angle: np.ndarray) -> np.ndarray:
     return np.asarray(faces, dtype=np.int64)
 
 
-def pouched_mesh(mesh: trimesh.Trimesh, pouches, centerline, sacs: bool = True) -> trimesh.Trimesh:
+def pouched_mesh(mesh: trimesh.Trimesh, pouches, centerline) -> trimesh.Trimesh:
     """`mesh` (the wall, normals into the lumen) cut for every pouch, each hole joined to its
-    neck and, with `sacs`, closed by its sac: closed where `mesh` was."""
+    neck and closed by its sac: closed where `mesh` was."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     keep = np.ones(len(faces), bool)
     extra_v, extra_f = [], []
@@ -370,12 +373,10 @@ def pouched_mesh(mesh: trimesh.Trimesh, pouches, centerline, sacs: bool = True) 
         index = np.concatenate([c.loop, rim])
         extra_v.append(pouch.rim_W)
         extra_f.append(index[c.collar])
-        count += NECK_POINTS
-        if sacs:
-            inner = count + np.arange(len(pouch.sac_vertices_W))
-            extra_v.append(pouch.sac_vertices_W)
-            extra_f.append(np.concatenate([rim, inner])[pouch.sac_faces])
-            count += len(inner)
+        inner = count + NECK_POINTS + np.arange(len(pouch.sac_vertices_W))
+        extra_v.append(pouch.sac_vertices_W)
+        extra_f.append(np.concatenate([rim, inner])[pouch.sac_faces])
+        count += NECK_POINTS + len(inner)
     if not pouches:
         return mesh
     out = trimesh.Trimesh(np.vstack([vertices] + extra_v),

@@ -103,12 +103,19 @@ def revolve(radius, height, sink: float, around: int = POINTS_AROUND) -> trimesh
     return mesh
 
 
+def lab_shift(rgb, shift) -> np.ndarray:
+    """sRGB colours in [0, 1] (any shape ending in 3) moved by `shift` (per colour, or
+    broadcast) in CIELAB, clipped back into [0, 1]."""
+    rgb = np.asarray(rgb, np.float32)
+    lab = cv2.cvtColor(rgb.reshape(1, -1, 3), cv2.COLOR_RGB2Lab)
+    lab += np.asarray(shift, np.float32).reshape(1, -1, 3)
+    return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB).reshape(rgb.shape), 0.0, 1.0)
+
+
 def polyp_rgba(mucosa_rgb) -> tuple[float, float, float, float]:
     """The diffuse colour of a polyp on mucosa of colour `mucosa_rgb` (sRGB in [0, 1]):
     shifted by ADENOMA_LAB_SHIFT in CIELAB."""
-    rgb = np.asarray(mucosa_rgb, np.float32).reshape(1, 1, 3)
-    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab) + np.asarray(ADENOMA_LAB_SHIFT, np.float32)
-    out = np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB).reshape(3), 0.0, 1.0)
+    out = lab_shift(np.reshape(mucosa_rgb, 3), ADENOMA_LAB_SHIFT)
     return (float(out[0]), float(out[1]), float(out[2]), 1.0)
 
 

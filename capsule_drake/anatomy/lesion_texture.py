@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .lesion_geometry import lab_shift
 from .mesh import TexturedMesh
 from .texture import periodic_field
 
@@ -36,12 +37,6 @@ VESSEL_LAB = (-14.0, 4.0, 10.0)
 "brown vessels"; the amount: U)."""
 WHITE_LAB = (6.0, -3.0, -3.0)
 """A structure's centre against the polyp's colour: paler (its "white structures"; U)."""
-
-
-def _lab_shift(rgb: np.ndarray, shift) -> np.ndarray:
-    lab = cv2.cvtColor(rgb.astype(np.float32).reshape(1, -1, 3), cv2.COLOR_RGB2Lab)
-    lab += np.asarray(shift, np.float32)
-    return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB).reshape(rgb.shape), 0.0, 1.0)
 
 
 def mean_lab(rgb: np.ndarray) -> np.ndarray:
@@ -72,13 +67,13 @@ def polyp_texture(rgba, size_u: float, size_v: float, seed) -> tuple[np.ndarray,
     centre = np.clip(1.0 - f1 / (0.5 * CELL_M), 0.0, 1.0)         # toward cell centres
     base = np.asarray(rgba[:3], np.float32)[None, None, :]
     colour = np.broadcast_to(base, (n, n, 3)).copy()
-    colour = colour + centre[..., None] * (_lab_shift(colour, WHITE_LAB) - colour)
-    colour = colour + (0.8 * vessel)[..., None] * (_lab_shift(colour, VESSEL_LAB) - colour)
+    colour = colour + centre[..., None] * (lab_shift(colour, WHITE_LAB) - colour)
+    colour = colour + (0.8 * vessel)[..., None] * (lab_shift(colour, VESSEL_LAB) - colour)
     colour *= (1.0 + 0.03 * periodic_field(rng, (n, n), 0.7))[..., None]
     colour = np.clip(colour, 0.0, 1.0).astype(np.float32)
     # The mean colour onto the polyp's own.
     offset = mean_lab(base) - mean_lab(colour)
-    colour = _lab_shift(colour, offset)
+    colour = lab_shift(colour, offset)
     return np.round(colour * 255.0).astype(np.uint8), float(np.mean(vessel >= 0.5))
 
 

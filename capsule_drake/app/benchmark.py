@@ -235,10 +235,8 @@ def run_task(task: Task, progress=None) -> dict:
     pouches_shown = (pouch_views[0].final_shown(pouch_views[0].GetMyContextFromRoot(
         result.context)) if pouch_views else None)
     row["diverticula"] = len(pouches)
-    row["seen_diverticula"] = (
-        np.nan if pouches_shown is None and pouches else
-        int(np.sum(np.asarray(pouches_shown if pouches_shown is not None else [])
-                   >= SEEN_SECONDS)))
+    row["seen_diverticula"] = (0 if not pouches else np.nan if pouches_shown is None
+                               else int(np.sum(pouches_shown >= SEEN_SECONDS)))
     score = (lesion_views[0].detector_score(None if shown is None else shown >= SEEN_SECONDS)
              if lesion_views and detector else None)
     row.update(polyps_detected=np.nan if score is None else score["seen_detected"],
