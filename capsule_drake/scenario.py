@@ -27,54 +27,85 @@ finite, and each block's check bounds its values, each bound with its reason bes
 buffers and log lengths for what costs memory or time).
 """
 
-import dataclasses
 import math
 import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
-from pydrake.multibody.plant import (ApplyMultibodyPlantConfig, MultibodyPlant,
-                                    MultibodyPlantConfig)
+from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
-from capsule_drake.anatomy import ColonParams, check_colon_params
-from capsule_drake.anatomy.course import solve_course
-from capsule_drake.anatomy.params import SEED_RANGE, SEGMENT_NAMES
-from capsule_drake.anatomy.population import resolve_population
-from capsule_drake.capsule.ahrs import AhrsConfig, check_ahrs_config
-from capsule_drake.capsule.camera import CameraConfig, check_camera_config
-from capsule_drake.capsule.contact_sensor import ContactSensorConfig, check_contact_sensor_config
-from capsule_drake.capsule.imu import ImuConfig, check_imu_config
-from capsule_drake.capsule.magnetic_array import (MagneticArrayConfig,
-                                                  check_magnetic_array_config)
-from capsule_drake.capsule.magnetometer import MagnetometerConfig, check_magnetometer_config
-from capsule_drake.capsule.model import capsule_model
-from capsule_drake.epm.arm import Arm, check_arm_config
-from capsule_drake.epm.paths import AlongColon, External, HoldAbove, check_path
-from capsule_drake.epm.stage import Stage, check_stage
-from capsule_drake.guidance.pseudo_force import PseudoForceConfig, check_pseudo_force_config
+from capsule_drake import blocks, scene
+from capsule_drake.anatomy import ColonParams
+from capsule_drake.anatomy.params import SEED_RANGE
+from capsule_drake.capsule.ahrs import AhrsConfig
+from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.contact_sensor import ContactSensorConfig
+from capsule_drake.capsule.imu import ImuConfig
+from capsule_drake.capsule.magnetic_array import MagneticArrayConfig
+from capsule_drake.capsule.magnetometer import MagnetometerConfig
+from capsule_drake.epm import mount
+from capsule_drake.epm.arm import Arm
+from capsule_drake.epm.paths import AlongColon, External, HoldAbove
+from capsule_drake.epm.stage import Stage
+from capsule_drake.guidance.pseudo_force import PseudoForceConfig
+from capsule_drake.io import visualization
 from capsule_drake.io.guard import GuardConfig, check_guard_config
-from capsule_drake.navigation.autonomy import LumenFollower, check_lumen_follower
-from capsule_drake.navigation.localization import LocalizerConfig, check_localizer_config
-from capsule_drake.navigation.plugin import Plugin, check_plugin
-from capsule_drake.perception.lumen import load_detector
-from capsule_drake.perception.lumen_tracker import LumenTrackerConfig, check_lumen_tracker_config
-from capsule_drake.physics.contact import ContactConfig, check_contact_config
-from capsule_drake.physics.magnet_force import MagnetForceConfig, check_magnet_force_config
-from capsule_drake.physics.magnetics import MagnetGeometry, check_magnet_geometry
+from capsule_drake.navigation.autonomy import LumenFollower
+from capsule_drake.navigation.localization import LocalizerConfig
+from capsule_drake.navigation.plugin import Plugin
+from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
+from capsule_drake.physics.contact import ContactConfig
+from capsule_drake.physics.magnet_force import MagnetForceConfig
+from capsule_drake.physics.magnetics import MagnetGeometry
 from capsule_drake.physics.step_bound import time_step_bound
 from capsule_drake.schema import (MAX_TEXT_BYTES, MIN_PERIOD, ScenarioError, SchemaError, check,
-                                  need_range, parse_yaml)
-from capsule_drake.teleop.driver import Teleop, check_teleop
+                                  field_types, need_range, parse_yaml)
+from capsule_drake.teleop.driver import Teleop
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DIAGRAMS_DIR = REPO_ROOT / "diagrams"
 DEFAULT_SCENARIO_FILE = DIAGRAMS_DIR / "default.yaml"
 
-DRIVERS = (AlongColon, HoldAbove, Teleop, LumenFollower, External, Plugin)
+STATION_BLOCKS = (
+    "scene",                  # the plant, scene graph, colon and capsule (scene.py)
+    "epm.mount",              # the EPM's carrier: !Stage or !Arm (epm/mount.py)
+    "colon",                  # the table, the colon's wall and visuals (scene.py)
+    "capsule.camera_walls",   # the camera's own walls, after every other model
+    "contact",                # the capsule's contact and drag (scene.py)
+    "magnet_force",           # physics/magnet_force.py
+    "colon.fluid",            # buoyancy and drag in residual fluid (scene.py)
+    "applied_forces",         # the forces above into the plant (scene.py)
+    "epm.pose",               # epm/mount.py
+    "capsule.imu",            # capsule/imu.py
+    "capsule.ahrs",           # capsule/ahrs.py
+    "capsule.magnetometer",   # capsule/magnetometer.py
+    "capsule.magnetic_array",  # capsule/magnetic_array.py
+    "capsule.localizer",      # navigation/localization.py
+    "capsule.contact_sensor",  # capsule/contact_sensor.py
+    "capsule.camera",         # capsule/camera.py, with the lumen truth
+    "capsule.lumen_tracker",  # perception/lumen_tracker.py
+    "pseudo_force",           # guidance/pseudo_force.py
+    "epm.driver",             # epm/paths.py, teleop/driver.py, navigation/{autonomy,plugin}.py
+    "meshcat",                # io/visualization.py
+)
+"""The station's blocks, in the order they are checked and added."""
+
+# The modules that register blocks (blocks.py) and hold no config type of the scenario: the
+# scene's blocks, the EPM's carrier and pose, Meshcat. Every other block's module is
+# imported above for its config.
+BLOCK_MODULES = (scene, mount, visualization)
+_missing = [name for name in STATION_BLOCKS if not blocks.registered(name)]
+if _missing:
+    raise RuntimeError(f"blocks named in STATION_BLOCKS but not registered: {_missing}")
+
+
+def station_blocks(scenario) -> list[str]:
+    """The names of the blocks a station of `scenario` holds, in order."""
+    return [item.name for item, _ in blocks.present(STATION_BLOCKS, scenario)]
+
 
 # Keys of earlier versions, and where they went (a scenario that uses one is told).
 MOVED = {
@@ -346,8 +377,7 @@ def load_scenario(path: Path | str | None = None, name: str | None = None,
     return scenario
 
 
-# Bounds of the scenario's own settings (validate), each with its reason.
-MIN_TIME_STEP = 1e-5
+# Bounds of the run's own settings (validate), each with its reason.
 MAX_DURATION = 1e6
 """Longest run (s of simulated time): 11.6 days; the longest shipped scenario is 600 s, and
 a run goes at most ~10x real time."""
@@ -357,22 +387,12 @@ capsule's state, the contact load, the EPM's pose) held in memory at the end of 
 2 million are ~360 MB (the default run logs 6,000)."""
 MIN_VISUAL_PERIOD = 1e-3
 """Shortest period (s) of the Meshcat drawing: a screen shows 60 frames per second."""
-MAX_CLEARANCE = 0.5
-"""Farthest the EPM may be kept from the skin (m): at 0.5 m its pull on the capsule is
-~1e-4 of what it is at the working 10-15 cm, and the arm reaches 0.9 m."""
 
 
 def _numbers(obj, key: str = ""):
     """(dotted key, value) of every number, and list of numbers, of a scenario, through its
     blocks and Drake's configs (plant, simulator); absent (null) blocks have none."""
-    fields = getattr(type(obj), "__fields__", None)
-    if dataclasses.is_dataclass(obj):
-        names = [f.name for f in dataclasses.fields(obj)]
-    elif fields is not None:
-        names = [f.name for f in fields]
-    else:
-        return
-    for name in names:
+    for name in field_types(type(obj)) or ():
         value = getattr(obj, name)
         where = f"{key}.{name}" if key else name
         if isinstance(value, bool) or value is None or isinstance(value, str):
@@ -395,39 +415,24 @@ def _check_finite(scenario: Scenario) -> None:
             raise ScenarioError(f"scenario: {key} must be finite, got {value!r}")
 
 
-def validate(scenario: Scenario) -> None:
-    """Every check a scenario gets, once, when it is loaded; raises ScenarioError (one line).
-    What a block needs of another (a tracker needs a camera) is checked here too."""
+def _check_run(scenario: Scenario) -> None:
+    """The run's own settings, which are no block of the station: its duration and seed,
+    what it records, its simulator and its guard."""
     def need(ok: bool, what: str):
         if not ok:
             raise ScenarioError(f"scenario: {what}")
 
-    def checked(where: str, check_function, *args):
-        try:
-            check_function(*args)
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {where}{str(e).splitlines()[0]}") from None
-
     def bound(value, key: str, interval: str, unit: str = "", why: str = ""):
-        checked("", need_range, value, key, interval, unit, why)
+        try:
+            need_range(value, key, interval, unit, why)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: {str(e).splitlines()[0]}") from None
 
-    capsule, epm, outputs = scenario.capsule, scenario.epm, scenario.outputs
+    outputs = scenario.outputs
     bound(scenario.duration, "duration", f"[0, {MAX_DURATION:.0f}]", "s",
           "a million simulated seconds is 11.6 days")
     bound(scenario.random_seed, "random_seed", SEED_RANGE, "",
           "Drake's RandomGenerator keeps 32 bits: 2^32 would repeat seed 0's noise")
-    plant = scenario.plant
-    bound(plant.time_step, "plant.time_step", f">= {MIN_TIME_STEP:g}", "s",
-          "a shorter step turns a minute of simulation into days; the convergence "
-          "reference is 0.25 ms")
-    bound(plant.penetration_allowance, "plant.penetration_allowance", "> 0", "m")
-    bound(plant.stiction_tolerance, "plant.stiction_tolerance", "> 0", "m/s")
-    bound(plant.sap_near_rigid_threshold, "plant.sap_near_rigid_threshold", ">= 0")
-    try:  # Drake checks its own settings when it applies them (and asserts on some); on a
-        # plant of its own: one added to a builder that is never built is never freed
-        ApplyMultibodyPlantConfig(plant, MultibodyPlant(plant.time_step))
-    except (RuntimeError, ValueError, SystemExit) as e:
-        raise ScenarioError(f"scenario: plant: {str(e).strip().splitlines()[0]}") from None
     bound(outputs.log_period, "outputs.log_period", f">= {MIN_PERIOD:g}", "s",
           "10 kHz; the plant's state changes once a step (1 ms by default)")
     samples = scenario.duration / outputs.log_period
@@ -450,174 +455,28 @@ def validate(scenario: Scenario) -> None:
     need(simulator.integration_scheme in GetIntegrationSchemes(),
          f"simulator: Unknown integration scheme: {simulator.integration_scheme} (known: "
          f"{', '.join(GetIntegrationSchemes())})")
-    for where, magnet in (("capsule.ipm", capsule.ipm), ("epm.magnet", epm.magnet)):
-        checked(f"{where}.", check_magnet_geometry, magnet)
-    model = capsule_model()
-    diameter, length = 2.0 * model.radius, model.length + 2.0 * model.radius
-    ipm = capsule.ipm
-    across = {"cylinder": ipm.dimensions[:1], "sphere": ipm.dimensions,
-              "cuboid": [math.hypot(*ipm.dimensions[:2])]}[ipm.shape]
-    need(max(across) <= diameter and max(ipm.dimensions) <= length,
-         f"capsule.ipm must fit in the capsule ({1000 * diameter:.1f} mm wide, "
-         f"{1000 * length:.1f} mm long), got a {ipm.shape} of {ipm.dimensions} m")
-    checked("", check_magnet_force_config, scenario.magnet_force,
-            {"epm.magnet": epm.magnet, "capsule.ipm": capsule.ipm})
-    checked("", check_contact_config, scenario.contact)
-    checked("", check_guard_config, scenario.guard)
-    checked("", check_colon_params, scenario.colon)
-    if scenario.colon.procedural:
-        checked("", _check_colon_course, scenario.colon)
-    need(scenario.contact.model != "convex_pieces" or scenario.colon.procedural,
-         "contact.model convex_pieces needs a procedural colon (its pieces are cut from "
-         f"the analytic wall), not colon.source {scenario.colon.source_name()}")
-    bound(epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
-          "farther, the EPM barely pulls the capsule")
-    if isinstance(epm.mount, Arm):
-        checked("", check_arm_config, epm.mount)
-    else:
-        checked("epm.mount.", check_stage, epm.mount)
-    half_length = model.half_length
-    bound(capsule.start_s, "capsule.start_s", f">= {half_length:g}", "m",
-          "the capsule's half length: it starts inside the colon")
-    if scenario.colon.procedural:
-        shortest = sum(scenario.colon.segment(name).length_min for name in SEGMENT_NAMES)
-        bound(capsule.start_s, "capsule.start_s",
-              f"[{half_length:g}, {shortest - half_length:.3f}]", "m",
-              "inside the shortest colon the segments' length_min allow")
-    bound(capsule.settle, "capsule.settle", "[0, 5]", "s",
-          "0: no settling; the capsule comes to rest within ~0.5 s")
-    bound(capsule.lumen_lookahead, "capsule.lumen_lookahead", "(0, 0.5]", "m")
-    sensors = (("imu", check_imu_config), ("ahrs", check_ahrs_config),
-               ("magnetometer", check_magnetometer_config),
-               ("contact_sensor", check_contact_sensor_config))
-    for name, check_sensor in sensors:
-        sensor = getattr(capsule, name)
-        if name in ("imu", "magnetometer") and sensor is not None:
-            need(sensor.sample_rate > 0,
-                 f"capsule.{name}.sample_rate must be > 0, got {sensor.sample_rate}")
-        if sensor is not None:
-            checked(f"capsule.{name}{': ' if name == 'contact_sensor' else '.'}", check_sensor,
-                    sensor)
-        p_BS = getattr(sensor, "p_BS", None)
-        if p_BS is not None:
-            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half_length,
-                 f"capsule.{name}.p_BS must lie inside the capsule (radius "
-                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half_length:.2f} mm), got {p_BS}")
-    need(capsule.ahrs is None or capsule.imu is not None,
-         "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
-    if capsule.magnetic_array is not None:
-        checked("capsule.magnetic_array.", check_magnetic_array_config, capsule.magnetic_array)
-        for i, p_BS in enumerate(capsule.magnetic_array.positions):
-            need(math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= half_length,
-                 f"capsule.magnetic_array.positions[{i}] must lie inside the capsule (radius "
-                 f"{1000 * model.radius:.1f} mm, |z| <= {1000 * half_length:.2f} mm), "
-                 f"got {p_BS}")
-    if capsule.localizer is not None:
-        checked("capsule.localizer.", check_localizer_config, capsule.localizer)
-        need(capsule.imu is not None and capsule.magnetic_array is not None,
-             "capsule.localizer needs capsule.imu and capsule.magnetic_array")
-    if capsule.camera is not None:
-        checked("capsule.camera: ", check_camera_config, capsule.camera)
-    tracker = capsule.lumen_tracker
-    if tracker is not None:
-        need(capsule.camera is not None,
-             "capsule.lumen_tracker needs capsule.camera (give a camera, e.g. camera: {})")
-        checked("capsule.lumen_tracker: ", check_lumen_tracker_config, tracker)
-        checked("", _check_tracker_resources, tracker.params)
-        checked("capsule.lumen_tracker: ", load_detector, tracker.detector, tracker.params)
-    if scenario.pseudo_force is not None:
-        checked("", check_pseudo_force_config, scenario.pseudo_force)
-        need(scenario.pseudo_force.lumen_weight == 0 or tracker is not None,
-             "pseudo_force.lumen_weight needs capsule.lumen_tracker (and a camera), or set "
-             "lumen_weight: 0")
-    driver = epm.driver
-    if isinstance(driver, (AlongColon, HoldAbove)):
-        checked("", check_path, driver)
-        need(not isinstance(driver, HoldAbove) or driver.height > epm.clearance,
-             f"epm.driver.height {getattr(driver, 'height', None)} m must be above "
-             f"epm.clearance ({epm.clearance} m): the skin lies between the capsule and the "
-             "magnet")
-    elif isinstance(driver, Teleop):
-        checked("epm.driver (Teleop): ", check_teleop, driver)
-        if driver.operator == "simulated":
-            need(capsule.camera is not None,
-                 "epm.driver (Teleop) operator simulated needs capsule.camera (it watches "
-                 "the image)")
-            need(driver.lumen_source == "truth" or tracker is not None,
-                 "epm.driver (Teleop) lumen_source tracker needs capsule.lumen_tracker")
-    elif isinstance(driver, LumenFollower):
-        checked("epm.driver (LumenFollower): ", check_lumen_follower, driver)
-        need(capsule.camera is not None,
-             "epm.driver (LumenFollower) needs capsule.camera (it follows the lumen seen)")
-        need(driver.lumen != "detected" or tracker is not None,
-             "epm.driver (LumenFollower) lumen detected needs capsule.lumen_tracker")
-        need(driver.pose != "sensors" or capsule.localizer is not None,
-             "epm.driver (LumenFollower) pose sensors needs capsule.localizer (with "
-             "capsule.imu and capsule.magnetic_array)")
-    elif isinstance(driver, Plugin):
-        checked("epm.driver (Plugin): factory: ", check_plugin, driver)
+    try:
+        check_guard_config(scenario.guard)
+    except ValueError as e:
+        raise ScenarioError(f"scenario: {str(e).splitlines()[0]}") from None
+
+
+def validate(scenario: Scenario) -> None:
+    """Every check a scenario gets, once, when it is loaded; raises ScenarioError (one line):
+    the run's settings, then each block's check in the station's order (station.py), which
+    checks what the block needs of the others too (a tracker needs a camera)."""
+    _check_run(scenario)
+    blocks.check_blocks(STATION_BLOCKS, scenario)
     # Last, what no block's check bounds (the blocks' checks say what a NaN or an infinity
     # should have been, and none lets one through).
     _check_finite(scenario)
     # The time step against what the magnets and the contact allow, once what it is
     # computed from has been checked (physics/step_bound.py).
     longest, why = time_step_bound(scenario)
-    need(scenario.plant.time_step <= longest,
-         f"plant.time_step {scenario.plant.time_step:g} s is longer than the {longest:g} s "
-         f"this scenario allows ({why})")
-
-
-# The fields the procedural colon's course depends on (anatomy/course.py: `solve_course`),
-# besides the segments' lengths and diameters.
-_COURSE_FIELDS = ("radius_blend_length", "landmark_jitter", "course_smoothing",
-                  "centerline_step")
-_COURSES_FOUND: dict = {}
-
-
-def _check_colon_course(params: ColonParams) -> None:
-    """Raises ValueError (one line) when the procedural course has no room for the given
-    anatomy: solves the course once when any of the fields it depends on (the segments'
-    lengths and diameters, the landmark jitter and smoothing, the blend and the step) is away
-    from its default (the defaults found a course for each seed 0-59). About 0.2 s when the
-    course is found; ~10 s for the 40 attempts that fail, which the build would otherwise
-    spend before a traceback."""
-    default = ColonParams()
-    if params.population is not None:   # draws until the course has room (or says why not)
-        resolve_population(params, bend=False)
-        return
-
-    def anatomy(p):
-        return (repr([p.segment(name) for name in SEGMENT_NAMES]),
-                tuple(getattr(p, name) for name in _COURSE_FIELDS))
-
-    key = anatomy(params) + (params.seed,)
-    if anatomy(params) == anatomy(default) or key in _COURSES_FOUND:
-        return
-    try:
-        solve_course(params, np.random.default_rng(params.seed))
-    except RuntimeError:
-        raise ValueError(
-            f"colon: the procedural course (fixed landmarks) has no room for these segments "
-            f"with colon.seed {params.seed}: no course without kinks or overlaps in 40 "
-            "attempts (narrower or shorter segments, or a smaller landmark_jitter, fit; "
-            "another seed may)") from None
-    if len(_COURSES_FOUND) > 100:
-        _COURSES_FOUND.clear()
-    _COURSES_FOUND[key] = True
-
-
-def _check_tracker_resources(params) -> None:
-    """What the lumen detector's own check (perception/lumen.py) leaves unbounded and
-    costs memory or time per frame: its working image, filters and opening."""
-    key = "capsule.lumen_tracker.params"
-    need_range(params.work_size, f"{key}.work_size", "[16, 4096]", "px",
-               "the working image's longest side; frames are at most 4096 px")
-    need_range(params.median_size, f"{key}.median_size", "[1, 255]", "px")
-    need_range(params.blur_sigma, f"{key}.blur_sigma", "[0, 100]", "px")
-    need_range(params.opening, f"{key}.opening", "[0, 64]", "px")
-    need_range(params.dark_bias, f"{key}.dark_bias", "[0, 10]", "", "an exponent")
-    need_range(params.max_radius, f"{key}.max_radius", "(0, 2]", "",
-               "relative to the field's radius")
+    if not scenario.plant.time_step <= longest:
+        raise ScenarioError(
+            f"scenario: plant.time_step {scenario.plant.time_step:g} s is longer than the "
+            f"{longest:g} s this scenario allows ({why})")
 
 
 def dump_scenario(scenario: Scenario) -> str:

@@ -148,6 +148,20 @@ def _type_name(t) -> str:
     return getattr(t, "__name__", str(t))
 
 
+def field_types(schema) -> dict | None:
+    """{field name: annotated type} of a dataclass or of one of Drake's configs (their
+    `__fields__`: the plant's, the simulator's), in declaration order; None for any other
+    type. The one walk over a config's fields: the schema check here, the scenario's
+    number check (scenario.py)."""
+    if dataclasses.is_dataclass(schema):
+        hints = typing.get_type_hints(schema)
+        return {f.name: hints[f.name] for f in dataclasses.fields(schema)}
+    drake_fields = getattr(schema, "__fields__", None)
+    if isinstance(drake_fields, tuple):
+        return {f.name: f.type for f in drake_fields}
+    return None
+
+
 def check(schema, node, path: str) -> None:
     """Raises SchemaError if `node` (parsed YAML) does not fit the type `schema`."""
     origin = typing.get_origin(schema)
@@ -169,19 +183,14 @@ def check(schema, node, path: str) -> None:
         # An untagged mapping means the first alternative (as yaml_load_typed reads it).
         check(options[0], node, path)
         return
-    drake_fields = getattr(schema, "__fields__", None)  # Drake's configs (plant, simulator)
-    if dataclasses.is_dataclass(schema) or isinstance(drake_fields, tuple):
+    hints = field_types(schema)   # a dataclass, or Drake's configs (plant, simulator)
+    if hints is not None:
         if not isinstance(node, dict):
             raise SchemaError(f"{path}: expected a mapping for {_type_name(schema)}, "
                               f"got {type(node).__name__}")
         if isinstance(node, _Tagged) and node.tag != _type_name(schema):
             raise SchemaError(f"{path}: tag !{node.tag} does not fit {_type_name(schema)}")
-        if dataclasses.is_dataclass(schema):
-            hints = typing.get_type_hints(schema)
-            known = {f.name for f in dataclasses.fields(schema)}
-        else:
-            hints = {f.name: f.type for f in drake_fields}
-            known = set(hints)
+        known = set(hints)
         for key, value in node.items():
             where = f"{path}.{key}" if path else str(key)
             if key not in known:

@@ -91,7 +91,7 @@ from gymnasium import spaces
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.epm.guard import floor_guard
-from capsule_drake.epm.paths import External, stage_trajectory
+from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.app.run import CONTACT_MONITOR, Run
 from capsule_drake.app.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
@@ -401,8 +401,7 @@ class ColonNavigationEnv(gymnasium.Env):
 
         run = Run(scenario, extend=add_contact_stats, log=False)
         epm = scenario.epm
-        start = stage_to_pose(stage_trajectory(External(), run.colon, scenario.capsule.start_s,
-                                               epm.magnet, epm.clearance).value(0.0).ravel())
+        start = stage_to_pose(epm_start(epm, run.colon, scenario.capsule.start_s))
         entry = _Colon(colon_seed, run, floor_guard(run.colon.abdomen, epm.magnet,
                                                     epm.clearance),
                        start, scenario.capsule.start_s)

@@ -28,7 +28,7 @@ from pydrake.systems.primitives import LogVectorOutput
 from capsule_drake.anatomy import ColonSourceError, load_colon
 from capsule_drake.anatomy.start_check import REST_SETTLE, check_start, pick_start
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.epm.paths import External, stage_trajectory
+from capsule_drake.epm.paths import External, epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
 from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
@@ -173,15 +173,13 @@ def settled_state(scenario: Scenario) -> np.ndarray:
     physics.epm.mount, physics.epm.driver = Stage(), External()
     physics.plant.time_step = SETTLE_STEP
     colon, _ = load_colon(scenario.colon)
-    epm_start = stage_to_pose(stage_trajectory(
-        scenario.epm.driver, colon, scenario.capsule.start_s, scenario.epm.magnet,
-        scenario.epm.clearance).value(0.0).ravel())
-    key = (repr(physics), scenario.capsule.settle, tuple(epm_start))
+    epm_pose = stage_to_pose(epm_start(scenario.epm, colon, scenario.capsule.start_s))
+    key = (repr(physics), scenario.capsule.settle, tuple(epm_pose))
     if key not in _SETTLED:
         diagram = make_station(physics)
         simulator = simulator_for(diagram)
         context = simulator.get_mutable_context()
-        diagram.GetInputPort("epm.command").FixValue(context, epm_start)
+        diagram.GetInputPort("epm.command").FixValue(context, epm_pose)
         simulator.AdvanceTo(scenario.capsule.settle)
         if len(_SETTLED) >= 16:
             _SETTLED.clear()

@@ -35,7 +35,7 @@ import numpy as np
 from pydrake.math import RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.capsule.imu import STANDARD_GRAVITY
 from capsule_drake.schema import need_range
 
@@ -264,17 +264,23 @@ class MahonyAhrs(LeafSystem):
         discrete_state.get_mutable_vector(self._bias_state).SetFromVector(bias)
 
 
-@block(AhrsConfig)
+def check_ahrs(config: AhrsConfig, scenario) -> None:
+    checked("capsule.ahrs.", check_ahrs_config, config)
+    need(scenario.capsule.imu is not None,
+         "capsule.ahrs needs capsule.imu (set ahrs: null too, or give an imu)")
+
+
+@block("capsule.ahrs", AhrsConfig, check=check_ahrs)
 def add_ahrs(builder, parts, config: AhrsConfig):
-    """`capsule.ahrs` on the IMU's samples (the scenario's checks make sure there is an
-    IMU), starting from the capsule's true start attitude unless `initial_q_WB` is given;
-    exports capsule.ahrs.q_WB and capsule.ahrs.gyro_bias."""
-    imu = builder.GetSubsystemByName("capsule.imu")
+    """`capsule.ahrs` on the IMU's samples (its check makes sure there is an IMU), starting
+    from the capsule's true start attitude unless `initial_q_WB` is given; exports
+    capsule.ahrs.q_WB and capsule.ahrs.gyro_bias."""
+    imu = parts.shared("capsule.imu.config")
     if not config.initial_q_WB:
         q = parts.X_WB0.rotation().ToQuaternion()
         config = dataclasses.replace(config, initial_q_WB=[q.w(), q.x(), q.y(), q.z()])
     ahrs = builder.AddNamedSystem("capsule.ahrs", MahonyAhrs(
-        imu.config.sample_rate, config, R_BS=imu.config.X_BS().rotation(),
+        imu.sample_rate, config, R_BS=imu.X_BS().rotation(),
         gravity=parts.gravity))
     builder.Connect(parts.output("capsule.imu.accel"), ahrs.get_accel_input_port())
     builder.Connect(parts.output("capsule.imu.gyro"), ahrs.get_gyro_input_port())

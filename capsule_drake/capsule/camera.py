@@ -53,7 +53,7 @@ from capsule_drake.capsule.render_worker import RenderWorker
 from capsule_drake.lifetime import weak_method
 from capsule_drake.perception import Lens, LensConfig, photometry
 from capsule_drake.perception.lumen_truth import add_lumen_truth
-from capsule_drake.scene import block
+from capsule_drake.blocks import block
 from capsule_drake.schema import need_range
 
 FPS_MODES = ("fixed", "adaptive")
@@ -586,7 +586,7 @@ class CapsuleCamera(LeafSystem):
         X_PC: camera pose in that frame (e.g. the capsule's `camera` frame in its body).
         renderer_for: optional function of the camera's world position (3,) returning the
             name of the renderer to draw with (the colon window it is in; see
-            `station.add_camera_walls`). None: always `config.renderer_name`.
+            `add_camera_walls`). None: always `config.renderer_name`.
         static_scene: True when everything the camera can see is anchored (in a colon with
             camera walls, the station strips the perception role from all else). Then the
             depth image of a frame is drawn when something first reads it, from the pose
@@ -983,13 +983,27 @@ def lesion_labels(lesions) -> dict[int, int]:
     return {LESION_LABEL_BASE + p.index: p.index for p in lesions}
 
 
-@block(CameraConfig)
+def add_camera_wall_models(parts, config: CameraConfig):
+    """Before Finalize, after every other model (the camera sees only these walls): the
+    capsule camera's walls and renderers (`add_camera_walls`); sets parts.renderer_for."""
+    parts.renderer_for = add_camera_walls(parts.plant, parts.scene_graph, parts.colon_params,
+                                          parts.colon, config)
+
+
+block("capsule.camera_walls", CameraConfig, key="capsule.camera",
+      models=add_camera_wall_models)(None)
+
+
+@block("capsule.camera", CameraConfig, check=lambda config, _: check_camera_config(config),
+       where="capsule.camera: ")
 def add_camera(builder, parts, config: CameraConfig):
     """`capsule.camera` at the capsule's `camera` frame (its own renderers, light at the
     lens) and `capsule.lumen`, the lumen ground truth; exports capsule.camera.<signal> and
-    capsule.lumen.<signal>. The station has added the camera's walls before (parts
-    .renderer_for), so the camera sees only the anchored wall: its depth image is drawn on
-    demand, and frames with latency in a render worker on another core."""
+    capsule.lumen.<signal>, and shares the camera's lens, config, tick (the period of its
+    frames) and latency (`capsule.camera.<that>`). The camera's walls are in the scene
+    before (`capsule.camera_walls`, parts.renderer_for), so the camera sees only the
+    anchored wall: its depth image is drawn on demand, and frames with latency in a render
+    worker on another core."""
     plant = parts.plant
     camera_frame = plant.GetFrameByName("camera", parts.capsule_instance)
     static = parts.renderer_for is not None
@@ -1006,6 +1020,9 @@ def add_camera(builder, parts, config: CameraConfig):
     for name in ("rgb_image", "depth_image", "frame_info", "frame_pose", "label_image"):
         if camera.HasOutputPort(name):
             parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
+    for name, value in (("lens", camera.lens), ("config", camera.config),
+                        ("tick", camera.tick()), ("latency", camera.latency())):
+        parts.share(f"capsule.camera.{name}", value)
     add_lumen_truth(builder, parts, camera)
     return camera
 

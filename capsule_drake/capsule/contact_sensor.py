@@ -24,7 +24,7 @@ from capsule_drake.capsule.imu import add_random_sources
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.lifetime import id_values
 from capsule_drake.physics.contact_monitor import capsule_contact_force_W
-from capsule_drake.scene import block
+from capsule_drake.blocks import block
 from capsule_drake.schema import MAX_RATE, need_range
 
 
@@ -100,7 +100,12 @@ class ContactForceSensor(LeafSystem):
         discrete_state.set_value(self._truth, F_B)
 
 
-@block(ContactSensorConfig)
+def check_contact_sensor(config: ContactSensorConfig, scenario) -> None:
+    check_contact_sensor_config(config)
+
+
+@block("capsule.contact_sensor", ContactSensorConfig, check=check_contact_sensor,
+       where="capsule.contact_sensor: ")
 def add_contact_sensor(builder, parts, config: ContactSensorConfig):
     """`capsule.contact_sensor` on the plant's contact results and the capsule's state,
     its noise from a seeded random source; exports capsule.contact_sensor.{F_B, F_B_true}."""

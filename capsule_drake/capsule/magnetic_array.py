@@ -49,7 +49,8 @@ from capsule_drake.capsule.magnetometer import resolve_sources, source_poses
 from capsule_drake.physics.magnet_force import FIELD_MODELS
 from capsule_drake.physics.magnetics import (DEFAULT_MIN_DISTANCE, cylinder_field,
                                              dipole_field)
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked
+from capsule_drake.capsule.model import check_inside_capsule
 from capsule_drake.schema import MAX_RATE, need_range
 
 # Most sensors an array may have (3 numbers of state per axis each).
@@ -330,11 +331,18 @@ class MagneticSensorArray(LeafSystem):
             calibration.ravel())
 
 
-@block(MagneticArrayConfig)
+def check_magnetic_array(config: MagneticArrayConfig, scenario) -> None:
+    checked("capsule.magnetic_array.", check_magnetic_array_config, config)
+    for i, p_BS in enumerate(config.positions):
+        checked("", check_inside_capsule, p_BS, f"capsule.magnetic_array.positions[{i}]")
+
+
+@block("capsule.magnetic_array", MagneticArrayConfig, check=check_magnetic_array)
 def add_magnetic_array(builder, parts, config: MagneticArrayConfig):
     """`capsule.magnetic_array`: the Hall sensors around the IPM reading the EPM's field
     (the station's field model), with their noise sources; exports
-    capsule.magnetic_array.{B, saturated, B_raw, B_true}."""
+    capsule.magnetic_array.{B, saturated, B_raw, B_true} and shares its sensors' positions
+    (`capsule.magnetic_array.positions`) and the IPM's field at them (`.self_field`)."""
     array = builder.AddNamedSystem("capsule.magnetic_array", MagneticSensorArray(
         parts.plant, parts.capsule_body, parts.magnets, parts.ipm, parts.capsule.X_BM,
         config, field_model=parts.field_model))
@@ -345,4 +353,6 @@ def add_magnetic_array(builder, parts, config: MagneticArrayConfig):
     add_random_sources(builder, array.get_noise_input_ports(), array.period())
     parts.export_outputs(array, "capsule.magnetic_array",
                          ["B", "saturated", "B_raw", "B_true"])
+    parts.share("capsule.magnetic_array.positions", array.config.positions)
+    parts.share("capsule.magnetic_array.self_field", array.self_field())
     return array

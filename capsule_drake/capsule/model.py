@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
@@ -89,3 +90,13 @@ def rotation_from_quaternion(q_wxyz) -> np.ndarray:
     drifts off the unit sphere)."""
     q = np.asarray(q_wxyz, dtype=float)
     return Quaternion(q / np.linalg.norm(q)).rotation()
+
+
+def check_inside_capsule(p_BS, key: str) -> None:
+    """Raises ValueError unless the point p_BS (capsule frame B, m) lies inside the capsule:
+    where a sensor's `key` puts it."""
+    model = capsule_model()
+    if not (math.hypot(p_BS[0], p_BS[1]) <= model.radius and abs(p_BS[2]) <= model.half_length):
+        raise ValueError(f"{key} must lie inside the capsule (radius "
+                         f"{1000 * model.radius:.1f} mm, |z| <= "
+                         f"{1000 * model.half_length:.2f} mm), got {p_BS}")

@@ -359,8 +359,9 @@ class ArmMount:
         arm.Finalize()
         return arm
 
-    def connect(self, builder, parts, trajectory):
-        """After Finalize: the controller and the arm's start posture (solved to reach the
+    def connect(self, builder, parts, q0):
+        """After Finalize (`q0`, the stage joints of the EPM's start, is not used: the
+        arm reaches the same pose): the controller and the arm's start posture (solved to reach the
         EPM's start pose, parts.epm.start_command); exports epm.state (arm [q, v]),
         epm.desired_state and epm.status (see EpmArmController)."""
         plant = parts.plant

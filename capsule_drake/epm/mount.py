@@ -1,9 +1,10 @@
 """The EPM in a station: its carrier (stage or arm), where it starts, and its pose.
 
-`add_epm_models` (before the plant is finalised) adds the carrier's model; `add_epm_mount`
-(after) starts it where its driver begins and puts the EPM's guard (`epm_guard`) before it;
-`add_epm_pose` adds `epm_pose` ([p_WE, m_hat_W] from the plant). The driver (epm.driver in
-the scenario) is a block of its own that commands it: a pose-command driver connects to
+Two blocks: `epm.mount` (!Stage or !Arm) adds the carrier's model before the plant is
+finalised (`add_epm_models`) and after it (`add_epm_mount`) starts it where its driver begins
+(paths.py, `epm_start`) and puts the EPM's guard (`epm_guard`) before it; `epm.pose` adds
+`epm_pose` ([p_WE, m_hat_W] from the plant). The driver (epm.driver in the scenario) is a
+block of its own that commands it: a pose-command driver connects to
 `parts.epm.command_input(builder, parts)`, the guard's input, whose safe command goes on to
 the carrier, so that no driver's command (a user's plug-in, an !External input) reaches the
 carrier unguarded. A path driver (!AlongColon, !HoldAbove) drives the carrier's joints with
@@ -19,12 +20,15 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.epm.arm import Arm, ArmMount
+from capsule_drake.blocks import block
+from capsule_drake.epm.arm import Arm, ArmMount, check_arm_config
 from capsule_drake.epm.guard import (EpmCommandGuard, EpmGuard, command_workspace,
                                     floor_guard)
-from capsule_drake.epm.paths import stage_trajectory
+from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.epm.stage import KinematicStageMount, StageMount
+from capsule_drake.epm.stage import KinematicStageMount, Stage, StageMount, check_stage
+from capsule_drake.physics.magnetics import check_magnet_geometry
+from capsule_drake.schema import ScenarioError, need_range
 
 EPM_BODY = "epm"
 
@@ -38,7 +42,7 @@ class EpmParts:
     mount: object            # KinematicStageMount, StageMount or ArmMount
     instance: object         # the carrier's model instance (None: not in the plant)
     guard: EpmGuard          # the clearance floor (lowest_centre_height(x, y, m_hat))
-    trajectory: object = None      # stage joint trajectory the EPM starts on
+    start_joints: np.ndarray = None    # the stage joints [x y z yaw pitch] at the start
     start_command: np.ndarray = None   # [p_WE, m_hat_W] at the start
     command_guard: object = None   # the EpmCommandGuard every pose command passes through
     driven: bool = False           # a pose-command driver is connected (command_input)
@@ -55,37 +59,62 @@ class EpmParts:
         return self.command_guard.GetInputPort("epm_command")
 
 
-def add_epm_models(parts, config):
-    """Before Finalize: the carrier of `config.mount` (!Stage or !Arm); sets parts.epm."""
-    if isinstance(config.mount, Arm):
-        mount = ArmMount(config.mount)
-    elif config.mount.kinematic:
-        mount = KinematicStageMount(config.mount)
+MAX_CLEARANCE = 0.5
+"""Farthest the EPM may be kept from the skin (m): at 0.5 m its pull on the capsule is
+~1e-4 of what it is at the working 10-15 cm, and the arm reaches 0.9 m."""
+
+
+def check_epm_mount(mount, scenario) -> None:
+    """The EPM's magnet, its clearance and its carrier."""
+    epm = scenario.epm
+    for where, check, args in (
+            ("epm.magnet.", check_magnet_geometry, (epm.magnet,)),
+            ("", need_range, (epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
+                              "farther, the EPM barely pulls the capsule")),
+            (("", check_arm_config, (mount,)) if isinstance(mount, Arm)
+             else ("epm.mount.", check_stage, (mount,)))):
+        try:
+            check(*args)
+        except ValueError as e:
+            raise ScenarioError(f"scenario: {where}{str(e).splitlines()[0]}") from None
+
+
+def add_epm_models(parts, mount):
+    """Before Finalize: the carrier (!Stage or !Arm); sets parts.epm."""
+    epm = parts.scenario.epm
+    if isinstance(mount, Arm):
+        carrier = ArmMount(mount)
+    elif mount.kinematic:
+        carrier = KinematicStageMount(mount)
     else:
-        mount = StageMount(config.mount)
-    instance = mount.add_models(parts.plant, parts.parser)
-    parts.epm = EpmParts(config.magnet, config.clearance, mount, instance,
-                         floor_guard(parts.colon.abdomen, config.magnet, config.clearance))
+        carrier = StageMount(mount)
+    instance = carrier.add_models(parts.plant, parts.parser)
+    parts.epm = EpmParts(epm.magnet, epm.clearance, carrier, instance,
+                         floor_guard(parts.colon.abdomen, epm.magnet, epm.clearance))
 
 
-def add_epm_mount(builder, parts, config):
-    """After Finalize: the carrier starts where the driver's path begins (or over the
-    capsule's start), and the guard (`epm_guard`, EpmCommandGuard: the clearance floor of
-    parts.epm.guard, the workspace around the colon) waits for a pose command; exports
-    epm.guard_counts (guard.GUARD_COUNTS). Sets parts.epm.trajectory, start_command and
-    command_guard."""
+def add_epm_mount(builder, parts, mount):
+    """After Finalize: the carrier starts where the driver begins (paths.py, `epm_start`),
+    and the guard (`epm_guard`, EpmCommandGuard: the clearance floor of parts.epm.guard, the
+    workspace around the colon) waits for a pose command; exports epm.guard_counts
+    (guard.GUARD_COUNTS). Sets parts.epm.start_joints, start_command and command_guard."""
     epm = parts.epm
-    epm.trajectory = stage_trajectory(config.driver, parts.colon, parts.start_s,
-                                      config.magnet, config.clearance)
-    epm.start_command = stage_to_pose(epm.trajectory.value(epm.trajectory.start_time()).ravel())
-    epm.mount.connect(builder, parts, epm.trajectory)
+    epm.start_joints = epm_start(parts.scenario.epm, parts.colon, parts.start_s)
+    epm.start_command = stage_to_pose(epm.start_joints)
+    epm.mount.connect(builder, parts, epm.start_joints)
     epm.command_guard = builder.AddNamedSystem("epm_guard", EpmCommandGuard(
         epm.guard, command_workspace(parts.colon), epm.start_command,
         period=parts.plant.time_step()))
     parts.export(epm.command_guard.GetOutputPort("counts"), "epm.guard_counts")
 
 
-def add_epm_pose(builder, parts):
+for _mount in (Stage, Arm):
+    block("epm.mount", _mount, check=check_epm_mount, models=add_epm_models,
+          where="")(add_epm_mount)
+
+
+@block("epm.pose")
+def add_epm_pose(builder, parts, scenario):
     """`epm_pose`: the EPM's centre and moment direction, exported as epm.pose (the
     kinematic stage's own pose output, or read from the plant's body poses)."""
     if parts.epm.instance is None:

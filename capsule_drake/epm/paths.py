@@ -4,13 +4,20 @@ from outside the station.
     !AlongColon    the EPM travels over the colon's course (a stage joint trajectory)
     !HoldAbove     the EPM stays above the capsule's start
     !External      the station exports the input `epm.command` [p_WE, m_hat_W]
+
+Where the EPM starts is decided in one place, `epm_start`: a driver registered with a
+`start` (the paths: where their trajectory begins) says so itself; every other driver starts
+the EPM over the capsule's start (`start_over_capsule`).
 """
 
 
 import dataclasses
 
-from capsule_drake.epm.poses import along_colon_trajectory, hold_above_trajectory
-from capsule_drake.scene import block
+import numpy as np
+
+from capsule_drake.blocks import block, need, registered
+from capsule_drake.epm.poses import (along_colon_trajectory, epm_pose_over,
+                                     hold_above_trajectory, stage_joint_positions)
 from capsule_drake.schema import ScenarioError, need_range
 
 
@@ -68,11 +75,35 @@ def check_path(path) -> None:
                    "from the capsule's start up to the EPM's centre")
 
 
-def stage_trajectory(driver, colon, start_s: float, magnet, clearance: float):
-    """The stage joint trajectory of a path driver; for any other driver, the EPM's start
-    (the default AlongColon's first pose: over the capsule's start). Raises ScenarioError
-    when the path is impossible (a HoldAbove height below the clearance)."""
-    path = driver if isinstance(driver, (AlongColon, HoldAbove)) else AlongColon()
+def check_path_driver(path, scenario) -> None:
+    check_path(path)
+    clearance = scenario.epm.clearance
+    need(not isinstance(path, HoldAbove) or path.height > clearance,
+         f"epm.driver.height {getattr(path, 'height', None)} m must be above "
+         f"epm.clearance ({clearance} m): the skin lies between the capsule and the magnet")
+
+
+def start_over_capsule(colon, start_s: float, magnet, clearance: float) -> np.ndarray:
+    """Stage joints [x y z yaw pitch] over the centreline point at `start_s`, as low as the
+    clearance allows, the field there along the colon's tangent: the EPM's start for every
+    driver that does not give its own."""
+    s = float(np.clip(start_s, 0.0, float(colon.centerline.s[-1])))
+    return stage_joint_positions(*epm_pose_over(colon, s, clearance, magnet))
+
+
+def epm_start(epm, colon, start_s: float) -> np.ndarray:
+    """The stage joints [x y z yaw pitch] the EPM of `epm` (EpmConfig) starts at: its
+    driver's own start, if its block registers one, or `start_over_capsule`. Raises
+    ScenarioError when the driver's start is impossible (a HoldAbove below the clearance)."""
+    for item in registered("epm.driver"):
+        if isinstance(epm.driver, item.config_type) and item.start is not None:
+            return item.start(epm.driver, colon, start_s, epm.magnet, epm.clearance)
+    return start_over_capsule(colon, start_s, epm.magnet, epm.clearance)
+
+
+def path_trajectory(path, colon, start_s: float, magnet, clearance: float):
+    """The stage joint trajectory of a path driver (!AlongColon, !HoldAbove). Raises
+    ScenarioError when the path is impossible (a HoldAbove height below the clearance)."""
     make = along_colon_trajectory if isinstance(path, AlongColon) else hold_above_trajectory
     try:
         return make(colon, start_s, path, clearance, magnet)[0]
@@ -80,17 +111,28 @@ def stage_trajectory(driver, colon, start_s: float, magnet, clearance: float):
         raise ScenarioError(f"scenario: {e}") from None
 
 
-@block(AlongColon)
-@block(HoldAbove)
-def add_path_driver(builder, parts, config):
+def path_start(path, colon, start_s: float, magnet, clearance: float) -> np.ndarray:
+    """Where a path driver's trajectory begins (stage joints)."""
+    if isinstance(path, AlongColon):   # its first sample, without sampling the whole path
+        return start_over_capsule(colon, start_s + path.lead, magnet, clearance)
+    trajectory = path_trajectory(path, colon, start_s, magnet, clearance)
+    return trajectory.value(trajectory.start_time()).ravel()
+
+
+def add_path_driver(builder, parts, path):
     """The EPM's carrier follows the path's trajectory (`epm_path`)."""
-    return parts.epm.mount.follow(builder, parts, parts.epm.trajectory)
+    epm = parts.scenario.epm
+    trajectory = path_trajectory(path, parts.colon, parts.start_s, epm.magnet, epm.clearance)
+    return parts.epm.mount.follow(builder, parts, trajectory)
 
 
-@block(External)
+for _path in (AlongColon, HoldAbove):
+    block("epm.driver", _path, check=check_path_driver, start=path_start,
+          where="")(add_path_driver)
+
+
+@block("epm.driver", External)
 def add_external_driver(builder, parts, config):
     """Exports the EPM's pose command input (its guard's, before the carrier) as the
     station's `epm.command` input."""
-    port = parts.epm.command_input(builder, parts)
-    builder.ExportInput(port, "epm.command")
-    return port
+    return parts.export_input(parts.epm.command_input(builder, parts), "epm.command")

@@ -198,10 +198,10 @@ class KinematicStageMount:
             scene_graph.RegisterGeometry(self._source, frame, instance)
         self._frame = frame
 
-    def connect(self, builder, parts, trajectory):
-        """After Finalize: the stage (`epm_stage`), starting where `trajectory` begins;
-        exports epm.state (stage joints [x y z yaw pitch, rates], as commanded)."""
-        self._q0 = trajectory.value(trajectory.start_time()).ravel()
+    def connect(self, builder, parts, q0):
+        """After Finalize: the stage (`epm_stage`), starting at joints `q0`; exports
+        epm.state (stage joints [x y z yaw pitch, rates], as commanded)."""
+        self._q0 = np.asarray(q0, dtype=float).ravel()
         self.add_visual(parts.scene_graph, parts.epm.magnet)
         self.stage = builder.AddNamedSystem("epm_stage", KinematicStage())
         frame = builder.AddNamedSystem("epm_frame", EpmFrame(self._frame, self._q0))
@@ -267,14 +267,14 @@ class StageMount:
                 PdControllerGains(p=gains.p, d=gains.d))
         return self.instance
 
-    def connect(self, builder, parts, trajectory):
-        """After Finalize: start where `trajectory` (stage joints) begins; exports epm.state
-        (stage joints [x y z yaw pitch, rates])."""
+    def connect(self, builder, parts, q0):
+        """After Finalize: start at the stage joints `q0`; exports epm.state (stage joints
+        [x y z yaw pitch, rates])."""
         plant = parts.plant
         actuated = [plant.get_joint_actuator(i).joint().name()
                     for i in plant.GetJointActuatorIndices(self.instance)]
         assert tuple(actuated) == STAGE_JOINTS, actuated
-        self._q0 = trajectory.value(trajectory.start_time()).ravel()
+        self._q0 = np.asarray(q0, dtype=float).ravel()
         for name, value in zip(STAGE_JOINTS, self._q0):
             joint = plant.GetJointByName(name, self.instance)
             if name in ("x", "y", "z"):

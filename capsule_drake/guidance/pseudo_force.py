@@ -12,9 +12,9 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.scene import block
-from capsule_drake.guidance.terms import (TERMS, PseudoForceConfig,
-                                    check_pseudo_force_config, pseudo_force)
+from capsule_drake.blocks import block, checked, need
+from capsule_drake.guidance.terms import (TERMS, PseudoForceConfig, check_pseudo_force_config,
+                                          pseudo_force)
 
 
 class PseudoForceField(LeafSystem):
@@ -133,10 +133,18 @@ class PseudoForceField(LeafSystem):
         discrete_state.get_mutable_vector(self._invalid_state).SetFromVector(counts)
 
 
-@block(PseudoForceConfig)
+def check_pseudo_force(config: PseudoForceConfig, scenario) -> None:
+    checked("", check_pseudo_force_config, config)
+    need(config.lumen_weight == 0 or scenario.capsule.lumen_tracker is not None,
+         "pseudo_force.lumen_weight needs capsule.lumen_tracker (and a camera), or set "
+         "lumen_weight: 0")
+
+
+@block("pseudo_force", PseudoForceConfig, check=check_pseudo_force)
 def add_pseudo_force(builder, parts, config: PseudoForceConfig):
     """`pseudo_force` from the capsule's state and, when there is one, the lumen tracker;
-    exports pseudo_force.<signal>."""
+    exports pseudo_force.<signal> and shares the device's frame
+    (`pseudo_force.device_from_camera_rpy_deg`)."""
     force = builder.AddNamedSystem("pseudo_force", PseudoForceField(
         parts.colon, config, parts.capsule.X_BC, capsule_radius=parts.capsule.radius,
         capsule_length=parts.capsule.length))
@@ -146,4 +154,5 @@ def add_pseudo_force(builder, parts, config: PseudoForceConfig):
             builder.Connect(parts.output(f"capsule.lumen_tracker.{name}"),
                             force.GetInputPort(name))
     parts.export_outputs(force, "pseudo_force")
+    parts.share("pseudo_force.device_from_camera_rpy_deg", config.device_from_camera_rpy_deg)
     return force

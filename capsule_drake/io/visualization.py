@@ -16,6 +16,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from capsule_drake.blocks import block
 from capsule_drake.io.replay import STREAM_SYSTEM, CameraStream
 
 MARKER_SYSTEM = "capsule_marker"
@@ -39,6 +40,14 @@ TRAIL_RGBA = Rgba(1.0, 0.82, 0.05, 1.0)
 TRAIL_STEP = 0.003
 TRAIL_PIECE_TIME = 1.0
 TRAIL_PIECE_POINTS = 8
+
+
+@block("meshcat")
+def add_meshcat_block(builder, parts, scenario):
+    """Meshcat's drawing (`add_meshcat`, every scenario.outputs.visual_period) when the
+    station is built with a Meshcat."""
+    if parts.meshcat is not None:
+        add_meshcat(builder, parts, scenario.outputs.visual_period)
 
 
 def add_meshcat(builder, parts, period: float):

@@ -70,7 +70,7 @@ from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
@@ -596,7 +596,19 @@ def check_lumen_follower(config: LumenFollower) -> None:
     check_lumen_follower_config(config.control)
 
 
-@block(LumenFollower)
+def check_lumen_follower_driver(driver: LumenFollower, scenario) -> None:
+    checked("epm.driver (LumenFollower): ", check_lumen_follower, driver)
+    capsule = scenario.capsule
+    need(capsule.camera is not None,
+         "epm.driver (LumenFollower) needs capsule.camera (it follows the lumen seen)")
+    need(driver.lumen != "detected" or capsule.lumen_tracker is not None,
+         "epm.driver (LumenFollower) lumen detected needs capsule.lumen_tracker")
+    need(driver.pose != "sensors" or capsule.localizer is not None,
+         "epm.driver (LumenFollower) pose sensors needs capsule.localizer (with "
+         "capsule.imu and capsule.magnetic_array)")
+
+
+@block("epm.driver", LumenFollower, check=check_lumen_follower_driver)
 def add_lumen_follower(builder, parts, config: LumenFollower,
                        name: str = "lumen_follower") -> LumenFollowerController:
     """`lumen_follower` and what it reads: the capsule's pose (the truth, or
@@ -614,13 +626,12 @@ def add_lumen_follower(builder, parts, config: LumenFollower,
     if config.pose == "sensors":   # the capsule's own estimate (navigation/localization.py)
         pose_port = parts.output("capsule.localizer.pose")
     builder.Connect(pose_port, follower.GetInputPort("capsule_pose"))
-    camera = builder.GetSubsystemByName("capsule.camera")
     if config.lumen == "truth":
         seen = add_lumen_ray_from_truth(builder, parts, f"{name}.lumen_seen")
         ray, visible = seen.GetOutputPort("ray"), seen.GetOutputPort("visible")
     elif config.lumen == "truth_point":
         seen = builder.AddNamedSystem(f"{name}.lumen_seen", LumenRayFromPoint(
-            parts.capsule.X_BC, camera.lens.max_theta))
+            parts.capsule.X_BC, parts.shared("capsule.camera.lens").max_theta))
         # The ray as the camera sees it: from the capsule's true pose.
         builder.Connect(demux.get_output_port(0), seen.GetInputPort("capsule_pose"))
         builder.Connect(parts.output("capsule.lumen.lumen_point_W"),

@@ -46,7 +46,7 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.physics.magnetics import MU0
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.schema import need_range
 
 _K = MU0 / (4.0 * np.pi)
@@ -412,16 +412,21 @@ class MagneticLocalizer(LeafSystem):
         discrete_state.set_value(self._state, self._pack(e))
 
 
-@block(LocalizerConfig)
+def check_localizer(config: LocalizerConfig, scenario) -> None:
+    checked("capsule.localizer.", check_localizer_config, config)
+    need(scenario.capsule.imu is not None and scenario.capsule.magnetic_array is not None,
+         "capsule.localizer needs capsule.imu and capsule.magnetic_array")
+
+
+@block("capsule.localizer", LocalizerConfig, check=check_localizer)
 def add_localizer(builder, parts, config: LocalizerConfig):
     """`capsule.localizer`: the pose estimate from capsule.magnetic_array, capsule.imu and
     epm.pose, started at the capsule's start pose; exports capsule.localizer.{pose,
     covariance, std, sensors_used}."""
-    array = builder.GetSubsystemByName("capsule.magnetic_array")
-    imu = builder.GetSubsystemByName("capsule.imu")
     estimate = PoseEstimate(
-        config, array.config.positions, array.self_field(),
-        parts.epm.magnet.moment(), imu.config.X_BS().rotation().matrix(), parts.gravity)
+        config, parts.shared("capsule.magnetic_array.positions"),
+        parts.shared("capsule.magnetic_array.self_field"), parts.epm.magnet.moment(),
+        parts.shared("capsule.imu.config").X_BS().rotation().matrix(), parts.gravity)
     localizer = builder.AddNamedSystem("capsule.localizer", MagneticLocalizer(
         estimate, parts.X_WB0))
     builder.Connect(parts.output("capsule.magnetic_array.B"), localizer.GetInputPort("B"))

@@ -24,7 +24,7 @@ from pydrake.systems.framework import System
 
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.plugins import load_function
-from capsule_drake.scene import block
+from capsule_drake.blocks import block
 from capsule_drake.schema import ScenarioError
 
 PLUGIN_INPUTS = {
@@ -75,15 +75,14 @@ def check_plugin(config: Plugin) -> None:
     load_navigator(config.factory)
 
 
-@block(Plugin)
+@block("epm.driver", Plugin, check=lambda config, _: check_plugin(config),
+       where="epm.driver (Plugin): factory: ")
 def add_plugin(builder, parts, config: Plugin):
     """`navigator`, the user's system, connected by its input ports' names; its command
     goes to the EPM's carrier and is exported as epm.command."""
     name = config.factory
-    camera = (builder.GetSubsystemByName("capsule.camera")
-              if parts.has("capsule.camera.rgb_image") else None)
     context = NavigatorContext(parts.colon.centerline.length,
-                               camera.lens if camera is not None else None,
+                               parts.shared("capsule.camera.lens", None),
                                parts.capsule.X_BC, parts.epm.guard.lowest_centre_height,
                                np.array(parts.epm.start_command))
     try:

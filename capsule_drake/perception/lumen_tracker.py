@@ -8,8 +8,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageGrey8U, ImageRgba8U
 
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.perception.lumen import LumenParams, check_lumen_params, load_detector
+from capsule_drake.schema import need_range
 
 log = logging.getLogger(__name__)
 
@@ -165,13 +166,35 @@ class LumenTracker(LeafSystem):
         return EventStatus.Succeeded()
 
 
-@block(LumenTrackerConfig)
+def check_tracker_resources(params) -> None:
+    """What the lumen detector's own check (perception/lumen.py) leaves unbounded and
+    costs memory or time per frame: its working image, filters and opening."""
+    key = "capsule.lumen_tracker.params"
+    need_range(params.work_size, f"{key}.work_size", "[16, 4096]", "px",
+               "the working image's longest side; frames are at most 4096 px")
+    need_range(params.median_size, f"{key}.median_size", "[1, 255]", "px")
+    need_range(params.blur_sigma, f"{key}.blur_sigma", "[0, 100]", "px")
+    need_range(params.opening, f"{key}.opening", "[0, 64]", "px")
+    need_range(params.dark_bias, f"{key}.dark_bias", "[0, 10]", "", "an exponent")
+    need_range(params.max_radius, f"{key}.max_radius", "(0, 2]", "",
+               "relative to the field's radius")
+
+
+def check_lumen_tracker(config: LumenTrackerConfig, scenario) -> None:
+    need(scenario.capsule.camera is not None,
+         "capsule.lumen_tracker needs capsule.camera (give a camera, e.g. camera: {})")
+    checked("capsule.lumen_tracker: ", check_lumen_tracker_config, config)
+    checked("", check_tracker_resources, config.params)
+    checked("capsule.lumen_tracker: ", load_detector, config.detector, config.params)
+
+
+@block("capsule.lumen_tracker", LumenTrackerConfig, check=check_lumen_tracker)
 def add_lumen_tracker(builder, parts, config: LumenTrackerConfig):
-    """`capsule.lumen_tracker` on every new frame of capsule.camera (the scenario's checks
-    make sure there is one), as it is delivered; exports capsule.lumen_tracker.<signal>."""
-    camera = builder.GetSubsystemByName("capsule.camera")
+    """`capsule.lumen_tracker` on every new frame of capsule.camera (its check makes sure
+    there is one), as it is delivered; exports capsule.lumen_tracker.<signal>."""
     tracker = builder.AddNamedSystem("capsule.lumen_tracker", LumenTracker(
-        camera.lens, config, period=camera.tick(), delay=camera.latency() + 1e-6))
+        parts.shared("capsule.camera.lens"), config, period=parts.shared("capsule.camera.tick"),
+        delay=parts.shared("capsule.camera.latency") + 1e-6))
     builder.Connect(parts.output("capsule.camera.rgb_image"), tracker.GetInputPort("rgb_image"))
     builder.Connect(parts.output("capsule.camera.frame_info"),
                     tracker.GetInputPort("frame_info"))

@@ -316,8 +316,7 @@ class LumenRayFromTruth(LeafSystem):
 def add_lumen_ray_from_truth(builder, parts, name: str):
     """`name`, a LumenRayFromTruth on the lumen truth (capsule.lumen) through the capsule
     camera's lens: what an operator or navigator who sees the true lumen is given."""
-    lens = builder.GetSubsystemByName("capsule.camera").lens
-    seen = builder.AddNamedSystem(name, LumenRayFromTruth(lens))
+    seen = builder.AddNamedSystem(name, LumenRayFromTruth(parts.shared("capsule.camera.lens")))
     builder.Connect(parts.output("capsule.lumen.lumen_pixel"), seen.GetInputPort("pixel"))
     builder.Connect(parts.output("capsule.lumen.lumen_visible"), seen.GetInputPort("visible"))
     return seen

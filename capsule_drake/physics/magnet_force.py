@@ -17,6 +17,7 @@ from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.primitives import ZeroOrderHold
 from pydrake.systems.scalar_conversion import TemplateSystem
 
+from capsule_drake.blocks import block
 from capsule_drake.lifetime import CacheRef, weak_method
 from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
@@ -847,6 +848,12 @@ def _cylinder(geometry):
     return list(geometry.dimensions) if geometry.shape == "cylinder" else []
 
 
+def check_magnet_force(config: MagnetForceConfig, scenario) -> None:
+    check_magnet_force_config(config, {"epm.magnet": scenario.epm.magnet,
+                                       "capsule.ipm": scenario.capsule.ipm})
+
+
+@block("magnet_force", MagnetForceConfig, check=check_magnet_force, where="")
 def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str = "epm"):
     """`magnet_force` between the capsule's magnet (frame M of the capsule) and the EPM
     (its body's origin, moment along +z; or the kinematic stage's pose), applied to the plant (through `magnet_force_hold`
@@ -886,11 +893,7 @@ def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str
                 config.update_period, no_forces))
             builder.Connect(port, hold.get_input_port())
             port = hold.get_output_port()
-        parts.applied_forces.append(port)   # wired by scene.connect_applied_forces
-    return force
-
-
-def export_magnet_outputs(parts, force):
-    """capsule.ipm_field_B and epm.F_W (exported after the blocks, in the station's order)."""
+        parts.applied_forces.append(port)   # wired by the applied_forces block (scene.py)
     parts.export(force.get_B_B_output_port("ipm"), "capsule.ipm_field_B")
     parts.export(force.get_F_W_output_port("epm"), "epm.F_W")
+    return force

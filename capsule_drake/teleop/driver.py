@@ -15,7 +15,7 @@ from pydrake.systems.primitives import Demultiplexer
 from capsule_drake.perception.lumen_range import LumenRange
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.physics.contact_monitor import ContactMonitor
-from capsule_drake.scene import block
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.schema import MAX_RATE, MIN_PERIOD, need_range
 from capsule_drake.teleop.browser import BrowserOperator
 from capsule_drake.teleop.channel import (TeleopChannel, TeleopChannelConfig,
@@ -109,7 +109,17 @@ def check_teleop(teleop: Teleop) -> None:
         check_udp_address(teleop.udp)
 
 
-@block(Teleop)
+def check_teleop_driver(teleop: Teleop, scenario) -> None:
+    checked("epm.driver (Teleop): ", check_teleop, teleop)
+    if teleop.operator == "simulated":
+        need(scenario.capsule.camera is not None,
+             "epm.driver (Teleop) operator simulated needs capsule.camera (it watches "
+             "the image)")
+        need(teleop.lumen_source == "truth" or scenario.capsule.lumen_tracker is not None,
+             "epm.driver (Teleop) lumen_source tracker needs capsule.lumen_tracker")
+
+
+@block("epm.driver", Teleop, check=check_teleop_driver)
 def add_teleop(builder, parts, teleop: Teleop):
     """The haptic loop: operator -> device -> channel -> mapping -> EPM command (to the
     EPM's carrier, exported as epm.command), and force feedback (pseudo-force + the
@@ -125,30 +135,28 @@ def add_teleop(builder, parts, teleop: Teleop):
         parts.epm.guard.lowest_centre_height, parts.epm.start_command,
         parts.X_WB0.rotation().col(2)))
     builder.Connect(capsule_state, mapping.GetInputPort("capsule_state"))
+    def tracker(name):
+        return parts.output(f"capsule.lumen_tracker.{name}")
+
     if teleop.mapping.assist and has_tracker:
-        tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
-        builder.Connect(tracker.GetOutputPort("lumen_ray"), mapping.GetInputPort("lumen_ray"))
-        builder.Connect(tracker.GetOutputPort("lumen_visible"),
-                        mapping.GetInputPort("lumen_visible"))
-        camera = builder.GetSubsystemByName("capsule.camera")
-        if camera.config.render_depth:
-            free = builder.AddNamedSystem("teleop.lumen_range", LumenRange(camera.config.far))
-            builder.Connect(camera.GetOutputPort("depth_image"),
+        builder.Connect(tracker("lumen_ray"), mapping.GetInputPort("lumen_ray"))
+        builder.Connect(tracker("lumen_visible"), mapping.GetInputPort("lumen_visible"))
+        camera = parts.shared("capsule.camera.config")
+        if camera.render_depth:
+            free = builder.AddNamedSystem("teleop.lumen_range", LumenRange(camera.far))
+            builder.Connect(parts.output("capsule.camera.depth_image"),
                             free.GetInputPort("depth_image"))
-            builder.Connect(tracker.GetOutputPort("lumen_pixel"),
-                            free.GetInputPort("lumen_pixel"))
-            builder.Connect(tracker.GetOutputPort("lumen_visible"),
-                            free.GetInputPort("lumen_visible"))
+            builder.Connect(tracker("lumen_pixel"), free.GetInputPort("lumen_pixel"))
+            builder.Connect(tracker("lumen_visible"), free.GetInputPort("lumen_visible"))
             builder.Connect(free.GetOutputPort("range"), mapping.GetInputPort("lumen_range"))
-            builder.ExportOutput(free.GetOutputPort("range"), "teleop.lumen_range")
+            parts.export(free.GetOutputPort("range"), "teleop.lumen_range")
 
     # What the operator feels: the pseudo-force (if any) and the capsule's contact.
     monitor = builder.AddNamedSystem("teleop.contact", ContactMonitor(
         plant.GetCollisionGeometriesForBody(capsule)))
     builder.Connect(plant.get_contact_results_output_port(),
                     monitor.GetInputPort("contact_results"))
-    rpy = (builder.GetSubsystemByName("pseudo_force").config().device_from_camera_rpy_deg
-           if parts.has("pseudo_force.F_D") else (180.0, 0.0, 0.0))
+    rpy = parts.shared("pseudo_force.device_from_camera_rpy_deg", (180.0, 0.0, 0.0))
     feedback = builder.AddNamedSystem("teleop.feedback", ForceFeedback(
         X_BC, teleop.contact_gain, teleop.device.force_limit, rpy))
     builder.Connect(monitor.GetOutputPort("capsule_force_W"),
@@ -191,50 +199,46 @@ def add_teleop(builder, parts, teleop: Teleop):
         builder.Connect(capsule_state, way.GetInputPort("capsule_state"))
         builder.Connect(way.GetOutputPort("way_C"), hand.GetInputPort("way_forward"))
         if teleop.lumen_source == "tracker":
-            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
-            builder.Connect(tracker.GetOutputPort("lumen_visible"),
-                            hand.GetInputPort("lumen_visible"))
-            builder.Connect(tracker.GetOutputPort("lumen_ray"), hand.GetInputPort("lumen_ray"))
+            builder.Connect(tracker("lumen_visible"), hand.GetInputPort("lumen_visible"))
+            builder.Connect(tracker("lumen_ray"), hand.GetInputPort("lumen_ray"))
         else:
             truth = add_lumen_ray_from_truth(builder, parts, "teleop.lumen_seen")
             builder.Connect(truth.GetOutputPort("visible"), hand.GetInputPort("lumen_visible"))
             builder.Connect(truth.GetOutputPort("ray"), hand.GetInputPort("lumen_ray"))
-        builder.ExportOutput(hand.GetOutputPort("intent"), "teleop.intent")
+        parts.export(hand.GetOutputPort("intent"), "teleop.intent")
         builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
         if channel is not None:
             builder.Connect(device.GetOutputPort("stylus_velocity"),
                             channel.GetInputPort("stylus_velocity"))
-        builder.ExportOutput(device.GetOutputPort("motor_force"), "teleop.motor_force")
+        parts.export(device.GetOutputPort("motor_force"), "teleop.motor_force")
     elif teleop.operator == "udp":
         device = builder.AddNamedSystem("teleop.device", UdpHapticDevice(teleop.udp))
         builder.Connect(force_to_device, device.GetInputPort("force_D"))
         builder.Connect(device.GetOutputPort("link_ok"), mapping.GetInputPort("link_ok"))
-        builder.ExportOutput(device.GetOutputPort("link_ok"), "teleop.link_ok")
-        builder.ExportOutput(device.GetOutputPort("stats"), "teleop.udp_stats")
+        parts.export(device.GetOutputPort("link_ok"), "teleop.link_ok")
+        parts.export(device.GetOutputPort("stats"), "teleop.udp_stats")
     else:  # browser
         device = builder.AddNamedSystem("teleop.device", BrowserOperator(
-            parts.meshcat, teleop.device, builder.GetSubsystemByName("capsule.camera").config))
+            parts.meshcat, teleop.device, parts.shared("capsule.camera.config")))
         builder.Connect(force_to_device, device.GetInputPort("feedback_force"))
         for name in ("rgb_image", "frame_info"):
-            builder.Connect(builder.GetSubsystemByName("capsule.camera").GetOutputPort(name),
-                            device.GetInputPort(name))
+            builder.Connect(parts.output(f"capsule.camera.{name}"), device.GetInputPort(name))
         if has_tracker:
-            tracker = builder.GetSubsystemByName("capsule.lumen_tracker")
             for name in ("lumen_pixel", "lumen_visible"):
-                builder.Connect(tracker.GetOutputPort(name), device.GetInputPort(name))
+                builder.Connect(tracker(name), device.GetInputPort(name))
     if channel is not None:
         split = builder.AddNamedSystem("teleop.stylus_position",
                                        Demultiplexer([3, STYLUS_SIZE - 3]))
         builder.Connect(device.GetOutputPort("stylus"), split.get_input_port())
         builder.Connect(device.GetOutputPort("stylus"), channel.GetInputPort("stylus_in"))
         builder.Connect(split.get_output_port(0), channel.GetInputPort("stylus_position"))
-        builder.ExportOutput(channel.GetOutputPort("energy"), "teleop.channel_energy")
+        parts.export(channel.GetOutputPort("energy"), "teleop.channel_energy")
     else:
         builder.Connect(device.GetOutputPort("stylus"), mapping.GetInputPort("stylus"))
-    builder.ExportOutput(device.GetOutputPort("stylus"), "teleop.stylus")
-    builder.ExportOutput(feedback.GetOutputPort("F_D"), "teleop.feedback_D")
-    builder.ExportOutput(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
-    builder.ExportOutput(mapping.GetOutputPort("heading"), "teleop.heading")
+    parts.export(device.GetOutputPort("stylus"), "teleop.stylus")
+    parts.export(feedback.GetOutputPort("F_D"), "teleop.feedback_D")
+    parts.export(monitor.GetOutputPort("capsule_force_W"), "teleop.contact_force_W")
+    parts.export(mapping.GetOutputPort("heading"), "teleop.heading")
     command = mapping.GetOutputPort("epm_command")
     builder.Connect(command, parts.epm.command_input(builder, parts))
     parts.export(command, "epm.command")
