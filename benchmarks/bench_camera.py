@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from capsule_drake.anatomy import ColonParams, load_colon
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_renderer import LensRenderer
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception import LensConfig
 from capsule_drake.perception.views import camera_scene

@@ -12,7 +12,7 @@ peak memory, real-time factor (median of the repeats), the capsule's largest exc
 the analytic wall and how far it moved along the centreline.
 
 The wall and the capsule's contact properties are registered exactly as the station does
-(`capsule_drake.physics.contact.add_colon_wall` and `set_capsule_contact`), from a
+(`capsule_drake.scene_geometry.add_colon_wall` and `set_capsule_contact`), from a
 ContactConfig whose `model` is "hydroelastic" or "convex_pieces".
 """
 
@@ -43,7 +43,8 @@ from capsule_drake.anatomy import ColonParams, colon_wall_pieces, load_colon
 from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model, start_pose
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import ContactConfig, add_colon_wall, set_capsule_contact
+from capsule_drake.physics.contact import ContactConfig
+from capsule_drake.scene_geometry import add_colon_wall, set_capsule_contact
 
 START_S = 0.75            # middle of the default colon's transverse segment [m]
 PRESS_N = 1.0             # external load toward the wall [N]

@@ -19,7 +19,7 @@ frames without one).
 import argparse
 import sys
 
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.perception.evaluation import condition_frames, evaluate
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector

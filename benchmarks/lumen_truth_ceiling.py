@@ -19,7 +19,7 @@ import argparse
 
 import numpy as np
 
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.perception.evaluation import seeded_poses
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen_truth import far_region, lumen_target, project_lumen

@@ -40,8 +40,9 @@ from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from capsule_drake import blocks, scene
 from capsule_drake.anatomy import ColonParams
 from capsule_drake.anatomy.params import SEED_RANGE
+from capsule_drake.capsule import camera, camera_walls
 from capsule_drake.capsule.ahrs import AhrsConfig
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.capsule.contact_sensor import ContactSensorConfig
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetic_array import MagneticArrayConfig
@@ -73,7 +74,7 @@ STATION_BLOCKS = (
     "scene",                  # the plant, scene graph, colon and capsule (scene.py)
     "epm.mount",              # the EPM's carrier: !Stage or !Arm (epm/mount.py)
     "colon",                  # the table, the colon's wall and visuals (scene.py)
-    "capsule.camera_walls",   # the camera's own walls, after every other model
+    "capsule.camera_walls",   # the camera's own walls, after every other model (camera_walls.py)
     "contact",                # the capsule's contact and drag (scene.py)
     "magnet_force",           # physics/magnet_force.py
     "colon.fluid",            # buoyancy and drag in residual fluid (scene.py)
@@ -94,9 +95,9 @@ STATION_BLOCKS = (
 """The station's blocks, in the order they are checked and added."""
 
 # The modules that register blocks (blocks.py) and hold no config type of the scenario: the
-# scene's blocks, the EPM's carrier and pose, Meshcat. Every other block's module is
-# imported above for its config.
-BLOCK_MODULES = (scene, mount, visualization)
+# scene's blocks, the EPM's carrier and pose, the camera and its walls, Meshcat. Every other
+# block's module is imported above for its config.
+BLOCK_MODULES = (scene, mount, camera, camera_walls, visualization)
 _missing = [name for name in STATION_BLOCKS if not blocks.registered(name)]
 if _missing:
     raise RuntimeError(f"blocks named in STATION_BLOCKS but not registered: {_missing}")

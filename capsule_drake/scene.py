@@ -35,11 +35,11 @@ from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.blocks import block, need
 from capsule_drake.capsule.model import CAPSULE_BODY, CapsuleModel, capsule_model, start_pose
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import (ContactConfig, add_capsule_drag, add_colon_visuals,
-                                           add_colon_wall, check_contact_config,
-                                           set_capsule_contact)
-from capsule_drake.physics.fluid_force import add_fluid_force
+from capsule_drake.physics.contact import ContactConfig, check_contact_config
+from capsule_drake.physics.fluid_force import FluidForce
 from capsule_drake.physics.magnetics import check_magnet_geometry
+from capsule_drake.scene_geometry import (add_capsule_drag, add_colon_visuals, add_colon_wall,
+                                          set_capsule_contact)
 from capsule_drake.schema import ScenarioError, need_range
 
 
@@ -305,7 +305,13 @@ def add_fluid(builder, parts: StationParts, scenario):
     has pools (physics/fluid_force.py)."""
     pools = fluid_scene(parts.colon_params).pools if parts.colon_params.lumen else []
     if pools:
-        force = add_fluid_force(builder, parts, pools)
+        plant = parts.plant
+        force = builder.AddNamedSystem("fluid_force", FluidForce(
+            parts.capsule_body, parts.colon, pools, parts.capsule.radius, parts.capsule.length,
+            parts.gravity))
+        builder.Connect(plant.get_body_poses_output_port(), force.GetInputPort("body_poses"))
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        force.GetInputPort("body_spatial_velocities"))
         parts.applied_forces.append(force.GetOutputPort("applied_spatial_force"))
         parts.export(force.GetOutputPort("submerged"), "capsule.submerged")
 

@@ -20,9 +20,9 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from capsule_drake.capsule.camera import (CameraConfig, LensRenderer,
-                                          add_camera_renderer, capsule_camera_for_frame,
-                                          check_camera_config)
+from capsule_drake.capsule.camera import capsule_camera_for_frame
+from capsule_drake.capsule.camera_config import CameraConfig, check_camera_config
+from capsule_drake.capsule.camera_renderer import LensRenderer, add_camera_renderer
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.perception import LensConfig

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from capsule_drake.app.run import simulator_for
-from capsule_drake.capsule.camera import CAMERA_CONDITIONS, CameraConfig
+from capsule_drake.capsule.camera_config import CAMERA_CONDITIONS, CameraConfig
 from capsule_drake.perception import photometry
 from capsule_drake.scenario import ScenarioError, load_scenario
 from capsule_drake.station import make_station

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from capsule_drake.capsule.camera import CameraConfig, check_camera_config
+from capsule_drake.capsule.camera_config import CameraConfig, check_camera_config
 from capsule_drake.scenario import ScenarioError, load_scenario
 from capsule_drake.station import make_station
 

@@ -12,10 +12,12 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.windows import CameraWindows, sight_reach
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer, add_camera_walls
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_renderer import LensRenderer
+from capsule_drake.capsule.camera_walls import add_camera_walls
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import add_colon_visuals
+from capsule_drake.scene_geometry import add_colon_visuals
 from capsule_drake.scenario import Scenario
 
 

@@ -10,7 +10,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import add_capsule_drag
+from capsule_drake.scene_geometry import add_capsule_drag
 from capsule_drake.scenario import ScenarioError, load_scenario
 
 

@@ -11,7 +11,9 @@ from pydrake.systems.framework import DiagramBuilder
 from capsule_drake.navigation.coverage import WallPatches, seen_in_frame
 from capsule_drake.scenario import Scenario
 from capsule_drake.anatomy import load_colon
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer, add_camera_walls
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_renderer import LensRenderer
+from capsule_drake.capsule.camera_walls import add_camera_walls
 
 
 @pytest.fixture(scope="module")

@@ -16,8 +16,9 @@ from capsule_drake.anatomy.lesions import drawn_lesions
 from capsule_drake.anatomy.lumen_state import geometry_params
 from capsule_drake.anatomy.params import ColonParams, Lesions, PlacedLesion
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import (CameraConfig, capsule_camera_for_frame,
-                                          lesion_labels)
+from capsule_drake.capsule.camera import capsule_camera_for_frame
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception.views import camera_scene
 

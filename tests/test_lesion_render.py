@@ -11,8 +11,9 @@ from pydrake.geometry import Role
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.params import ColonParams, Lesions, PlacedLesion
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import (CameraConfig, capsule_camera_for_frame,
-                                          lesion_labels)
+from capsule_drake.capsule.camera import capsule_camera_for_frame
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.views import camera_scene

@@ -15,7 +15,8 @@ from pydrake.systems.framework import LeafSystem
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app.outputs import (LogSpool, OutputError, check_room, claim_folder,
                                       load_logs, new_run_folder, write_atomic)
-from capsule_drake.app.run import DeferredSignals, Interrupted, chain_extends, simulate
+from capsule_drake.app.run import Interrupted, chain_extends, simulate
+from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.scenario import load_scenario
 
 def _one_line(err: str) -> str:

@@ -50,7 +50,7 @@ from capsule_drake.app.run import simulate
 from capsule_drake.io.metrics import pressure_metrics
 from capsule_drake.anatomy.lesions import SIZE_CLASSES
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import lesion_labels
+from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator

@@ -32,7 +32,7 @@ from capsule_drake.app.benchmark import (COLUMNS, FAILED, EngineError, NotedSign
                                                 TIERS, RowWriter, Task, default_run_timeout,
                                                 breakdown, format_table, run_suite, segment_table,
                                                 summary, task_scenario, write_outputs)
-from capsule_drake.capsule.camera import CameraConfig
+from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
                                                  DetectorError, condition_frames,
                                                  condition_table, evaluate, finite_or_none,

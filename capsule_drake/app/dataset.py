@@ -117,6 +117,34 @@ def state_time(t: float, plant_step: float, after_plant_update: bool) -> float:
     return (k + 1) * plant_step
 
 
+@dataclasses.dataclass(frozen=True)
+class PlantTiming:
+    """Which plant state a reading shows (`state_time`): one answer for the dataset's files
+    and the MCAP log (app/mcap_log.py), so that both stamp a sample alike.
+
+    step: the discrete plant's time step (s; 0: continuous). step_first: whether the plant
+    steps before the sensors' discrete updates at the same time (an unrestricted update,
+    Drake's default with sampled output ports).
+    """
+
+    step: float = 0.0
+    step_first: bool = True
+
+    @classmethod
+    def of(cls, plant) -> "PlantTiming":
+        return cls(plant.time_step(), plant.GetUniquePeriodicDiscreteUpdateAttribute() is None)
+
+    def sampled(self, tick: float) -> float:
+        """The state time of a sensor's sample taken in a discrete update at `tick`."""
+        return state_time(tick, self.step, self.step_first)
+
+    def held(self, t: float) -> float:
+        """The state time of what a publish event at t reads (the state held up to t: a
+        publish runs before the updates at its time), or a camera draws at its exposure t
+        (in an unrestricted update, beside the plant's step)."""
+        return state_time(t, self.step, after_plant_update=False)
+
+
 def sample_tick(read_time: float, period: float, offset: float) -> float:
     """The sample time, on its sampler's grid (Drake's k x period), of a periodic reading at
     `read_time` made `offset` after each multiple of `period`."""

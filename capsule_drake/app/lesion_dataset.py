@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from capsule_drake.capsule.camera import lesion_labels
+from capsule_drake.capsule.camera_walls import lesion_labels
 
 PARIS_CATEGORIES = {"0-Ip": 1, "0-Is": 2, "0-IIa": 3, "diverticulum": 4}
 """COCO category id of each Paris type (supercategory "polyp") and of a diverticulum

@@ -56,13 +56,10 @@ file (its last chunk, index and footer) however the run ended.
 """
 
 import contextlib
-import dataclasses
 import errno
 import math
 import os
-import signal
 import stat
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -78,13 +75,14 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import lesion_labels
+from capsule_drake.app.signals import signals_held
+from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.capsule.imu import imu_channels
 from capsule_drake.capsule.model import CAPSULE_BODY, rotation_from_quaternion
 from capsule_drake.epm.mount import EPM_BODY
 from capsule_drake.epm.poses import stage_joint_positions
 from capsule_drake.lifetime import id_values
-from capsule_drake.app.dataset import READ_DELAY, sample_tick, state_time
+from capsule_drake.app.dataset import READ_DELAY, PlantTiming, sample_tick
 from capsule_drake.app.lesion_dataset import box_of
 from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsule_mcap
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
@@ -103,34 +101,6 @@ PIXELS = "capsule_camera_image"
 IMU = "capsule_imu"
 MAGNETOMETER = "capsule_magnetometer"
 EPM = "epm"
-
-
-@dataclasses.dataclass(frozen=True)
-class PlantTiming:
-    """Which plant state a reading shows (app/dataset.py's `state_time`, shared with the
-    dataset's files so that both stamp a sample alike).
-
-    step: the discrete plant's time step (s; 0: continuous). step_first: whether the plant
-    steps before the sensors' discrete updates at the same time (an unrestricted update,
-    Drake's default with sampled output ports).
-    """
-
-    step: float = 0.0
-    step_first: bool = True
-
-    @classmethod
-    def of(cls, plant) -> "PlantTiming":
-        return cls(plant.time_step(), plant.GetUniquePeriodicDiscreteUpdateAttribute() is None)
-
-    def sampled(self, tick: float) -> float:
-        """The state time of a sensor's sample taken in a discrete update at `tick`."""
-        return state_time(tick, self.step, self.step_first)
-
-    def held(self, t: float) -> float:
-        """The state time of what a publish event at t reads (the state held up to t: a
-        publish runs before the updates at its time), or a camera draws at its exposure t
-        (in an unrestricted update, beside the plant's step)."""
-        return state_time(t, self.step, after_plant_update=False)
 
 
 def hall_frame(i: int) -> str:
@@ -161,21 +131,6 @@ def check_mcap_path(path, replace: bool | None = False, expected_bytes: float = 
 class McapWriteError(OSError):
     """Writing the MCAP log failed (a full disk, an I/O error, a file size limit): one line
     naming the file; the file is left as far as it was written."""
-
-
-@contextlib.contextmanager
-def _signals_held():
-    """Ctrl-C and the termination signals wait until the block is done (main thread only):
-    an interrupt never lands inside the MCAP writer, halfway through a record."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK,
-                                      {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 class Ros2McapFile:
@@ -721,7 +676,7 @@ class McapLogger(LeafSystem):
     def _on_event(self, context, stream):
         values = {name: self._ports[name].Eval(context) for name in stream.inputs}
         t = context.get_time()
-        with _signals_held():
+        with signals_held():
             if not self._started:
                 self._started = True
                 self._log.write("/tf_static", "tf2_msgs/msg/TFMessage", {"transforms": [
@@ -733,7 +688,7 @@ class McapLogger(LeafSystem):
 
     def close(self):
         """Finishes the file (the run loop's close hook)."""
-        with _signals_held():
+        with signals_held():
             self._log.close()
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
-from capsule_drake.app.dataset import DatasetWriter, Stream
+from capsule_drake.app.dataset import DatasetWriter, PlantTiming, Stream
 from capsule_drake.app.dataset_docs import (DatasetDescription, camera_yaml, dataset_readme,
                                            sensors_yaml)
 from capsule_drake.app.mcap_log import add_mcap_logger
@@ -13,7 +13,7 @@ from capsule_drake.app.run import RunResult, chain_extends, simulate
 from capsule_drake.scenario import Scenario
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.anatomy.source import lesion_scene
-from capsule_drake.capsule.camera import CameraConfig, camera_tick
+from capsule_drake.capsule.camera_config import CameraConfig, camera_tick
 from capsule_drake.capsule.imu import ImuConfig
 from capsule_drake.capsule.magnetometer import MagnetometerConfig
 
@@ -75,8 +75,8 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
         # A discrete plant with sampled output ports steps in an unrestricted update, which
         # Drake runs before the discrete updates at the same time: a sensor's sample at t
         # then measures the state one plant step later (app/dataset.py, state_time).
-        plant_step = plant.time_step()
-        plant_step_first = plant.GetUniquePeriodicDiscreteUpdateAttribute() is None
+        timing = PlantTiming.of(plant)
+        plant_step, plant_step_first = timing.step, timing.step_first
         sensor_lag = plant_step if plant_step > 0 and plant_step_first else 0.0
         streams, sources = [], []
         outputs = {station.get_output_port(i).get_name()

@@ -4,13 +4,11 @@ progress)."""
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
 import json
 import signal
 import sys
-import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -33,6 +31,7 @@ from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
 from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
+from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, write_atomic)
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
@@ -669,71 +668,3 @@ def replay_html(result: RunResult, meshcat, colon) -> str:
               if station is not None and station.HasSubsystemNamed(STREAM_SYSTEM) else [])
     plots = run_plots(colon, result.times, result.capsule_state, result.contact_load)
     return replay_page(meshcat.StaticHtml(), frames, plots)
-
-
-class DeferredSignals:
-    """While a run simulates, Ctrl-C and the termination signals whose handler is Python's
-    (Ctrl-C's KeyboardInterrupt, the CLI's `Interrupted`) are noted, not raised: the
-    simulator's monitor ends the run at its next step, and the run's outputs are written.
-
-    An exception raised by a signal handler lands in whatever Python code runs at that
-    moment, and inside Drake that may be pybind11 converting a callback's argument, which
-    reports it as a TypeError ("incompatible function arguments") instead of the interrupt.
-    A second signal before the first has been acted on is raised at once (a stuck step).
-    After the `with`, until `held()` ends, signals are only noted (the outputs are being
-    written); the first of them is raised as `held()` ends. Python runs signal handlers
-    in the main thread whichever thread the signal reached, so this holds where a signal
-    mask (per thread) would not. Outside the main thread, or for a signal left to the
-    system (SIG_DFL, SIG_IGN), nothing changes."""
-
-    NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
-
-    def __init__(self):
-        self.pending: int | None = None      # the signal that ended the simulation
-        self._later: int | None = None       # the first one while the outputs are written
-        self._simulating = False
-        self._previous: dict[int, object] = {}
-
-    def __enter__(self):
-        self.pending, self._later, self._simulating = None, None, True
-        if threading.current_thread() is threading.main_thread():
-            for name in self.NAMES:
-                number = getattr(signal, name, None)
-                handler = signal.getsignal(number) if number is not None else None
-                if callable(handler) and handler != self._note:
-                    self._previous[number] = handler
-                    signal.signal(number, self._note)
-        return self
-
-    def _note(self, number, frame):
-        if not self._simulating:
-            self._later = self._later or number
-        elif self.pending is None:
-            self.pending = number
-        else:
-            self._previous[number](number, frame)  # raises (KeyboardInterrupt, Interrupted)
-
-    def __exit__(self, *exc):
-        self._simulating = False
-        return False
-
-    def restore(self) -> dict:
-        """Puts the handlers back (and returns them, by signal), dropping what was noted."""
-        previous, self._previous = self._previous, {}
-        for number, handler in previous.items():
-            signal.signal(number, handler)
-        self.pending = self._later = None
-        return previous
-
-    @contextlib.contextmanager
-    def held(self):
-        """Signals are noted until this block is done; then the handlers are put back and
-        the first signal that arrived meanwhile is raised (a second Ctrl-C arrives after
-        the files are whole)."""
-        try:
-            yield
-        finally:
-            later = self._later
-            previous = self.restore()
-            if later is not None and later in previous:
-                previous[later](later, None)

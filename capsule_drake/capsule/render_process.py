@@ -11,7 +11,8 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import load_colon
-from capsule_drake.capsule.camera import LensRenderer, add_camera_walls
+from capsule_drake.capsule.camera_renderer import LensRenderer
+from capsule_drake.capsule.camera_walls import add_camera_walls
 from capsule_drake.capsule.render_worker import (POSE_BYTES, read_message,
                                                  write_message)
 

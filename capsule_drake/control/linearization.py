@@ -30,7 +30,7 @@ from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.control.analysis import hold_against_gravity
 from capsule_drake.lifetime import weak_method
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import add_damped_capsule_joint
+from capsule_drake.scene_geometry import add_damped_capsule_joint
 from capsule_drake.physics.magnetics import dipole_force, dipole_torque
 
 

@@ -27,7 +27,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from capsule_drake.anatomy import ColonParams
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import CAPSULE_BODY
-from capsule_drake.capsule.camera import CameraConfig, LensRenderer
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_renderer import LensRenderer
 from capsule_drake.perception import photometry
 from capsule_drake.perception.lumen import detection_problem
 from capsule_drake.perception.lumen_truth import far_region, lumen_target, project_lumen

@@ -10,10 +10,12 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import ColonParams, load_colon
-from capsule_drake.capsule.camera import CameraConfig, add_camera_walls, capsule_camera_for_frame
+from capsule_drake.capsule.camera import capsule_camera_for_frame
+from capsule_drake.capsule.camera_config import CameraConfig
+from capsule_drake.capsule.camera_walls import add_camera_walls
 from capsule_drake.capsule.model import CAPSULE_BODY, start_pose
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import add_colon_visuals
+from capsule_drake.scene_geometry import add_colon_visuals
 from capsule_drake.perception.lumen import masked_blur
 from capsule_drake.perception.lumen_truth import lumen_target, project_lumen
 

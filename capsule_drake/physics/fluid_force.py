@@ -143,15 +143,3 @@ class FluidForce(LeafSystem):
         force.p_BoBq_B = X_WB.inverse().multiply(centre)
         force.F_Bq_W = SpatialForce(np.zeros(3), buoyancy + drag)
         output.set_value([force])
-
-
-def add_fluid_force(builder, parts, pools):
-    """Adds `FluidForce` for the capsule of `parts` and the fluid's `pools`; returns it."""
-    plant = parts.plant
-    system = builder.AddNamedSystem("fluid_force", FluidForce(
-        parts.capsule_body, parts.colon, pools, parts.capsule.radius, parts.capsule.length,
-        parts.gravity))
-    builder.Connect(plant.get_body_poses_output_port(), system.GetInputPort("body_poses"))
-    builder.Connect(plant.get_body_spatial_velocities_output_port(),
-                    system.GetInputPort("body_spatial_velocities"))
-    return system

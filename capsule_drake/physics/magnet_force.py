@@ -19,6 +19,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from capsule_drake.blocks import block
 from capsule_drake.lifetime import CacheRef, weak_method
+from capsule_drake.physics.implicit_torque import implicit_torque, mat_vec, rotational_stiffness
 from capsule_drake.physics.magnetics import (
     DEFAULT_MIN_DISTANCE,
     cylinder_pair_interaction_float,
@@ -78,93 +79,6 @@ class _MagnetValues(NamedTuple):
     f_W: list  # force (N), world frame
     m_W: list = None  # moments (A m^2), world frame (float path)
     p_WM: list = None  # magnet centres (m), world frame (float path)
-
-
-def _cross(a, b):
-    """a x b of two 3-sequences of floats, as a tuple (numpy's cross costs ~30 us)."""
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _mat_vec(M, v):
-    """M v for a 3x3 matrix given as rows and a 3-sequence, as a list."""
-    return [M[0][0] * v[0] + M[0][1] * v[1] + M[0][2] * v[2],
-            M[1][0] * v[0] + M[1][1] * v[1] + M[1][2] * v[2],
-            M[2][0] * v[0] + M[2][1] * v[1] + M[2][2] * v[2]]
-
-
-def _rotate_symmetric(R, I):
-    """R I R^T for a rotation R and a symmetric I, both as rows."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
-    (i00, i01, i02), (_, i11, i12), (_, _, i22) = I
-    # Rows of R I.
-    a00 = r00 * i00 + r01 * i01 + r02 * i02
-    a01 = r00 * i01 + r01 * i11 + r02 * i12
-    a02 = r00 * i02 + r01 * i12 + r02 * i22
-    a10 = r10 * i00 + r11 * i01 + r12 * i02
-    a11 = r10 * i01 + r11 * i11 + r12 * i12
-    a12 = r10 * i02 + r11 * i12 + r12 * i22
-    a20 = r20 * i00 + r21 * i01 + r22 * i02
-    a21 = r20 * i01 + r21 * i11 + r22 * i12
-    a22 = r20 * i02 + r21 * i12 + r22 * i22
-    w00 = a00 * r00 + a01 * r01 + a02 * r02
-    w01 = a00 * r10 + a01 * r11 + a02 * r12
-    w02 = a00 * r20 + a01 * r21 + a02 * r22
-    w11 = a10 * r10 + a11 * r11 + a12 * r12
-    w12 = a10 * r20 + a11 * r21 + a12 * r22
-    w22 = a20 * r20 + a21 * r21 + a22 * r22
-    return ((w00, w01, w02), (w01, w11, w12), (w02, w12, w22))
-
-
-def _minus_scaled(A, c, B):
-    """A - c B for symmetric 3x3 A and B (rows)."""
-    return ((A[0][0] - c * B[0][0], A[0][1] - c * B[0][1], A[0][2] - c * B[0][2]),
-            (A[1][0] - c * B[1][0], A[1][1] - c * B[1][1], A[1][2] - c * B[1][2]),
-            (A[2][0] - c * B[2][0], A[2][1] - c * B[2][1], A[2][2] - c * B[2][2]))
-
-
-def _cholesky3(A):
-    """The lower Cholesky factor of a symmetric 3x3 matrix (rows), or None if it is not
-    positive definite."""
-    a = A[0][0]
-    if not a > 0.0:
-        return None
-    l00 = math.sqrt(a)
-    l10, l20 = A[1][0] / l00, A[2][0] / l00
-    a = A[1][1] - l10 * l10
-    if not a > 0.0:
-        return None
-    l11 = math.sqrt(a)
-    l21 = (A[2][1] - l20 * l10) / l11
-    a = A[2][2] - l20 * l20 - l21 * l21
-    if not a > 0.0:
-        return None
-    return l00, l10, l20, l11, l21, math.sqrt(a)
-
-
-def _solve_spd3(L, b):
-    """x with L L^T x = b, L from _cholesky3."""
-    l00, l10, l20, l11, l21, l22 = L
-    y0 = b[0] / l00
-    y1 = (b[1] - l10 * y0) / l11
-    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
-    x2 = y2 / l22
-    x1 = (y1 - l21 * x2) / l11
-    x0 = (y0 - l10 * x1 - l20 * x2) / l00
-    return [x0, x1, x2]
-
-
-def _restoring_part(S, I_W):
-    """The restoring part of a symmetric stiffness S (torque per radian) on a body of
-    inertia I_W: in mass-weighted coordinates (I^-1/2 S I^-1/2, whose eigenvalues are
-    -omega^2 of the turning modes) the positive eigenvalues, modes that the torque turns
-    further away, set to zero. Those grow in the physics too; left to the explicit torque,
-    they keep I - h^2 S positive definite."""
-    values, vectors = np.linalg.eigh(np.asarray(I_W))
-    root = vectors @ np.diag(values ** 0.5) @ vectors.T
-    inverse_root = vectors @ np.diag(values ** -0.5) @ vectors.T
-    modes, Q = np.linalg.eigh(inverse_root @ np.asarray(S) @ inverse_root)
-    A = root @ Q
-    return (A @ np.diag(np.minimum(modes, 0.0)) @ A.T).tolist()
 
 
 class _BodyInertia(NamedTuple):
@@ -442,24 +356,11 @@ def MagneticForce_(T):
         # --- the implicit magnetic torque (float only) ------------------------
         def _declare_implicit_torque(self):
             """With `implicit_step` h (the plant's step), the torque on each free magnet
-            body is integrated implicitly in its stiff part: the magnet's torque m x B
-            has the rotational stiffness K = [B]x [m]x (N m/rad, about the body's centre
-            of mass), so stiff on a 12 g capsule that an explicit step is stable only
-            while omega h < 2 (physics/step_bound.py). Applied instead of tau0:
-
-                tau = tau0 + h K w_hat,
-                w_hat = w_n + (I - h^2 K)^-1 h (tau0 + h K w_n + tau_other),
-
-            w_hat being the body's angular velocity after the step as predicted with the
-            torque linearised at the end of the step (backward Euler), I its central
-            inertia in world, and tau_other everything else that turned it during the last
-            step (contact, gyroscopic), read off its change of angular velocity:
-            I (w_n - w_{n-1}) / h - tau(n-1). Without tau_other the prediction would take
-            a capsule held by friction to turn freely and apply only a fraction of the
-            torque; with it, a held capsule feels tau0 exactly, and a free one is
-            integrated by linearly implicit Euler. The step's forces stay explicit.
-            The state: per free body [w_{n-1}, tau(n-1) about its centre of mass],
-            then a started flag; updated at every plant step."""
+            body is integrated implicitly in its stiff part (physics/implicit_torque.py):
+            held by friction, a capsule feels tau0 exactly; free, it is integrated by
+            linearly implicit Euler. The step's forces stay explicit. The state: per free
+            body [w_{n-1}, tau(n-1) about its centre of mass], then a started flag;
+            updated at every plant step."""
             self._velocities_port = self.DeclareAbstractInputPort(
                 "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()]))
             self._implicit_bodies = [i for i, _ in self._applied
@@ -488,9 +389,8 @@ def MagneticForce_(T):
 
         def _calc_implicit_torques(self, context, abstract_value):
             """Per free magnet: (tau applied about the magnet centre, the same about the
-            body's centre of mass, w_n), 3-tuples. Plain floats: this runs at every step,
-            and numpy's per-call overhead on 3x3 matrices would cost several times the
-            arithmetic."""
+            body's centre of mass, w_n), 3-sequences of plain floats
+            (implicit_torque.implicit_torque)."""
             values = self._cache.Eval(context)
             velocities = self._velocities_port.Eval(context)
             state = context.get_discrete_state(self._implicit_state).value().tolist()
@@ -503,76 +403,15 @@ def MagneticForce_(T):
                 inertia = self._inertias[magnet.body_index]
                 w = velocities[magnet.body_index].rotational().tolist()
                 # Lever arm from the centre of mass to the magnet centre, in world.
-                r = _mat_vec(R, inertia.p_McmM_B[i])
-                lever = _cross(r, values.f_W[i])
-                tau_M = values.tau_W[i]
-                tau0 = [tau_M[n] + lever[n] for n in range(3)]
-                K = self._rotational_stiffness(values, i, r)
-                # Its symmetric part, taken implicitly in full while its modes turn the body
-                # away slower than 1 / (h sqrt 2) (the mass-weighted eigenvalues below
-                # 1 / (2 h^2): backward Euler is accurate on them and I - h^2 S positive
-                # definite); else only its restoring part (the body turned against the
-                # field: _restoring_part).
-                s01, s02, s12 = (0.5 * (K[0][1] + K[1][0]), 0.5 * (K[0][2] + K[2][0]),
-                                 0.5 * (K[1][2] + K[2][1]))
-                S = ((K[0][0], s01, s02), (s01, K[1][1], s12), (s02, s12, K[2][2]))
-                I_W = _rotate_symmetric(R, inertia.I_B)
-                hh2 = 2.0 * h * h
-                if _cholesky3(_minus_scaled(I_W, hh2, S)) is None:
-                    S = _restoring_part(S, I_W)
-                other = (0.0, 0.0, 0.0)
-                if started:
-                    dw = [(w[n] - state[6 * k + n]) / h for n in range(3)]
-                    I_dw = _mat_vec(I_W, dw)
-                    other = [I_dw[n] - state[6 * k + 3 + n] for n in range(3)]
-                S_w = _mat_vec(S, w)
-                rhs = [h * (tau0[n] + h * S_w[n] + other[n]) for n in range(3)]
-                dw_hat = _solve_spd3(_cholesky3(_minus_scaled(I_W, h * h, S)), rhs)
-                S_w_hat = _mat_vec(S, [w[n] + dw_hat[n] for n in range(3)])
-                correction = [h * S_w_hat[n] for n in range(3)]
-                out.append((tuple(tau_M[n] + correction[n] for n in range(3)),
-                            [tau0[n] + correction[n] for n in range(3)], w))
+                r = mat_vec(R, inertia.p_McmM_B[i])
+                K = rotational_stiffness(
+                    values.m_W[i], values.p_WM[i], r,
+                    [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
+                     if j != i], self._min_distance)
+                previous = state[6 * k:6 * k + 6] if started else None
+                out.append(implicit_torque(values.tau_W[i], values.f_W[i], r, K, R,
+                                           inertia.I_B, w, previous, h))
             abstract_value.set_value(out)
-
-        def _rotational_stiffness(self, values, i, r):
-            """K (3 rows, N m/rad): how the torque about magnet i's body's centre of mass
-            changes as the body turns about it, the moment turning and the magnet's centre
-            swinging on its lever arm `r` through the others' field and gradient. By
-            forward differences of the point-dipole interaction in plain floats (the
-            stiffness need only be close: the torque applied is the field model's own,
-            plus h K w_hat)."""
-            eps = 1e-6
-            m, p = values.m_W[i], values.p_WM[i]
-            d_min = self._min_distance
-            others = [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
-                      if j != i]
-
-            pair = dipole_pair_interaction_float
-
-            def torque_about_cm(m_i, p_i, r_i):
-                tx = ty = tz = 0.0
-                for m_j, p_j in others:
-                    result = pair(m_j, m_i, (p_i[0] - p_j[0], p_i[1] - p_j[1],
-                                             p_i[2] - p_j[2]), d_min)
-                    lever = _cross(r_i, result.force_target)
-                    torque = result.torque_target
-                    tx += torque[0] + lever[0]
-                    ty += torque[1] + lever[1]
-                    tz += torque[2] + lever[2]
-                return tx, ty, tz
-
-            base = torque_about_cm(m, p, r)
-            columns = []
-            for axis in range(3):
-                turn = [0.0, 0.0, 0.0]
-                turn[axis] = eps
-                dm, dr = _cross(turn, m), _cross(turn, r)
-                turned = torque_about_cm(
-                    (m[0] + dm[0], m[1] + dm[1], m[2] + dm[2]),
-                    (p[0] + dr[0], p[1] + dr[1], p[2] + dr[2]),
-                    (r[0] + dr[0], r[1] + dr[1], r[2] + dr[2]))
-                columns.append([(turned[n] - base[n]) / eps for n in range(3)])
-            return [[columns[c][row] for c in range(3)] for row in range(3)]
 
         def _update_implicit_state(self, context, state):
             torques = self._implicit_cache.Eval(context)
@@ -856,8 +695,8 @@ def check_magnet_force(config: MagnetForceConfig, scenario) -> None:
 @block("magnet_force", MagnetForceConfig, check=check_magnet_force, where="")
 def add_magnet_force(builder, parts, config: MagnetForceConfig, *, epm_body: str = "epm"):
     """`magnet_force` between the capsule's magnet (frame M of the capsule) and the EPM
-    (its body's origin, moment along +z; or the kinematic stage's pose), applied to the plant (through `magnet_force_hold`
-    when it is held between updates); exports capsule.ipm_field_B (the field at the IPM in
+    (its body's origin, moment along +z; or the kinematic stage's pose), applied to the
+    plant (through `magnet_force_hold` when it is held between updates); exports capsule.ipm_field_B (the field at the IPM in
     the capsule frame, a magnetometer's truth) and epm.F_W (the reaction on the EPM)."""
     plant = parts.plant
     X_BM = parts.capsule.X_BM

@@ -53,7 +53,8 @@ _K = MU0 / (4.0 * math.pi)  # = 1e-7 T m / A
 
 
 def _cross(a, b):
-    """a x b, written out so that it also works on object (AutoDiffXd) arrays."""
+    """a x b, written out so that it also works on object (AutoDiffXd) arrays (and costs
+    a few us on floats, where np.cross costs ~20 us)."""
     return np.array(
         [
             a[1] * b[2] - a[2] * b[1],
@@ -61,12 +62,6 @@ def _cross(a, b):
             a[0] * b[1] - a[1] * b[0],
         ]
     )
-
-
-def _cross_float(a, b):
-    """a x b for float 3-vectors, as an array (np.cross costs ~20 us)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
 
 
 def _guarded_offset(p, min_distance):
@@ -509,9 +504,9 @@ def cylinder_pair_interaction_float(m_source, m_target, p, diameter: float, leng
     # source's -T - p x F.
     M = forces.T @ points
     lever = np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
-    torque = _cross_float(m_t, field) + lever
+    torque = _cross(m_t, field) + lever
     back = dipole_field(m_t, -p, min_distance)
-    source_torque = -torque - _cross_float(p, force)
+    source_torque = -torque - _cross(p, force)
     return DipolePairInteraction(tuple(field.tolist()), tuple(np.asarray(back, float).tolist()),
                                  tuple(force.tolist()), tuple(torque.tolist()),
                                  tuple((-force).tolist()), tuple(source_torque.tolist()))
