@@ -14,11 +14,17 @@ With --tubes, instead: imports the test tubes of tests/tube_set.py (made indepen
 the package, 4k-220k faces) once each and prints each one's faces, import time, and the
 recovered centreline's largest distance from the true one (both ways) [mm].
 
-Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10] [--tubes]
+With --sweep N, instead: N tubes of random shape (tube_set.random_spec, seeds 0..N-1: the
+set's features drawn together, deep folds, flares, oblique cuts and sharp bends at the
+same end included; draws that bend tighter than their radius allows are skipped) and the
+distribution of the largest distance, with each tube over 2 mm named.
+
+Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10] [--tubes] [--sweep N]
 """
 
 import argparse
 import dataclasses
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -59,12 +65,39 @@ def real_time_factor(scenario, seconds: float) -> float:
     return seconds / (time.perf_counter() - start)
 
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from tube_set import TUBES, centreline_errors, make_tube, random_spec  # noqa: E402
+
+
+def sweep(count: int) -> None:
+    errors = []
+    with tempfile.TemporaryDirectory() as folder:
+        for seed in range(count):
+            spec = random_spec(seed)
+            try:
+                tube = make_tube(spec)
+            except (RuntimeError, ValueError) as e:
+                print(f"seed {seed}: skipped ({e})")
+                continue
+            path = tube.write(folder)
+            try:
+                wall = import_colon_mesh(path, tube.scale)
+                error = max(centreline_errors(tube.truth, wall.centerline.points))
+            except ValueError as e:
+                print(f"seed {seed}: refused ({str(e).splitlines()[0]})")
+                error = np.inf
+            errors.append(error)
+            if error >= 0.002:
+                print(f"seed {seed}: {1000 * error:.2f} mm  ends {'/'.join(spec.ends)}, flare "
+                      f"{spec.flare}, oblique {spec.oblique}, bend {spec.end_bend}, folds "
+                      f"{spec.haustra} (haustral) {spec.ripple} (ring), {spec.mesh}", flush=True)
+    e = 1000 * np.array(errors)
+    print(f"{len(e)} tubes: largest distance median {np.median(e):.2f} mm, 90th percentile "
+          f"{np.percentile(e, 90):.2f} mm, largest {e.max():.2f} mm; within 2 mm: "
+          f"{np.sum(e < 2.0)} of {len(e)}")
+
+
 def tube_table() -> None:
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from tube_set import TUBES, centreline_errors, make_tube
-
     print(f"{'tube':<18}{'ends':<22}{'mesh':<10}{'faces':>8}{'import [s]':>12}"
           f"{'error [mm]':>12}")
     with tempfile.TemporaryDirectory() as folder:
@@ -85,7 +118,12 @@ def main() -> None:
     parser.add_argument("--sim", type=float, default=10.0, help="simulated seconds per run")
     parser.add_argument("--tubes", action="store_true",
                         help="time and check the import of the test tubes instead")
+    parser.add_argument("--sweep", type=int, default=0, metavar="N",
+                        help="import N tubes of random shape and print the errors instead")
     args = parser.parse_args()
+    if args.sweep:
+        sweep(args.sweep)
+        return
     if args.tubes:
         tube_table()
         return

@@ -8,9 +8,13 @@ A tube is a sweep of a (slightly elliptic) section along a random smooth curve i
   curvature (at least 3 times the tube's largest radius); curves whose tube would come
   within 15 mm of itself are drawn again;
 - the radius varies smoothly between 12 and 35 mm, and may carry fold-like ripples (narrow
-  circular constrictions every few centimetres);
+  circular constrictions every few centimetres) or haustral folds (crescents between three
+  longitudinal bands, deepest midway between them, none at the bands);
 - each end is open (the mesh's boundary, a section normal to the curve), a hemispherical
-  cap or a flat cap;
+  cap or a flat cap; an open end may flare (the radius growing over its last 4 cm) and be
+  cut obliquely (its boundary in a plane through the curve's end, tilted from the normal
+  section); the curve may turn sharply (up to 80 degrees) over its last centimetres before
+  an end;
 - the triangulation is a uniform grid of rings, jittered rings (uneven spacing, a varying
   count of vertices per ring, vertices moved along and around the surface, zipped ring to
   ring), or a Delaunay triangulation of jittered points in the surface's parameter plane
@@ -21,7 +25,9 @@ The true centreline is the curve, continued straight along its end tangent into 
 to the cap's wall: to the apex of a hemispherical cap (one end radius beyond the curve's
 end), to the disc of a flat cap (the curve's end itself). That is where the lumen closes;
 the procedural colon's centreline likewise ends on its caps. At an open end the true
-centreline ends at the end section's centre.
+centreline ends at the end section's centre (an oblique end's too: its plane passes
+through the curve's end). The haustral crescents are alike in the three sectors, so the
+section's centroid stays on the curve.
 """
 
 import dataclasses
@@ -88,6 +94,10 @@ class TubeSpec:
     length: float                       # of the swept part
     radius: tuple = (0.015, 0.03)       # the smooth radius's range
     ripple: float = 0.0                 # depth of the folds, a share of the radius
+    haustra: float = 0.0                # depth of the crescent folds, a share of the radius
+    flare: tuple = (0.0, 0.0)           # an open end's radius grows by this share
+    oblique: tuple = (0.0, 0.0)         # an open end's cut, degrees from the normal section
+    end_bend: tuple = (0.0, 0.0)        # degrees the curve turns over its last cm, per end
     ellipticity: float = 0.0            # semi-axes (1 + e) r and (1 - e) r
     tightest_bend: float = 3.0          # smallest radius of curvature / largest radius
     ends: tuple = ("open", "open")
@@ -136,9 +146,22 @@ def _rotate(v, axis, angle):
     return v * c + np.cross(axis, v) * s + np.outer(v @ axis, axis) * (1 - c)
 
 
-def _curve(rng, length, max_curvature, ds=2e-4):
+END_BEND_SPAN = (0.01, 0.05)
+"""Where an end bend turns: from 5 cm to 1 cm before the end (m)."""
+
+
+def _bump(x, a, b, edge=0.005):
+    """1 on [a, b], falling smoothly to 0 over `edge` outside it."""
+    def step(t):
+        t = np.clip(t, 0.0, 1.0)
+        return t * t * (3.0 - 2.0 * t)
+    return step((x - a + edge) / edge) * step((b + edge - x) / edge)
+
+
+def _curve(rng, length, max_curvature, ds=2e-4, end_bend=(0.0, 0.0)):
     """(s, points, tangent, m1, m2): an arc-length curve and its parallel-transport frame,
-    its curvature vector a m1 + b m2 with |(a, b)| <= max_curvature."""
+    its curvature vector a m1 + b m2 with |(a, b)| <= max_curvature, plus, near each end
+    with an `end_bend` (degrees), a turn by that angle about m2 over END_BEND_SPAN."""
     s = np.arange(0.0, length + 0.5 * ds, ds)
     s[-1] = length
     a = _smooth(rng, s, (0.15, 0.6))
@@ -146,6 +169,12 @@ def _curve(rng, length, max_curvature, ds=2e-4):
     k = np.hypot(a, b)
     scale = max_curvature * rng.uniform(0.6, 1.0) / k.max()
     a, b = a * scale, b * scale
+    near, far = END_BEND_SPAN
+    for end, degrees in enumerate(end_bend):
+        if degrees:
+            span = (near, far) if end == 0 else (length - far, length - near)
+            bump = _bump(s, *span)
+            a = a + np.radians(degrees) * bump / (np.sum(bump) * ds)
     frame = np.eye(3)[rng.permutation(3)] * rng.choice([-1, 1], size=(3, 1))
     if np.linalg.det(frame) < 0:
         frame[2] *= -1
@@ -180,9 +209,30 @@ def _radius_function(rng, spec):
         if spec.ripple:
             fold = (0.5 + 0.5 * np.cos(2 * np.pi * s / fold_period + fold_phase)) ** 6
             r = r * (1.0 - spec.ripple * fold)
+        for end, share in enumerate(spec.flare):
+            if share:
+                from_end = s if end == 0 else spec.length - s
+                t = np.clip(1.0 - from_end / FLARE_LENGTH, 0.0, 1.0)
+                r = r * (1.0 + share * t * t * (3.0 - 2.0 * t))
         return r
 
+    radius.fold = lambda s: (0.5 + 0.5 * np.cos(2 * np.pi * np.asarray(s) / fold_period
+                                                + fold_phase + 1.0)) ** 6
     return radius
+
+
+MAX_BEND_SHARE = 0.7
+"""Largest radius * curvature a tube may have (1: its inner wall meets the bend's axis)."""
+FLARE_LENGTH = 0.04
+"""How far from an open end its flare begins (m)."""
+OBLIQUE_RAMP = 0.06
+"""Over how much of the tube an oblique end's tilt fades in (m): the rings stay apart."""
+
+
+def _crescent(theta):
+    """How deep a haustral fold is around the section: 0 at the three bands (theta = 0,
+    2 pi / 3, 4 pi / 3), 1 midway between them."""
+    return np.abs(np.sin(1.5 * np.asarray(theta)))
 
 
 # --- The surface --------------------------------------------------------------------------
@@ -214,13 +264,58 @@ class _Surface:
         m1 /= np.linalg.norm(m1, axis=1, keepdims=True)
         return c, t, m1, np.cross(t, m1)
 
+    def _cut(self, end, theta):
+        """Where, along the surface's line at angle theta, an oblique open end's plane
+        cuts it: u (per theta) with the point on the plane through the curve's end tilted by
+        `oblique` degrees about m2 there (bisection)."""
+        L_end = 0.0 if end == 0 else self.L
+        c, t, m1, m2 = (v[0] for v in self._frame(np.array([L_end])))
+        angle = np.radians(self.spec.oblique[end])
+        normal = np.cos(angle) * t + np.sin(angle) * np.cross(m2, t)
+        reach = 3.0 * float(self.radius(L_end)) * max(1.0, np.tan(angle))
+        lo, hi = np.full_like(theta, L_end - reach), np.full_like(theta, L_end + reach)
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            ahead = (self._plain_point(mid, theta) - c) @ normal > 0.0
+            lo, hi = np.where(ahead, lo, mid), np.where(ahead, mid, hi)
+        return 0.5 * (lo + hi)
+
+    def _tilt(self, u, theta):
+        """How far along the curve an oblique open end moves the point (u, theta): the end's
+        ring lies in its cut's plane (`_cut`); the shift fades in over OBLIQUE_RAMP."""
+        shift = np.zeros_like(u)
+        for end, degrees in enumerate(self.spec.oblique):
+            if not degrees or self.spec.ends[end] != "open":
+                continue
+            from_end = u if end == 0 else self.L - u
+            near = from_end < OBLIQUE_RAMP
+            if not near.any():
+                continue
+            w = np.clip(1.0 - from_end[near] / OBLIQUE_RAMP, 0.0, 1.0)
+            cut = self._cut(end, theta[near]) - (0.0 if end == 0 else self.L)
+            shift[near] += w * w * (3.0 - 2.0 * w) * cut
+        return shift
+
     def point(self, u, theta):
         u, theta = np.broadcast_arrays(np.asarray(u, float), np.asarray(theta, float))
         u, theta = u.ravel(), theta.ravel()
+        if any(self.spec.oblique):
+            u = u + self._tilt(u, theta)
+        return self._plain_point(u, theta)
+
+    def _plain_point(self, u, theta):
         e = self.spec.ellipticity
         c, t, m1, m2 = self._frame(u)
+        # Beyond an open end (an oblique cut's far side): straight on along the end tangent.
+        for end, kind in enumerate(self.spec.ends):
+            beyond = (u < 0.0) if end == 0 else (u > self.L)
+            if kind == "open" and beyond.any():
+                c[beyond] += (u[beyond] - (0.0 if end == 0 else self.L))[:, None] * t[beyond]
         section = ((1 + e) * np.cos(theta))[:, None] * m1 + ((1 - e) * np.sin(theta))[:, None] * m2
         r = self.radius(np.clip(u, 0.0, self.L))
+        if self.spec.haustra:
+            r = r * (1.0 - self.spec.haustra * self.radius.fold(np.clip(u, 0.0, self.L))
+                     * _crescent(theta))
         out = c + r[:, None] * section
         for end, kind in enumerate(self.spec.ends):
             cap = (u < 0.0) if end == 0 else (u > self.L)
@@ -243,6 +338,10 @@ class _Surface:
         s = np.append(s, self.L)
         c, t, _, _ = self._frame(s)
         points, radius = [c], [self._equal_area(self.radius(s))]
+        if self.spec.haustra:   # the section's area with its crescents, as a circle's
+            theta = np.linspace(0.0, 2 * np.pi, 96, endpoint=False)
+            depth = self.spec.haustra * self.radius.fold(s)[:, None] * _crescent(theta)[None, :]
+            radius[0] = radius[0] * np.sqrt(np.mean((1.0 - depth) ** 2, axis=1))
         for end, kind in enumerate(self.spec.ends):
             if kind != "hemisphere":
                 continue
@@ -446,7 +545,8 @@ def make_tube(spec: TubeSpec) -> Tube:
     radius = _radius_function(rng, spec)
     r_max = spec.radius[1] * (1 + spec.ellipticity)
     for _ in range(50):
-        s, points, tangent, m1, m2 = _curve(rng, spec.length, 1.0 / (spec.tightest_bend * r_max))
+        s, points, tangent, m1, m2 = _curve(rng, spec.length, 1.0 / (spec.tightest_bend * r_max),
+                                            end_bend=spec.end_bend)
         coarse = slice(None, None, 25)
         extended = np.concatenate([points[coarse], [points[0] - r_max * tangent[0],
                                                     points[-1] + r_max * tangent[-1]]])
@@ -455,6 +555,13 @@ def make_tube(spec: TubeSpec) -> Tube:
             break
     else:
         raise RuntimeError(f"{spec.name}: no curve clear of itself")
+    # A tube bends no tighter than its radius allows: where r * curvature nears 1 its inner
+    # wall folds over itself (an end bend with a flare can ask for that).
+    curvature = np.linalg.norm(np.gradient(tangent, s, axis=0), axis=1)
+    worst = float(np.max(curvature * radius(s) * (1 + spec.ellipticity)))
+    if worst > MAX_BEND_SHARE:
+        raise ValueError(f"{spec.name}: bends to {worst:.2f} of its radius of curvature "
+                         f"(at most {MAX_BEND_SHARE})")
     surface = _Surface(spec, s, points, tangent, m1, m2, radius)
     area = 2 * np.pi * float(np.mean(radius(s))) * (surface.u1 - surface.u0)
     h = np.sqrt(area / (0.5 * spec.faces) * 2 / np.sqrt(3))  # equilateral-ish faces
@@ -537,6 +644,18 @@ TUBES = (
              mesh="delaunay", faces=200000, unit="mm"),
     TubeSpec("mid_jitter_flat", 13, 0.8, (0.014, 0.03), ends=("flat", "open"),
              mesh="jittered", faces=35000, ellipticity=0.05),
+    # Shapes of tubes made elsewhere (issue: the importer right to the ends): haustral
+    # crescents, flared and oblique open ends, sharp bends just before a cap.
+    TubeSpec("haustral_open_mm", 14, 0.7, (0.018, 0.03), haustra=0.3, ends=("open", "open"),
+             mesh="jittered", faces=30000, unit="mm", fmt="stl"),
+    TubeSpec("flared_oblique", 15, 0.6, (0.015, 0.025), flare=(0.5, 0.3), oblique=(40.0, 25.0),
+             faces=20000),
+    TubeSpec("capped_bend_hemi", 16, 0.5, (0.015, 0.022), end_bend=(0.0, 80.0),
+             ends=("open", "hemisphere"), faces=20000),
+    TubeSpec("capped_bend_flat_mm", 17, 0.5, (0.015, 0.022), end_bend=(70.0, 80.0),
+             ends=("flat", "flat"), mesh="jittered", faces=20000, unit="mm"),
+    TubeSpec("haustral_oblique_mm", 18, 0.8, (0.02, 0.03), haustra=0.25, flare=(0.0, 0.3),
+             oblique=(30.0, 0.0), mesh="delaunay", faces=40000, unit="mm", fmt="ply"),
 )
 
 
@@ -606,3 +725,22 @@ def y_branch(radius=0.018, arms=(0.16, 0.16, 0.16), spacing=0.003, open_ends=Fal
         mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
         mesh.remove_unreferenced_vertices()
     return mesh
+
+
+def random_spec(seed: int) -> TubeSpec:
+    """A tube of random shape (benchmarks/bench_import.py --sweep): the set's features
+    drawn together, each end open or capped, flared, cut obliquely and bent before it at
+    random. Some draws bend tighter than their radius allows (`make_tube` refuses them)."""
+    rng = np.random.default_rng(seed)
+    ends = tuple(str(e) for e in rng.choice(ENDS, 2, p=[0.5, 0.25, 0.25]))
+    return TubeSpec(
+        f"random_{seed}", 10_000 + seed, float(rng.uniform(0.4, 0.8)),
+        (float(rng.uniform(0.012, 0.02)), float(rng.uniform(0.022, 0.032))),
+        ripple=float(rng.choice([0.0, 0.15])), haustra=float(rng.choice([0.0, 0.25, 0.4])),
+        flare=tuple(float(x) for x in rng.choice([0.0, 0.3, 0.5], 2)),
+        oblique=tuple(float(x) if e == "open" else 0.0
+                      for x, e in zip(rng.choice([0.0, 20.0, 35.0, 45.0], 2), ends)),
+        end_bend=tuple(float(x) for x in rng.choice([0.0, 40.0, 70.0, -60.0], 2)),
+        ends=ends, mesh=str(rng.choice(MESHES)), faces=int(rng.choice([10000, 25000])),
+        unit=str(rng.choice(["m", "mm"])))
+

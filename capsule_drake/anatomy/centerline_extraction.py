@@ -22,24 +22,32 @@
    is wide, with rays beside the axis meeting it nearer still, it is a round cap's base.
    Either way the line goes on along the ray to the wall (no section is cut across a cap:
    a plane not quite parallel to a flat cap cuts it and slides the centre sideways, and a
-   round cap's sections are centred on any line through its centre). An open end is passed
-   when the section is no longer a closed loop around the point; the line ends at the end
-   loop's centre.
-4. Sections and a light smoothing spline once more, the ends held; then each cap's last
+   round cap's sections are centred on any line through its centre). Near an open end the
+   end's rim cuts the sections open; while most of the circle is left (210 degrees) the
+   arc's fitted circle gives the centre (`MeshSections.arc_around`). An open end is passed
+   when there is neither; the boundary loop ahead (within 3 radii, a bend may turn it
+   aside) is the end.
+4. Sections and a light smoothing spline once more, the ends held; then each end's last
    stretch is made again from the refined line (`_recast_caps`): a cubic fitted to section
-   centres every millimetre over the last 4 cm, followed to a flat cap, or to the centre of
-   the sphere fitted to a round cap and then straight along its tangent to the wall.
+   centres (arcs too, near an open end) every millimetre over the last 2 cm, followed to a
+   flat cap; to the centre of the sphere fitted to a round cap and then straight along its
+   tangent to the wall; to where it crosses the plane of an open end's loop (an oblique
+   cut's centre: the loop's own centroid is off the axis where the tube flares or bends),
+   or straight along the end's tangent there if the cubic wanders.
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
 
-Accuracy (tests/test_import_tubes.py, tests/tube_set.py): on 13 tubes made independently
-(random smooth curves with bends down to 3 radii, radius 11-35 mm with fold-like ripples,
-open, hemispherical and flat ends, uniform, jittered and Delaunay triangulations of 4k-220k
-faces, metres and millimetres) within 0.06-0.75 mm of the true centreline everywhere, ends
-included (both ways); lengths within 0.2 mm; equal-area radii within 0.6 % (median); the
-same mesh with its vertices moved by 1e-6 of its size gives a centreline within 0.05 mm of
-the first.
+Accuracy (tests/test_import_tubes.py, tests/tube_set.py): on 18 tubes made independently
+(random smooth curves with bends down to 3 radii, radius 11-35 mm with ring folds or
+haustral crescents, open, hemispherical and flat ends, open ends flared by 30-50 % and cut
+25-40 degrees obliquely, bends of 70-80 degrees over the last 5 cm before a cap, uniform,
+jittered and Delaunay triangulations of 4k-220k faces, metres and millimetres) within
+0.06-0.70 mm of the true centreline everywhere, ends included (both ways); lengths within
+0.7 mm; equal-area radii within 0.6 % (median); the same mesh with its vertices moved by
+1e-6 of its size gives a centreline within 0.05 mm of the first. Tubes of random shape,
+every feature drawn together (`benchmarks/bench_import.py --sweep`), show where it fails:
+see the README, "Imported colons".
 Round trip of the procedural colon (exported, imported, extracted), seeds 0-9: within
 0.35-0.95 mm of the original centreline everywhere, both ways (seeds 0, 3, 4: 0.64, 0.90,
 0.50 mm).
@@ -183,6 +191,35 @@ class MeshSections:
                     best is None or section.area < best.area):
                 best = section
         return best
+
+    def arc_around(self, origin, normal, reach: float, min_span: float = np.radians(210.0)):
+        """Where the plane cuts an open end's rim: the open part of the section (its chains
+        that end on the mesh's boundary) within `reach` of `origin`, as a Section whose
+        area is that of the circle fitted to it (`envelope_centre`), if it goes at least
+        `min_span` round `origin`; else None. Its centre is the fitted circle's."""
+        sections, _, closed = self.loops(origin, normal)
+        chains = [sec for sec, whole in zip(sections, closed) if not whole]
+        if not chains:
+            return None
+        a = np.concatenate([c.a for c in chains])
+        b = np.concatenate([c.b for c in chains])
+        near = np.linalg.norm(0.5 * (a + b) - origin, axis=1) <= reach
+        if near.sum() < 8:
+            return None
+        a, b = a[near], b[near]
+        _, ax, bx = _plane_basis(np.asarray(normal, dtype=float))
+        mid = 0.5 * (a + b) - origin
+        angle = np.sort(np.arctan2(mid @ bx, mid @ ax))
+        gaps = np.diff(np.concatenate([angle, [angle[0] + 2 * np.pi]]))
+        if 2 * np.pi - gaps.max() < min_span:
+            return None
+        lengths = np.linalg.norm(b - a, axis=1)
+        centre = envelope_centre(0.5 * (a + b), lengths, origin, normal)
+        if centre is None:
+            return None
+        radius = float(np.average(np.linalg.norm(0.5 * (a + b) - centre, axis=1),
+                                  weights=lengths))
+        return Section(a, b, np.pi * radius * radius, centre)
 
     def ray(self, origin, direction, reach=np.inf):
         """Distance along the ray to the nearest face it meets within `reach`
@@ -413,6 +450,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     # its centre is a line of section centres) are not refined; once the line behind it is,
     # its tangent there is more accurate than the march's, and the ray is cast again.
     jumps = [head_jump, tail_jump]
+    loops = [np.asarray(mesh.vertices)[loop] for loop in _boundary_loops(mesh) if len(loop) >= 3]
     for final in range(FINAL_PASSES):
         hold = tuple(j + 0.5 * step if j > 0 else 0.0 for j in jumps)
         points, radius, _ = _refine(sections, points, step, keep_ends=True,
@@ -420,7 +458,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         points = _smooth_inside(points)
         if final < FINAL_PASSES - 1:
             points, jumps = _recast_caps(sections, points, step, (head_end, tail_end), jumps,
-                                         reference)
+                                         reference, loops)
     if details is not None:
         details.update(closed_share=closed_share, ends=(head_end, tail_end))
     return _arc(points), points, radius
@@ -465,8 +503,8 @@ def _end_tangent(points):
 def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
            reference: float):
     """Extends `points` past their last one until the tube ends or closes: returns (points,
-    "flat cap" | "round cap" | "open" | "none", the length of the last stretch, the ray's, at
-    a cap [m]).
+    "flat cap" | "round cap" | "open" | "none", the length of the last stretch [m]: the
+    ray's at a cap, the step to the end loop's centre at an open end).
 
     Each step: a ray along the end's tangent (`_end_tangent`) looks for the wall ahead;
     within `CAP_AHEAD` of the local radius it is a flat cap, within 1.1 radii and curving
@@ -476,7 +514,7 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
     to the tangent through it, is the next point; a section that is no loop around the
     point, or whose centre is off by a quarter of the radius, or that is far wider than the
     last, ends the march: past an open end. The end is then the end loop's centre if a
-    boundary loop lies just ahead, else the last point. `reference`: the tube's typical
+    boundary loop lies ahead (within OPEN_END_AHEAD radii), else the last point. `reference`: the tube's typical
     radius, if the local one cannot be measured."""
     points = list(points)
     start = sections.around(points[-1], _end_tangent(points))
@@ -499,6 +537,8 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
         size = min(size, max(fine, 0.5 * ahead))
         guess = p + size * t
         section = sections.around(guess, t)
+        if section is None:   # an open end's rim may cut it: the arc left, if most of it
+            section = sections.arc_around(guess, t, 2.0 * last_radius)
         good = section is not None
         if good:
             centre = _centre(section, guess, t)
@@ -507,7 +547,8 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
         if good:
             # Corrector: the section again, normal to the tangent through the new centre.
             t2 = _end_tangent(points + [centre])
-            again = sections.around(centre, t2)
+            again = sections.around(centre, t2) or sections.arc_around(centre, t2,
+                                                                       2.0 * last_radius)
             if again is not None:
                 centre2 = _centre(again, centre, t2)
                 if np.linalg.norm(centre2 - centre) <= 0.25 * again.radius:
@@ -519,8 +560,10 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
             break
         points.append(centre)
         last_radius = section.radius
-    # An open end: its loop's centre, if one lies just ahead.
+    # An open end: its loop's centre, if one lies just ahead (measured in the tube's radius
+    # where the march began, or the last one if wider: the last may be a fold's crest).
     p = points[-1]
+    wide = max(last_radius, reference)
     best = None
     for loop in _boundary_loops(mesh):
         if len(loop) < 3:
@@ -530,19 +573,60 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
         centre = np.sum(0.5 * (ring + np.roll(ring, 1, axis=0)) * seg[:, None], axis=0) / seg.sum()
         along = float((centre - p) @ t)
         side = float(np.linalg.norm(centre - p - along * t))
-        if -size <= along <= 1.5 * last_radius and side <= 0.5 * last_radius and (
-                best is None or along < best[0]):
+        # Near, not off to the side more than it is ahead (a bend turns it), and ahead or
+        # at most a radius behind (arcs of an oblique rim carry the march past its centre).
+        if -wide <= along and np.linalg.norm(centre - p) <= OPEN_END_AHEAD * wide \
+                and side <= max(0.5 * wide, along) and (best is None or along < best[0]):
             best = (along, centre)
     if best is not None:
-        if best[0] > 1e-4:
-            points.append(best[1])
-        else:
-            points[-1] = best[1]
-        return points, "open", 0.0
+        centre = best[1]
+        while len(points) > 5 and float((points[-1] - centre) @ t) > -1e-4:
+            points.pop()   # marched past the end's centre
+        points.append(centre)
+        return points, "open", float(np.linalg.norm(centre - points[-2]))
     return points, "none", 0.0
 
 
-def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference):
+OPEN_END_AHEAD = 3.0
+"""How far ahead of where the march stops (in radii) an open end's boundary loop may lie:
+the sections before an oblique or ragged end are cut open by it, and one across a deep
+fold is far narrower than the next (the march stops at either)."""
+
+
+def _plane_crossing(curve, loops, near, reach):
+    """u at which `curve` (u -> (point, tangent)) crosses the least-squares plane of the
+    boundary loop (vertices, (K, 3)) whose centroid lies nearest `near`, searched over
+    (0, 1.5 `reach`]; None if there is no loop within `reach` of `near`, no crossing, or
+    the crossing is not well inside the loop (within a third of its mean radius of its
+    centroid: a cubic carried past the sections it was fitted to may wander)."""
+    best = None
+    for ring in loops:
+        d = float(np.linalg.norm(ring.mean(axis=0) - near))
+        if d <= reach and (best is None or d < best[0]):
+            best = (d, ring)
+    if best is None:
+        return None
+    ring = best[1]
+    q = ring.mean(axis=0)
+    normal = np.linalg.svd(ring - q)[2][2]
+    side = lambda u: float((curve(u)[0] - q) @ normal)
+    u = np.linspace(0.0, 1.5 * reach, 61)
+    values = np.array([side(x) for x in u])
+    change = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
+    if len(change) == 0:
+        return None
+    lo, hi = u[change[0]], u[change[0] + 1]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.sign(side(mid)) == np.sign(values[change[0]]) else (lo, mid)
+    u_cut = 0.5 * (lo + hi)
+    loop_radius = float(np.mean(np.linalg.norm(ring - q, axis=1)))
+    if np.linalg.norm(curve(u_cut)[0] - q) > loop_radius / 3.0:
+        return None
+    return u_cut
+
+
+def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference, loops=()):
     """The round caps' last stretches (`jumps`, [m]) made again from the line behind them,
     now that it is refined: a cubic fitted to dense section centres over its last
     `RECAST_BASELINE` (`_end_fit`) is followed to the cap's base, the centre of the sphere
@@ -553,7 +637,7 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference):
     jumps)."""
     jumps = list(jumps)
     for side in (0, 1):
-        if jumps[side] <= 0.0 or ends[side] != "round cap":
+        if jumps[side] <= 0.0 or ends[side] not in ("round cap", "open"):
             continue
         line = points[::-1] if side == 0 else points
         s = _arc(line)
@@ -562,6 +646,35 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference):
             continue
         local = sections.around(body[-1], _end_tangent(body))
         radius = local.radius if local is not None else reference
+        if ends[side] == "open":
+            # The stretch to the end, whose sections the end cuts open: the cubic of the
+            # section centres behind it, to where it crosses the plane of the end's loop
+            # (an oblique cut's centre; its loop's centroid is off the axis where the tube
+            # flares or bends), or through the loop's centre.
+            end = line[-1]
+            u_end = float(np.linalg.norm(end - body[-1]))
+            if u_end <= step:
+                continue
+            curve = _end_fit(sections, body, arcs=radius)
+            u_cut = _plane_crossing(curve, loops, end, u_end) if curve is not None else None
+            if u_cut is None:   # the cubic wanders: straight on along the body's end tangent
+                p_end, t_end = body[-1], _end_tangent(body)
+                curve = lambda u, p_end=p_end, t_end=t_end: (p_end + u * t_end, t_end)
+                u_cut = _plane_crossing(curve, loops, end, u_end)
+            if u_cut is None:
+                curve = _end_fit(sections, body, through=(u_end, end), arcs=radius)
+                if curve is None:
+                    continue
+                u_cut = u_end
+            else:
+                end = curve(u_cut)[0]
+            count = int(np.ceil(u_cut / step))
+            extension = [curve(u)[0] for u in np.linspace(0.0, u_cut, count + 1)[1:-1]]
+            points = np.vstack([body] + ([np.asarray(extension)] if extension else [])
+                               + [end[None, :]])
+            points = points[::-1] if side == 0 else points
+            jumps[side] = u_cut
+            continue
         # The sections within a quarter radius of the cap's base reach into it (a plane
         # tilted by 0.02 rad does, 0.5 mm off the base) and are left out.
         curve = _end_fit(sections, body, stop=-ROUND_CAP_CLEAR * radius)
@@ -592,8 +705,10 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference):
 
 ROUND_CAP_CLEAR = 0.25
 """Section centres are fitted up to this share of the radius before a round cap's base."""
-RECAST_BASELINE = 0.04
-"""A cap's last stretch follows a cubic fitted to this much line before it [m], ..."""
+RECAST_BASELINE = 0.02
+"""A cap's last stretch follows a cubic fitted to this much line before it [m], ...
+(4 cm cut the corner of a bend of 80 degrees ending 1 cm before a round cap: the cubic's
+tangent there 7 degrees astray, 2.1 mm at the apex; 2 cm: 0.4 mm, the other tubes alike)"""
 RECAST_SPACING = 0.001
 """... of section centres this far apart [m] (the line's own points, 5 mm apart, left the
 tangent ~0.015 rad astray: 0.5 mm at a round cap's apex)."""
@@ -613,15 +728,17 @@ def _cubic(u, points, weights=None):
     return curve
 
 
-def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None):
+def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None,
+             arcs: float = 0.0):
     """The cubic in arc length fitted to section centres every `RECAST_SPACING` over
     `RECAST_BASELINE` of line up to `stop` [m] past the end of `body` (< 0: before it; > 0:
     on along the cubic through the body's points): a function u -> (point, unit tangent), u
     [m] past the body's end. The sections are cut normal to a cubic fitted to the body's
     own points (its polyline's tangents kink by ~0.02 rad at its points in a tight bend;
     cutting them normal to the centres' own cubic, again and again, drifts at the end).
-    `through`: (u, point) the cubic is to pass through (a round cap's centre). None if
-    fewer than 10 sections are found."""
+    `through`: (u, point) the cubic is to pass through (a round cap's centre). `arcs`: the
+    tube's radius near an open end, whose rim cuts the last sections open: their arcs are
+    used (`MeshSections.arc_around`). None if fewer than 10 sections are found."""
     s = _arc(body) - _arc(body)[-1]  # <= 0, the body's end at 0
     u = np.arange(max(s[0], stop - RECAST_BASELINE), stop + 1e-9, RECAST_SPACING)
     window = s >= u[0] - 0.01
@@ -632,6 +749,8 @@ def _end_fit(sections: MeshSections, body, stop: float = 0.0, through=None):
     for x in u:
         q, tq = guide(x)
         section = sections.around(q, tq)
+        if section is None and arcs:
+            section = sections.arc_around(q, tq, 2.0 * arcs)
         if section is None:
             continue
         c = _centre(section, q, tq)
