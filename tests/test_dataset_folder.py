@@ -13,7 +13,7 @@ import pytest
 import trimesh
 import yaml
 
-from capsule_drake.app import cli
+from capsule_drake.app import cli, record as record_module
 from capsule_drake.anatomy import load_colon
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app.dataset_docs import load_example_code, split_of_seed
@@ -211,7 +211,7 @@ def test_record_seeds_partitions_the_seeds_into_splits(tmp_path, monkeypatch, ca
         recorded.append((scenario.colon.seed, scenario.random_seed, out_dir.name))
         return type("Result", (), {"status": "completed", "metrics": {}})()
 
-    monkeypatch.setattr(cli, "record", fake_record)
+    monkeypatch.setattr(record_module, "record", fake_record)   # record_seeds's
     out = tmp_path / "batch"
     assert cli_main(["record", "--seeds", "10-29,40", "--split", "0.5,0.25,0.25", "--out",
                      str(out), "--quiet"]) == 0
@@ -237,7 +237,8 @@ def test_record_seeds_partitions_the_seeds_into_splits(tmp_path, monkeypatch, ca
 
 
 def test_record_seeds_errors_are_one_line(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(cli, "record", lambda *a, **k: pytest.fail("nothing may be recorded"))
+    monkeypatch.setattr(record_module, "record",
+                        lambda *a, **k: pytest.fail("nothing may be recorded"))
     for argv, message in ((["--seeds", "5-3"], "each range from low to high"),
                           (["--seeds", "a-b"], "expected e.g."),
                           (["--seeds", "1,1"], "a seed is given twice"),

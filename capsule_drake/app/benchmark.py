@@ -1163,3 +1163,24 @@ def write_outputs(results: list[dict], out_dir: Path) -> dict[str, Path]:
     fig.savefig(paths["segments"], dpi=120)
     plt.close(fig)
     return paths
+
+
+def report(results, out_dir) -> None:
+    """The benchmark's tables on stdout and its files in `out_dir` (`write_outputs`)."""
+    if not results:
+        print(f"no run finished; wrote {out_dir / 'runs-as-finished.csv'}")
+        return
+    print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
+    print()
+    rows = summary(results)
+    print(format_table(rows, list(rows[0])))
+    print()
+    rows = segment_table(results)
+    print("runs through each segment:")
+    print(format_table(rows, list(rows[0])))
+    rows = breakdown(results)
+    if rows:
+        print("\nby the population's patients (sigmoid variant, sex, tercile of length):")
+        print(format_table(rows, list(rows[0])))
+    paths = write_outputs(results, out_dir)
+    print(f"\nwrote {', '.join(str(p) for p in paths.values())}")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import contextlib
 import importlib.util
 import logging
@@ -16,28 +15,22 @@ import time
 import traceback
 from pathlib import Path
 
-import cv2
 import numpy as np
 import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
-from capsule_drake.app.dataset_docs import SPLIT_RULE, split_counts, split_of_seed, splits_readme
+from capsule_drake.app.eval_lumen import OUTPUTS as EVAL_OUTPUTS
+from capsule_drake.app.eval_lumen import EvaluationStopped, evaluate_paths
 from capsule_drake.app.mcap_log import add_mcap_logger, expected_mcap_bytes
-from capsule_drake.app.record import record, with_all_sensors
+from capsule_drake.app.record import record, record_seeds, with_all_sensors
 from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUTS,
-                                      OutputError, plan_outputs, write_atomic)
+                                      OutputError, plan_outputs)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
-from capsule_drake.app.benchmark import (COLUMNS, FAILED, EngineError, NotedSignals,
-                                                TIERS, RowWriter, Task, default_run_timeout,
-                                                breakdown, format_table, run_suite, segment_table,
-                                                summary, task_scenario, write_outputs)
-from capsule_drake.capsule.camera_config import CameraConfig
-from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS,
-                                                 DetectorError, condition_frames,
-                                                 condition_table, evaluate, finite_or_none,
-                                                 meets, mixed_sheet)
-from capsule_drake.perception.lens import LensConfig
+from capsule_drake.app.benchmark import (FAILED, TIERS, EngineError, NotedSignals, RowWriter,
+                                         Task, default_run_timeout, report, run_suite,
+                                         task_scenario)
+from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS
 from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE
 from capsule_drake.perception.lumen import load_detector
 from capsule_drake.plugins import load_function
@@ -50,8 +43,6 @@ LOOPBACK = "127.0.0.1"
 BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
                      "runs-as-finished.csv")
 IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json")
-# What eval-lumen writes besides its contact sheets (error.txt: a detector's traceback).
-EVAL_OUTPUTS = ("results.json", "tables.md", "error.txt")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -468,10 +459,10 @@ def _benchmark(args) -> int:
         order = {(task.navigator, task.seed): k for k, task in enumerate(tasks)}
         finished.sort(key=lambda r: order.get((r["row"]["navigator"], r["row"]["seed"]), 0))
         with NotedSignals():  # a second signal waits until the files are whole
-            _benchmark_outputs(finished, out_dir)
+            report(finished, out_dir)
         raise
     with NotedSignals() as signals:
-        _benchmark_outputs(results, out_dir)
+        report(results, out_dir)
     signals.raise_noted()
     failed = [r["row"] for r in results if r["row"].get("status") == FAILED]
     if failed:
@@ -479,27 +470,6 @@ def _benchmark(args) -> int:
               f"says why): {', '.join(f'{r['navigator']} seed {r['seed']}' for r in failed)}",
               file=sys.stderr)
     return 1 if failed else 0
-
-
-def _benchmark_outputs(results, out_dir) -> None:
-    """The benchmark's tables on stdout and its files in `out_dir`."""
-    if not results:
-        print(f"no run finished; wrote {out_dir / 'runs-as-finished.csv'}")
-        return
-    print(format_table([r["row"] for r in results], [c for c in COLUMNS]))
-    print()
-    rows = summary(results)
-    print(format_table(rows, list(rows[0])))
-    print()
-    rows = segment_table(results)
-    print("runs through each segment:")
-    print(format_table(rows, list(rows[0])))
-    rows = breakdown(results)
-    if rows:
-        print("\nby the population's patients (sigmoid variant, sex, tercile of length):")
-        print(format_table(rows, list(rows[0])))
-    paths = write_outputs(results, out_dir)
-    print(f"\nwrote {', '.join(str(p) for p in paths.values())}")
 
 
 def _scenario_arguments(parser):
@@ -579,43 +549,15 @@ def _record_seeds(args) -> int:
     scenario_of(seeds[0])  # a bad scenario: one line before anything is written
     out_dir = _claim(_plan(args, "datasets", f"{name}-seeds", SEEDS_OUTPUTS,
                            prefixes=(SEED_PREFIX,), inputs=[args.scenario_file]))
-    width = max(4, len(str(max(seeds))))
-    folders = {seed: f"{SEED_PREFIX}{seed:0{width}d}" for seed in seeds}
-    splits = {seed: split_of_seed(seed, fractions) for seed in seeds}
-
-    def write_splits(recorded):
-        rows = ["seed,split,folder"] + [f"{seed},{splits[seed]},{folders[seed]}"
-                                        for seed in recorded]
-        write_atomic(out_dir / "splits.csv", "\n".join(rows) + "\n")
-        counts = split_counts(recorded, fractions)
-        write_atomic(out_dir / "README.md", splits_readme(SPLIT_RULE, fractions, counts))
-        return counts
-
-    counts = write_splits(seeds)  # the plan, in case the batch is cut short
-    print(f"recording {len(seeds)} colon seeds into {out_dir}/: "
-          + ", ".join(f"{split} {n}" for split, n in counts.items()), file=sys.stderr)
-    recorded, failed = [], []
-    for k, seed in enumerate(seeds):
-        print(f"seed {seed} ({k + 1}/{len(seeds)}, {splits[seed]}) -> {folders[seed]}/",
-              file=sys.stderr)
-        try:
-            result = record(scenario_of(seed), out_dir / folders[seed],
-                            progress=not args.quiet, scenario_name=name)
-        except ScenarioError as e:  # e.g. a colon seed with no course: the others go on
-            print(f"seed {seed}: error: {e}", file=sys.stderr)
-            failed.append(seed)
-            continue
-        _report_stop(result)
-        if result.status == "interrupted":
-            write_splits(recorded)
-            return _exit_code(result)
-        (recorded if result.status in ("completed", "goal") else failed).append(seed)
-    counts = write_splits(recorded)
-    print(f"recorded {len(recorded)} of {len(seeds)} seeds into {out_dir}/ ("
-          + ", ".join(f"{split} {n}" for split, n in counts.items())
+    batch = record_seeds(scenario_of, seeds, fractions, out_dir, name, quiet=args.quiet,
+                         on_stop=_report_stop)
+    if batch.interrupted is not None:
+        return _exit_code(batch.interrupted)
+    print(f"recorded {len(batch.recorded)} of {len(seeds)} seeds into {out_dir}/ ("
+          + ", ".join(f"{split} {n}" for split, n in batch.counts.items())
           + "; splits.csv and README.md there)"
-          + (f"; failed: {', '.join(map(str, failed))}" if failed else ""))
-    return 1 if failed else 0
+          + (f"; failed: {', '.join(map(str, batch.failed))}" if batch.failed else ""))
+    return 1 if batch.failed else 0
 
 
 def _teleop(args) -> int:
@@ -690,90 +632,19 @@ def _eval_lumen(args) -> int:
         raise ScenarioError(f"--conditions: expected 'all' or a comma-separated list of "
                             f"{', '.join(known)}; got {args.conditions!r}")
     out_dir = _output_folder(args, "eval_lumen", "eval", outputs=EVAL_OUTPUTS)
-    results, tables = {}, []
     try:
-        for renderer in renderers:
-            conditions = [c for c in (wanted or known)
-                          if c in IMAGE_CONDITIONS or renderer == "raycast"]
-            if conditions:
-                for lens in lenses:
-                    _eval_path(args, detectors, renderer, lens, conditions, out_dir, results,
-                               tables)
-    except DetectorError as e:
-        # What was scored before the failure is kept; the user's traceback beside it.
-        where = f"what was scored before it is in {out_dir}/ (results.json, tables.md)"
-        if e.details is not None:
-            _write_eval_file(out_dir / "error.txt", e.details)
-            where = f"the traceback is in {out_dir}/error.txt; " + where
-        tables.append(f"Stopped: {e}")
-        _write_eval_results(out_dir, results, tables)
-        print(f"capsule-sim: error: {e}; {where}", file=sys.stderr)
+        failing = evaluate_paths(detectors, renderers, lenses, wanted or known, out_dir,
+                                 frames=args.frames, colons=args.colons, seed=args.seed,
+                                 wall_fraction=args.wall_fraction, quiet=args.quiet)
+    except EvaluationStopped as e:   # a detector failed: what was scored is on disk
+        print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 1
-    _write_eval_results(out_dir, results, tables)
-    failing = [f"{name} {path} {condition}" for name, paths in results.items()
-               for path, summaries in paths.items() for condition, summary in summaries.items()
-               if not meets(summary, path.split("_")[-1])]
     print(f"{'every condition meets' if not failing else f'{len(failing)} condition(s) miss'}"
           f" the targets (against the far region: median <= 1.5 %, p90 <= 4 %, detected >= "
           f"95 %, false positives <= 10 %; against the point 5 cm ahead: median / p90 <= "
           f"1.5 / 5 % fisheye, 3 / 8 % pinhole); tables.md, results.json and contact sheets "
           f"in {out_dir}/")
     return 0
-
-
-def _eval_path(args, detectors, renderer, lens, conditions, out_dir, results, tables):
-    """eval-lumen on one image path (renderer, lens): renders the frames, scores each
-    detector on them (its summaries into `results`, its table into `tables`, as they are
-    made: a detector that fails leaves what came before) and saves its contact sheet."""
-    path = f"{renderer}, {lens}"
-
-    def progress(done):
-        if args.quiet:
-            return
-        if sys.stderr.isatty():
-            print(f"\r{path}: rendered {done} / {args.frames} poses",
-                  end="\n" if done == args.frames else "", file=sys.stderr, flush=True)
-        elif done % max(1, args.frames // 5) == 0 or done == args.frames:
-            print(f"{path}: rendered {done} / {args.frames} poses", file=sys.stderr)
-
-    config = CameraConfig(lens=LensConfig(
-        model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
-    frames = condition_frames(args.frames, args.colons, args.seed, renderer, conditions,
-                              config, args.wall_fraction, progress=progress)
-    for name, detector in detectors.items():
-        summaries = results.setdefault(name, {}).setdefault(f"{renderer}_{lens}", {})
-        for condition, of_condition in frames.items():
-            summaries[condition] = evaluate(of_condition, detector, name,
-                                            f"{path}, {condition}").summary()
-        table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
-                                           f"{args.seed}-{args.seed + args.colons - 1}, "
-                                           f"{args.frames} poses)", lens)
-        tables.append(table)
-        print(table + "\n", flush=True)
-        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
-        sheet = cv2.cvtColor(mixed_sheet(frames, detector, name=name, where=path),
-                             cv2.COLOR_RGB2BGR)
-        sheet_path = out_dir / f"{safe}_{renderer}_{lens}_sheet.png"
-        if not cv2.imwrite(str(sheet_path), sheet):
-            raise WriteError(f"{sheet_path}: could not write the contact sheet")
-
-
-def _write_eval_file(path: Path, text: str) -> None:
-    try:
-        write_atomic(path, text)
-    except OSError as e:
-        raise WriteError(f"{path.parent}: could not write {path.name} "
-                         f"({e.strerror or e})") from None
-
-
-def _write_eval_results(out_dir: Path, results: dict, tables: list[str]) -> None:
-    """results.json (only the scores made: a detector path or condition not reached is
-    absent) and tables.md."""
-    kept = {name: {path: summaries for path, summaries in paths.items() if summaries}
-            for name, paths in results.items()}
-    _write_eval_file(out_dir / "results.json",
-                     json.dumps(finite_or_none({k: v for k, v in kept.items() if v}), indent=2))
-    _write_eval_file(out_dir / "tables.md", "\n\n".join(tables) + "\n")
 
 
 def _run(args) -> int:

@@ -1,16 +1,19 @@
 """Record a dataset: the station with its camera and sensors, and a DatasetWriter."""
 
 import dataclasses
+import sys
 from pathlib import Path
 
 from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
 from capsule_drake.app.dataset import DatasetWriter, PlantTiming, Stream
-from capsule_drake.app.dataset_docs import (DatasetDescription, camera_yaml, dataset_readme,
-                                           sensors_yaml)
+from capsule_drake.app.dataset_docs import (SPLIT_RULE, DatasetDescription, camera_yaml,
+                                           dataset_readme, sensors_yaml, split_counts,
+                                           split_of_seed, splits_readme)
+from capsule_drake.app.outputs import SEED_PREFIX, write_atomic
 from capsule_drake.app.mcap_log import add_mcap_logger
 from capsule_drake.app.run import RunResult, chain_extends, simulate
-from capsule_drake.scenario import Scenario
+from capsule_drake.scenario import Scenario, ScenarioError
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.anatomy.source import lesion_scene
 from capsule_drake.capsule.camera_config import CameraConfig, camera_tick
@@ -136,3 +139,56 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
 
     return simulate(scenario, out_dir=out_dir, progress=progress,
                     extend=chain_extends(extend, extend_mcap if mcap is not None else None))
+
+
+@dataclasses.dataclass
+class SeedBatch:
+    """What `record_seeds` recorded: the seeds recorded and failed, the splits' counts of
+    those recorded, and the result of a recording that was interrupted (the batch stops)."""
+
+    recorded: list
+    failed: list
+    counts: dict
+    interrupted: RunResult | None = None
+
+
+def record_seeds(scenario_of, seeds, fractions, out_dir: Path, name: str, *,
+                 quiet: bool = False, on_stop=None) -> SeedBatch:
+    """One dataset per colon seed into out_dir/seed_XXXX/ (`record` of `scenario_of(seed)`),
+    with splits.csv and README.md: written first as planned (a batch cut short keeps its
+    plan), and again over the seeds recorded. A seed whose scenario fails (a colon with no
+    course) is counted failed and the others go on; an interrupted recording ends the
+    batch. `on_stop(result)`: told of each recording's result (to report an early stop)."""
+    width = max(4, len(str(max(seeds))))
+    folders = {seed: f"{SEED_PREFIX}{seed:0{width}d}" for seed in seeds}
+    splits = {seed: split_of_seed(seed, fractions) for seed in seeds}
+
+    def write_splits(recorded):
+        rows = ["seed,split,folder"] + [f"{seed},{splits[seed]},{folders[seed]}"
+                                        for seed in recorded]
+        write_atomic(out_dir / "splits.csv", "\n".join(rows) + "\n")
+        counts = split_counts(recorded, fractions)
+        write_atomic(out_dir / "README.md", splits_readme(SPLIT_RULE, fractions, counts))
+        return counts
+
+    counts = write_splits(seeds)  # the plan, in case the batch is cut short
+    print(f"recording {len(seeds)} colon seeds into {out_dir}/: "
+          + ", ".join(f"{split} {n}" for split, n in counts.items()), file=sys.stderr)
+    recorded, failed = [], []
+    for k, seed in enumerate(seeds):
+        print(f"seed {seed} ({k + 1}/{len(seeds)}, {splits[seed]}) -> {folders[seed]}/",
+              file=sys.stderr)
+        try:
+            result = record(scenario_of(seed), out_dir / folders[seed], progress=not quiet,
+                            scenario_name=name)
+        except ScenarioError as e:  # e.g. a colon seed with no course: the others go on
+            print(f"seed {seed}: error: {e}", file=sys.stderr)
+            failed.append(seed)
+            continue
+        if on_stop is not None:
+            on_stop(result)
+        if result.status == "interrupted":
+            return SeedBatch(recorded, failed, write_splits(recorded), result)
+        (recorded if result.status in ("completed", "goal") else failed).append(seed)
+    return SeedBatch(recorded, failed, write_splits(recorded))
+
