@@ -13,7 +13,7 @@ import pytest
 import trimesh
 import yaml
 
-from capsule_drake.app import cli, record as record_module
+from capsule_drake.app import record as record_module
 from capsule_drake.anatomy import load_colon
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app.dataset_docs import load_example_code, split_of_seed
