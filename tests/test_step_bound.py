@@ -15,8 +15,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.magnet_force import (MagneticForce, MagnetSpec,
-                                                _restoring_part)
+from capsule_drake.physics.implicit_torque import restoring_part
+from capsule_drake.physics.magnet_force import MagneticForce, MagnetSpec
 from capsule_drake.physics.magnetics import MagnetGeometry, dipole_field, dipole_force
 from capsule_drake.physics.step_bound import (SAFETY, capsule_inertia, closest_distance,
                                               magnet_stiffness, step_bounds, time_step_bound)
@@ -286,7 +286,7 @@ def test_the_pendulum_turned_against_the_field_is_not_held_back():
     """The capsule pinned upside down (its magnet against the EPM's field, an unstable
     equilibrium: the torque turns it further away) at 8 x the explicit limit: there the
     symmetric stiffness has modes with h^2 omega^2 far above 1/2, so only its restoring part
-    is implicit (_restoring_part) and the unstable turn is left explicit. The capsule turns
+    is implicit (restoring_part) and the unstable turn is left explicit. The capsule turns
     away from upside down, as the physics does, monotonically at first, its angle finite
     (with the full stiffness taken implicitly, I - h^2 S is not positive definite: the step
     has no sound solution)."""
@@ -298,7 +298,7 @@ def test_the_pendulum_turned_against_the_field_is_not_held_back():
     assert away[1] > away[0] > 0.02
     assert away[-1] > 0.5
     S = np.array([[-2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]])
-    np.testing.assert_allclose(_restoring_part(S.tolist(), np.eye(3).tolist()),
+    np.testing.assert_allclose(restoring_part(S.tolist(), np.eye(3).tolist()),
                                np.diag([-2.0, 0.0, 0.0]), atol=1e-12)
 
 
