@@ -137,6 +137,7 @@ def test_the_texture_runs_on_across_each_neck(colons):
         assert near.sum() > 30 and span.max() < 0.2, span.max()
 
 
+@pytest.mark.slow   # ~13 s: two patients' colons cut
 def test_drawn_diverticula_cut_every_mesh():
     """The patients with the most drawn diverticula among seeds 0-39: every one is cut into
     the camera, visual and collision meshes (the cut's checks raise otherwise) and the

@@ -179,6 +179,7 @@ def test_a_capsule_resting_in_a_pool_presses_on_the_wall_less_by_its_buoyancy():
     assert wet == pytest.approx(weight - 1000.0 * 9.81 * volume, abs=0.05 * weight)
 
 
+@pytest.mark.slow   # ~18 s: it draws colons until one cannot hold its fluid
 def test_fluid_a_colon_cannot_hold_is_reported_in_one_line(caplog):
     """The ex vivo segment lies flat in its tray: no basin holds fluid, and the 20 ml asked
     for are reported as not placed (one warning line), not silently lost."""

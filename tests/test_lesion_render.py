@@ -135,6 +135,7 @@ def test_the_views_see_each_shape(scene):
     assert seen == {"0-Is", "0-IIa", "0-Ip"}
 
 
+@pytest.mark.slow   # ~13 s: a colon with its polyp built and rendered
 def test_a_polyp_behind_a_fold_has_no_pixels():
     """A flat polyp just beyond a haustral fold, looked at along the lumen from further
     back: where the analytic wall hides all of it from the camera, the label image has none
