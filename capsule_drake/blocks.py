@@ -112,14 +112,8 @@ def present(order, scenario) -> list[tuple[Block, object]]:
 def check_blocks(order, scenario) -> None:
     """Each present block's `check`, in order; raises ScenarioError (one line)."""
     for item, config in present(order, scenario):
-        if item.check is None:
-            continue
-        try:
-            item.check(config, scenario)
-        except ScenarioError:
-            raise
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {item.where}{str(e).splitlines()[0]}") from None
+        if item.check is not None:
+            checked(item.where, item.check, config, scenario)
 
 
 def need(ok: bool, what: str) -> None:

@@ -419,15 +419,10 @@ def _check_finite(scenario: Scenario) -> None:
 def _check_run(scenario: Scenario) -> None:
     """The run's own settings, which are no block of the station: its duration and seed,
     what it records, its simulator and its guard."""
-    def need(ok: bool, what: str):
-        if not ok:
-            raise ScenarioError(f"scenario: {what}")
+    need = blocks.need
 
     def bound(value, key: str, interval: str, unit: str = "", why: str = ""):
-        try:
-            need_range(value, key, interval, unit, why)
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {str(e).splitlines()[0]}") from None
+        blocks.checked("", need_range, value, key, interval, unit, why)
 
     outputs = scenario.outputs
     bound(scenario.duration, "duration", f"[0, {MAX_DURATION:.0f}]", "s",
@@ -456,10 +451,7 @@ def _check_run(scenario: Scenario) -> None:
     need(simulator.integration_scheme in GetIntegrationSchemes(),
          f"simulator: Unknown integration scheme: {simulator.integration_scheme} (known: "
          f"{', '.join(GetIntegrationSchemes())})")
-    try:
-        check_guard_config(scenario.guard)
-    except ValueError as e:
-        raise ScenarioError(f"scenario: {str(e).splitlines()[0]}") from None
+    blocks.checked("", check_guard_config, scenario.guard)
 
 
 def validate(scenario: Scenario) -> None:

@@ -32,7 +32,7 @@ from capsule_drake.anatomy.course import solve_course
 from capsule_drake.anatomy.params import SEGMENT_NAMES
 from capsule_drake.anatomy.population import resolve_population
 from capsule_drake.anatomy.source import fluid_scene
-from capsule_drake.blocks import block, need
+from capsule_drake.blocks import block, checked, need
 from capsule_drake.capsule.model import CAPSULE_BODY, CapsuleModel, capsule_model, start_pose
 from capsule_drake.models import configure_parser, model_url
 from capsule_drake.physics.contact import ContactConfig, check_contact_config
@@ -135,12 +135,6 @@ MIN_TIME_STEP = 1e-5
 
 def check_scene(scenario, _=None) -> None:
     """The plant's settings, the capsule's magnet (it fits in the shell) and its start."""
-    def checked(where: str, check_function, *args):
-        try:
-            check_function(*args)
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {where}{str(e).splitlines()[0]}") from None
-
     plant = scenario.plant
     checked("", need_range, plant.time_step, "plant.time_step", f">= {MIN_TIME_STEP:g}", "s",
             "a shorter step turns a minute of simulation into days; the convergence "

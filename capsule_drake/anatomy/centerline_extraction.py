@@ -441,8 +441,11 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     if len(points) > 2 * cut + 6:
         points = points[cut:len(points) - cut]
     reference = float(np.median(radius_now))
-    tail, tail_end, tail_jump = _march(sections, mesh, list(points), step, 0.001, reference)
-    head, head_end, head_jump = _march(sections, mesh, list(points[::-1]), step, 0.001,
+    # The open ends' boundary loops (vertices, (K, 3)), found once for both marches and the
+    # recast of their last stretches.
+    loops = [np.asarray(mesh.vertices)[loop] for loop in _boundary_loops(mesh) if len(loop) >= 3]
+    tail, tail_end, tail_jump = _march(sections, loops, list(points), step, 0.001, reference)
+    head, head_end, head_jump = _march(sections, loops, list(points[::-1]), step, 0.001,
                                        reference)
     points = np.array(head[::-1][:-len(points)] + tail)
     points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
@@ -450,7 +453,6 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     # its centre is a line of section centres) are not refined; once the line behind it is,
     # its tangent there is more accurate than the march's, and the ray is cast again.
     jumps = [head_jump, tail_jump]
-    loops = [np.asarray(mesh.vertices)[loop] for loop in _boundary_loops(mesh) if len(loop) >= 3]
     for final in range(FINAL_PASSES):
         hold = tuple(j + 0.5 * step if j > 0 else 0.0 for j in jumps)
         points, radius, _ = _refine(sections, points, step, keep_ends=True,
@@ -500,7 +502,7 @@ def _end_tangent(points):
     return t / np.linalg.norm(t)
 
 
-def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
+def _march(sections: MeshSections, loops, points: list, step: float, fine: float,
            reference: float):
     """Extends `points` past their last one until the tube ends or closes: returns (points,
     "flat cap" | "round cap" | "open" | "none", the length of the last stretch [m]: the
@@ -513,9 +515,9 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
     ahead; 1 mm after a failed step), and its centre, corrected by a second section normal
     to the tangent through it, is the next point; a section that is no loop around the
     point, or whose centre is off by a quarter of the radius, or that is far wider than the
-    last, ends the march: past an open end. The end is then the end loop's centre if a
-    boundary loop lies ahead (within OPEN_END_AHEAD radii), else the last point. `reference`: the tube's typical
-    radius, if the local one cannot be measured."""
+    last, ends the march: past an open end. The end is then the centre of a boundary loop
+    (`loops`: the mesh's, vertices (K, 3)) ahead, within OPEN_END_AHEAD radii, else the last
+    point. `reference`: the tube's typical radius, if the local one cannot be measured."""
     points = list(points)
     start = sections.around(points[-1], _end_tangent(points))
     last_radius = start.radius if start is not None else reference  # the local radius
@@ -565,10 +567,7 @@ def _march(sections: MeshSections, mesh, points: list, step: float, fine: float,
     p = points[-1]
     wide = max(last_radius, reference)
     best = None
-    for loop in _boundary_loops(mesh):
-        if len(loop) < 3:
-            continue
-        ring = np.asarray(mesh.vertices)[loop]
+    for ring in loops:
         seg = np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1)
         centre = np.sum(0.5 * (ring + np.roll(ring, 1, axis=0)) * seg[:, None], axis=0) / seg.sum()
         along = float((centre - p) @ t)

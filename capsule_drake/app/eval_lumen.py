@@ -64,33 +64,32 @@ def _evaluate_path(detectors, renderer, lens, conditions, out_dir, results, tabl
     (its summaries into `results`, its table into `tables`, as they are made: a detector
     that fails leaves what came before) and saves its contact sheet."""
     path = f"{renderer}, {lens}"
-    count = frames
 
     def progress(done):
         if quiet:
             return
         if sys.stderr.isatty():
-            print(f"\r{path}: rendered {done} / {count} poses",
-                  end="\n" if done == count else "", file=sys.stderr, flush=True)
-        elif done % max(1, count // 5) == 0 or done == count:
-            print(f"{path}: rendered {done} / {count} poses", file=sys.stderr)
+            print(f"\r{path}: rendered {done} / {frames} poses",
+                  end="\n" if done == frames else "", file=sys.stderr, flush=True)
+        elif done % max(1, frames // 5) == 0 or done == frames:
+            print(f"{path}: rendered {done} / {frames} poses", file=sys.stderr)
 
     config = CameraConfig(lens=LensConfig(
         model="pinhole_radtan" if lens == "pinhole" else "equidistant"))
-    frames = condition_frames(count, colons, seed, renderer, conditions, config,
-                              wall_fraction, progress=progress)
+    rendered = condition_frames(frames, colons, seed, renderer, conditions, config,
+                                wall_fraction, progress=progress)
     for name, detector in detectors.items():
         summaries = results.setdefault(name, {}).setdefault(f"{renderer}_{lens}", {})
-        for condition, of_condition in frames.items():
+        for condition, of_condition in rendered.items():
             summaries[condition] = evaluate(of_condition, detector, name,
                                             f"{path}, {condition}").summary()
         table = condition_table(summaries, f"{name} on {path} frames (colon seeds "
-                                           f"{seed}-{seed + colons - 1}, {count} poses)",
+                                           f"{seed}-{seed + colons - 1}, {frames} poses)",
                                 lens)
         tables.append(table)
         print(table + "\n", flush=True)
         safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
-        sheet = cv2.cvtColor(mixed_sheet(frames, detector, name=name, where=path),
+        sheet = cv2.cvtColor(mixed_sheet(rendered, detector, name=name, where=path),
                              cv2.COLOR_RGB2BGR)
         sheet_path = out_dir / f"{safe}_{renderer}_{lens}_sheet.png"
         if not cv2.imwrite(str(sheet_path), sheet):

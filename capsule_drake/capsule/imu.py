@@ -44,8 +44,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
-from capsule_drake.blocks import block, checked, need
-from capsule_drake.capsule.model import check_inside_capsule
+from capsule_drake.blocks import block
+from capsule_drake.capsule.model import check_board_sensor
 from capsule_drake.schema import MAX_RATE, need_range
 
 STANDARD_GRAVITY = 9.80665  # m/s^2 (CGPM 1901), the "g" of datasheets
@@ -416,14 +416,8 @@ class Imu(Diagram):
 
 
 
-def check_imu(config: ImuConfig, scenario) -> None:
-    need(config.sample_rate > 0,
-         f"capsule.imu.sample_rate must be > 0, got {config.sample_rate}")
-    checked("capsule.imu.", check_imu_config, config)
-    checked("", check_inside_capsule, config.p_BS, "capsule.imu.p_BS")
-
-
-@block("capsule.imu", ImuConfig, check=check_imu)
+@block("capsule.imu", ImuConfig,
+       check=lambda config, _: check_board_sensor(config, "capsule.imu", check_imu_config))
 def add_imu(builder, parts, config: ImuConfig):
     """`capsule.imu` on the capsule body, fed by the plant; exports capsule.imu.<signal> and
     shares its config (`capsule.imu.config`: its rate and its frame in the capsule)."""

@@ -25,8 +25,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.blocks import block, checked, need
-from capsule_drake.capsule.model import check_inside_capsule
+from capsule_drake.blocks import block
+from capsule_drake.capsule.model import check_board_sensor
 from capsule_drake.physics.magnetics import DEFAULT_MIN_DISTANCE, cylinder_field, dipole_field
 from capsule_drake.capsule.imu import (ChannelNoise, add_random_sources, check_resolution_bits,
                                        check_sensor_frame)
@@ -282,14 +282,9 @@ class Magnetometer(LeafSystem):
         discrete_state.get_mutable_vector(self._bias).SetFromVector(bias)
 
 
-def check_magnetometer(config: MagnetometerConfig, scenario) -> None:
-    need(config.sample_rate > 0,
-         f"capsule.magnetometer.sample_rate must be > 0, got {config.sample_rate}")
-    checked("capsule.magnetometer.", check_magnetometer_config, config)
-    checked("", check_inside_capsule, config.p_BS, "capsule.magnetometer.p_BS")
-
-
-@block("capsule.magnetometer", MagnetometerConfig, check=check_magnetometer)
+@block("capsule.magnetometer", MagnetometerConfig,
+       check=lambda config, _: check_board_sensor(config, "capsule.magnetometer",
+                                                  check_magnetometer_config))
 def add_magnetometer(builder, parts, config: MagnetometerConfig):
     """`capsule.magnetometer`: the EPM's field at the sensor (the model of the magnet force
     block, parts.field_model), with its noise sources; exports capsule.magnetometer.B_S and

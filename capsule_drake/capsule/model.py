@@ -32,6 +32,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
+from capsule_drake.blocks import checked, need
 from capsule_drake.models import configure_parser, model_url
 
 CAPSULE_BODY = "capsule"
@@ -90,6 +91,15 @@ def rotation_from_quaternion(q_wxyz) -> np.ndarray:
     drifts off the unit sphere)."""
     q = np.asarray(q_wxyz, dtype=float)
     return Quaternion(q / np.linalg.norm(q)).rotation()
+
+
+def check_board_sensor(config, key: str, check_config) -> None:
+    """The check of a sampled sensor on the capsule's board (`key`, e.g. capsule.imu): a
+    rate above 0 (said so first), its own fields (`check_config`), its frame inside the
+    capsule. Raises ScenarioError (one line)."""
+    need(config.sample_rate > 0, f"{key}.sample_rate must be > 0, got {config.sample_rate}")
+    checked(f"{key}.", check_config, config)
+    checked("", check_inside_capsule, config.p_BS, f"{key}.p_BS")
 
 
 def check_inside_capsule(p_BS, key: str) -> None:

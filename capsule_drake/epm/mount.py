@@ -20,7 +20,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from capsule_drake.blocks import block
+from capsule_drake.blocks import block, checked
 from capsule_drake.epm.arm import Arm, ArmMount, check_arm_config
 from capsule_drake.epm.guard import (EpmCommandGuard, EpmGuard, command_workspace,
                                     floor_guard)
@@ -28,7 +28,7 @@ from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import KinematicStageMount, Stage, StageMount, check_stage
 from capsule_drake.physics.magnetics import check_magnet_geometry
-from capsule_drake.schema import ScenarioError, need_range
+from capsule_drake.schema import need_range
 
 EPM_BODY = "epm"
 
@@ -67,16 +67,13 @@ MAX_CLEARANCE = 0.5
 def check_epm_mount(mount, scenario) -> None:
     """The EPM's magnet, its clearance and its carrier."""
     epm = scenario.epm
-    for where, check, args in (
-            ("epm.magnet.", check_magnet_geometry, (epm.magnet,)),
-            ("", need_range, (epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
-                              "farther, the EPM barely pulls the capsule")),
-            (("", check_arm_config, (mount,)) if isinstance(mount, Arm)
-             else ("epm.mount.", check_stage, (mount,)))):
-        try:
-            check(*args)
-        except ValueError as e:
-            raise ScenarioError(f"scenario: {where}{str(e).splitlines()[0]}") from None
+    checked("epm.magnet.", check_magnet_geometry, epm.magnet)
+    checked("", need_range, epm.clearance, "epm.clearance", f"[0, {MAX_CLEARANCE:g}]", "m",
+            "farther, the EPM barely pulls the capsule")
+    if isinstance(mount, Arm):
+        checked("", check_arm_config, mount)
+    else:
+        checked("epm.mount.", check_stage, mount)
 
 
 def add_epm_models(parts, mount):
