@@ -50,7 +50,8 @@ def main():
                 if not visible:
                     continue
                 for q in QUANTILES:
-                    centre = far_region(range_image, caster.field, config.far, q).pixel
+                    centre = far_region(range_image, caster.field, config.far, q,
+                                        solid_angle=caster.lens.solid_angles()).pixel
                     errors[la, q].append(np.linalg.norm(centre - pixel) / diagonal)
     print(f"The farthest part of the view against the lumen truth: colon seeds {args.seed}-"
           f"{args.seed + 4}, {args.frames} poses, {args.lens} lens "

@@ -56,12 +56,14 @@ def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, 
                     hits = caster.cast(X_WC)
                     depth = caster.range_image(hits)
                     images = []
-                    far = far_region(depth, caster.field, config.far)
+                    far = far_region(depth, caster.field, config.far,
+                                     solid_angle=caster.lens.solid_angles())
                     for _ in range(raycast_variants):
                         rgb = caster.shade(hits, Shading.sample(rng))
                         images.append((0, rgb, caster.field, far))
-                    rgb, depth_vtk, _, field = render(X_WC)
-                    far_vtk = far_region(depth_vtk, field, config.far)
+                    rgb, depth_vtk, lens_vtk, field = render(X_WC)
+                    far_vtk = far_region(depth_vtk, field, config.far,
+                                         solid_angle=lens_vtk.solid_angles())
                     for _ in range(vtk_variants):
                         images.append((1, rgb, field, far_vtk))
                     for source, rgb, field, truth in images:

@@ -151,3 +151,46 @@ def test_bad_configs_are_rejected():
     with pytest.raises(ValueError, match="fold"):
         # This polynomial turns over near 50 degrees.
         Lens(LensConfig(model="kannala_brandt", kb_coefficients=[-0.5, 0.0, 0.0, 0.0]))
+
+
+def _field_solid_angle_by_sampling(lens, n=2_000_000, seed=0):
+    """4 pi times the share of directions, uniform on the sphere, that the lens sees inside
+    its image: a route to the field's solid angle that never differentiates the lens."""
+    rays = np.random.default_rng(seed).standard_normal((n, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    pixels, valid = lens.project(rays)
+    inside = (valid & lens.in_field(rays)
+              & (pixels[:, 0] >= -0.5) & (pixels[:, 0] <= lens.width - 0.5)
+              & (pixels[:, 1] >= -0.5) & (pixels[:, 1] <= lens.height - 0.5))
+    return 4.0 * np.pi * inside.mean()
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+def test_pixels_solid_angles_add_up_to_the_field(name):
+    """The pixels' solid angles sum to the field's: against the closed forms of the
+    equidistant fisheye's cone, 2 pi (1 - cos theta_max), and of the undistorted pinhole's
+    pyramid, 4 asin(sin(a) sin(b)) with a, b its half-angles; for every lens against the
+    share of random directions it sees (the field's edge pixels count whole or not at all,
+    hence 1 %)."""
+    lens = Lens(CONFIGS[name])
+    omega = lens.solid_angles()
+    assert np.all(omega >= 0.0) and np.all(omega[~lens.pixel_rays()[1]] == 0.0)
+    total = omega.sum()
+    assert total == pytest.approx(_field_solid_angle_by_sampling(lens), rel=0.01)
+    if name == "equidistant":
+        assert total == pytest.approx(2 * np.pi * (1 - np.cos(lens.max_theta)), rel=0.01)
+    if name == "pinhole":
+        a = math.atan((lens.width / 2) / lens.fx)
+        b = math.atan((lens.height / 2) / lens.fy)
+        assert total == pytest.approx(4 * math.asin(math.sin(a) * math.sin(b)), rel=1e-3)
+
+
+def test_a_pinhole_pixel_sees_cos_cubed_of_the_axis_pixels_solid_angle():
+    """An undistorted pinhole's pixel at angle theta off the axis sees cos^3(theta) / (fx fy)
+    sr (its area 1 / (fx fy) on the image plane at z = 1, at distance 1 / cos(theta), tilted
+    by theta)."""
+    lens = Lens(CONFIGS["pinhole"])
+    rays, _ = lens.pixel_rays()
+    cos = rays[..., 2] / np.linalg.norm(rays, axis=-1)
+    np.testing.assert_allclose(lens.solid_angles(), cos ** 3 / (lens.fx * lens.fy),
+                               rtol=1e-3)

@@ -90,6 +90,39 @@ def test_each_symmetry_moves_the_target_with_the_image(code):
                                atol=1e-6)
 
 
+@pytest.mark.parametrize("code", range(8))
+def test_unsymmetry_moves_a_point_back(code):
+    unit = np.array([0.3, -0.7])
+    _, moved = lumen_net.symmetry([np.zeros((4, 4))], unit, code)
+    np.testing.assert_allclose(lumen_net.unsymmetry(moved, code), unit, atol=1e-7)
+
+
+def test_reading_a_frame_under_its_symmetries_averages_the_moved_frames_answers():
+    """predict(..., symmetries=k) against a second route: the network run on each of the k
+    flipped or turned frames (full size, before preprocessing), each answer moved back by
+    hand, the positions and the visible logits averaged."""
+    net = lumen_net.LumenNet.load()
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[:256, :256]
+    grey = 60 + 120 * np.exp(-((xx - 90) ** 2 + (yy - 170) ** 2) / 4000.0)
+    rgb = np.repeat(np.clip(grey + rng.normal(0, 5, grey.shape), 0, 255)[..., None], 3,
+                    axis=2).astype(np.uint8)
+    field = (yy - 127.5) ** 2 + (xx - 127.5) ** 2 < 128 ** 2
+    for k in (1, 3, 8):
+        pixel, probability = net.predict(rgb, field, symmetries=k)
+        points, logits = [], []
+        for code in range(k):
+            moved, moved_field, _ = lumen_net.symmetry([rgb, field], np.zeros(2), code)
+            moved, moved_field = np.ascontiguousarray(moved), np.ascontiguousarray(moved_field)
+            p, q = net.predict(moved, moved_field)
+            unit = lumen_net.to_unit(p, rgb.shape)
+            points.append(lumen_net.unsymmetry(unit, code))
+            logits.append(np.log(q / (1 - q)))
+        np.testing.assert_allclose(pixel, lumen_net.to_pixel(np.mean(points, axis=0),
+                                                             rgb.shape), atol=1e-3)
+        assert probability == pytest.approx(1 / (1 + np.exp(-np.mean(logits))), abs=1e-5)
+
+
 def test_preprocess_removes_exposure_and_keeps_the_field():
     rng = np.random.default_rng(0)
     rgb = rng.integers(20, 120, (256, 256, 3)).astype(np.uint8)
@@ -168,7 +201,8 @@ def test_shipped_network_finds_the_far_region_of_a_straight_tube(fisheye_tube, a
     caster = fisheye_tube
     X_WC = RigidTransform(RotationMatrix.MakeYRotation(np.radians(angle)), [0.0, 0.0, 0.0])
     hits = caster.cast(X_WC)
-    truth = far_region(caster.range_image(hits), caster.field, caster.far)
+    truth = far_region(caster.range_image(hits), caster.field, caster.far,
+                       solid_angle=caster.lens.solid_angles())
     assert truth.visible
     rgb = caster.shade(hits, Shading())
     detection = load_detector("net")(rgb, caster.field)
@@ -181,7 +215,8 @@ def test_shipped_network_sees_no_lumen_facing_the_wall(fisheye_tube):
     caster = fisheye_tube
     X_WC = RigidTransform(RotationMatrix.MakeYRotation(np.radians(90.0)), [0.0, 0.0, 0.0])
     hits = caster.cast(X_WC)
-    assert not far_region(caster.range_image(hits), caster.field, caster.far).visible
+    assert not far_region(caster.range_image(hits), caster.field, caster.far,
+                          solid_angle=caster.lens.solid_angles()).visible
     detection = load_detector("net")(caster.shade(hits, Shading()), caster.field)
     assert not detection.visible and np.all(np.isnan(detection.pixel))
 

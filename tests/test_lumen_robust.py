@@ -167,25 +167,35 @@ def tube_lens_caster(request, tube_caster):
     return RayCaster(tube, LensConfig(width=129, height=129), far=0.2)
 
 
+def _field_solid_angle(lens) -> float:
+    """The field's solid angle in closed form: the fisheye's cone, the pinhole's pyramid."""
+    if lens.is_fisheye:
+        return 2.0 * np.pi * (1.0 - np.cos(lens.max_theta))
+    a, b = np.arctan(lens.width / 2 / lens.fx), np.arctan(lens.height / 2 / lens.fy)
+    return 4.0 * np.arcsin(np.sin(a) * np.sin(b))
+
+
 def test_far_region_of_a_straight_tube_is_the_cone_around_its_axis(tube_lens_caster):
     """Looking down a straight tube from its axis, the range at angle theta off the axis is
-    R / sin(theta) (capped at the clip), so the farthest tenth of the field is the cone
-    theta <= asin(R / cut) around the axis, centred on the principal point; a lumen in
+    R / sin(theta) (capped at the clip), so the farthest tenth of the field's solid angle is
+    the cone theta <= theta_c with 2 pi (1 - cos theta_c) a tenth of the field's (the
+    fisheye's cone, the pinhole's pyramid), centred on the principal point; a lumen in
     view."""
     caster = tube_lens_caster
+    omega = caster.lens.solid_angles()
     range_image = caster.range_image(caster.cast(_looking(0.0)))
-    region = far_region(range_image, caster.field, caster.far)
+    region = far_region(range_image, caster.field, caster.far, solid_angle=omega)
     centre = caster.lens.project(np.array([[0.0, 0.0, 1.0]]))[0][0]
     np.testing.assert_allclose(region.pixel, centre, atol=0.5)
     assert region.visible and region.rim_distance > 0.3
     rays, field = caster.lens.pixel_rays()
     theta = np.arccos(np.clip(rays[..., 2], -1.0, 1.0))
-    closed = np.minimum(RADIUS / np.maximum(np.sin(theta), 1e-12), caster.far)
-    cut = np.quantile(closed[field], 1.0 - FAR_FRACTION)
-    expected = field & (closed >= cut)
+    theta_c = np.arccos(1.0 - FAR_FRACTION * _field_solid_angle(caster.lens) / (2 * np.pi))
+    expected = field & (theta <= theta_c)
     # Only pixels on the cone's edge (the 256-gon's flats) may differ.
     assert np.sum(expected != region.mask) <= 0.1 * expected.sum()
-    assert expected.sum() == pytest.approx(FAR_FRACTION * field.sum(), rel=0.1)
+    assert omega[region.mask].sum() == pytest.approx(
+        FAR_FRACTION * _field_solid_angle(caster.lens), rel=0.1)
 
 
 def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_caster):
@@ -197,7 +207,8 @@ def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_
     last = centre[0]
     for angle in (15.0, 30.0):
         X_WC = _looking(angle)
-        region = far_region(caster.range_image(caster.cast(X_WC)), caster.field, caster.far)
+        region = far_region(caster.range_image(caster.cast(X_WC)), caster.field, caster.far,
+                            solid_angle=caster.lens.solid_angles())
         axis_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
         axis_pixel = caster.lens.project(axis_C[None, :])[0][0]
         assert region.visible
@@ -207,8 +218,30 @@ def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_
         assert abs(region.pixel[0] - centre[0]) > abs(last - centre[0]) + 2.0
         last = region.pixel[0]
     wall = far_region(caster.range_image(caster.cast(_looking(90.0))), caster.field,
-                      caster.far)
+                      caster.far, solid_angle=caster.lens.solid_angles())
     assert not wall.visible and wall.rim_distance < RIM_MARGIN
+
+
+def test_far_region_is_the_same_direction_through_either_lens(tube_caster):
+    """The far region is a part of the field of view, not of the image: turned 15-45
+    degrees from a straight tube's axis, the ray through its centre lies within 1 degree of
+    the axis through the 172-degree fisheye and the 120-degree pinhole alike. Counted by
+    pixels instead, the pinhole's stretched edge pulls it 4-6 degrees outward."""
+    tube = straight_tube(0.6, RADIUS, rings=121, around=256, start=-0.3)
+    fisheye = RayCaster(tube, LensConfig(width=129, height=129), far=0.2)
+    for angle in (15.0, 30.0, 45.0):
+        X_WC = _looking(angle)
+        axis_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
+        for caster, by_pixels_off in ((fisheye, None), (tube_caster, 3.0)):
+            range_image = caster.range_image(caster.cast(X_WC))
+            region = far_region(range_image, caster.field, caster.far,
+                                solid_angle=caster.lens.solid_angles())
+            ray = caster.lens.unproject(region.pixel[None])[0]
+            assert np.degrees(np.arccos(ray @ axis_C / np.linalg.norm(ray))) < 1.0
+            if by_pixels_off is not None:
+                counted = far_region(range_image, caster.field, caster.far)
+                ray = caster.lens.unproject(counted.pixel[None])[0]
+                assert np.degrees(np.arccos(ray @ axis_C / np.linalg.norm(ray))) > 3.0
 
 
 def test_far_region_counts_the_clip_as_far_and_a_flat_view_as_no_lumen():
@@ -239,6 +272,8 @@ def test_core_quantile_finds_the_far_region_under_inverse_square_light(tube_lens
         grey = np.where(caster.field, 250.0 * np.minimum((0.03 / r) ** 2, 1.0), 0.0)
         rgb = np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
         found = detect_lumen_core(rgb, caster.field, params).features["centre"]
+        # The core's quantile counts pixels, so it is checked against the far region
+        # counted by pixels too (the truth weighs each by its solid angle).
         truth = far_region(range_image, caster.field, caster.far).pixel
         diagonal = np.hypot(*caster.field.shape)
         assert np.linalg.norm(found - truth) / diagonal < 0.015, (angle, found, truth)

@@ -223,6 +223,9 @@ class DatasetWriter(LeafSystem):
         depth_full_scale: metres that the 16-bit depth value 65535 stands for.
         lumen_truth: optional `lumen_truth(X_WC, depth) -> (pixel (2,), visible, point_W (3,),
             s)`, the lumen ground truth of a frame; without it lumen_truth.csv is not written.
+        far_truth: optional `far_truth(range (H, W)) -> FarRegion | None`, the image-side
+            truth through the camera's lens (`LumenTruth.far_at`: its field and its pixels'
+            solid angles); without it, `far_region` of the `mask` with every pixel alike.
         texts: {file name: text} written at once (README.md, camera.yaml, sensors.yaml).
         plant_step: the discrete plant's time step (s; 0: continuous), for `state_time`.
         plant_step_first: whether the plant steps before the sensors' discrete updates at the
@@ -235,7 +238,7 @@ class DatasetWriter(LeafSystem):
     def __init__(self, out_dir, frame_check_period: float, frame_check_offset: float = 0.0,
                  streams=(), mask=None, depth_full_scale: float = 0.2, lumen_truth=None,
                  texts=None, plant_step: float = 0.0, plant_step_first: bool = True,
-                 polyps=()):
+                 polyps=(), far_truth=None):
         super().__init__()
         self._plant_step = float(plant_step)
         self._plant_step_first = bool(plant_step_first)
@@ -253,6 +256,7 @@ class DatasetWriter(LeafSystem):
                               f"({e.strerror or e})") from None
         self._depth_full_scale = float(depth_full_scale)
         self._lumen_truth = lumen_truth
+        self._far_truth = far_truth
         self._rgb = self.DeclareAbstractInputPort("rgb", AbstractValue.Make(ImageRgba8U()))
         self._depth = self.DeclareAbstractInputPort("depth",
                                                     AbstractValue.Make(ImageDepth32F()))
@@ -356,7 +360,10 @@ class DatasetWriter(LeafSystem):
         if self._lumen_truth is not None:
             pixel, visible, point_W, s = self._lumen_truth(X_WC, depth)
             x, y, z = point_W
-            far = far_region(depth, mask, self._depth_full_scale)
+            far = (self._far_truth(depth) if self._far_truth is not None
+                   else far_region(depth, mask, self._depth_full_scale))
+            if far is None:
+                far = far_region(np.full(depth.shape, np.nan), mask, self._depth_full_scale)
             self._write("lumen", f"{index},{frame_time:.6f},{pixel[0]:.3f},{pixel[1]:.3f},"
                                  f"{int(visible)},{x:.6f},{y:.6f},{z:.6f},{s:.6f},"
                                  f"{far.pixel[0]:.3f},{far.pixel[1]:.3f},{int(far.visible)}")

@@ -387,7 +387,7 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         "field of view and not hidden by nearer tissue (checked against the frame's depth). "
         "Then the image-side truth, read from the frame's range alone: (far_u, far_v) the "
         f"range-weighted centre of the farthest {100 * FAR_FRACTION:g} % of the lens's field "
-        "(what sees past the "
+        "of view (each pixel counted by the solid angle it sees; what sees past the "
         "depth's full scale counts as that scale), far_visible = 1 when that centre lies at "
         f"least {100 * RIM_MARGIN:g} % of the image diagonal inside the field's edge (a far "
         "region hugging the rim "

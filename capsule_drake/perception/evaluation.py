@@ -11,7 +11,8 @@ up to `max_tilt_deg`, off the centreline by up to half the radius) and facing th
 radius toward that wall).
 Two truths per frame. The image-side truth, which a detector is scored against first, is
 the principle's own definition read from the frame's range image (`lumen_truth.far_region`:
-the range-weighted centre of the farthest tenth of the field, a lumen in view unless it hugs
+the range-weighted centre of the farthest tenth of the field of view by solid angle, a
+lumen in view unless it hugs
 the field's rim). The station's truth is the second column: the centreline point `lookahead`
 ahead, through the lens, visible unless outside the field or hidden behind nearer tissue.
 """
@@ -139,7 +140,7 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
             point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
                                     lookahead)
             pixel, visible = project_lumen(lens_model, X_WC, point, depth)
-            far = far_region(depth, field, config.far)
+            far = far_region(depth, field, config.far, solid_angle=lens_model.solid_angles())
             for n, condition in enumerate(conditions):
                 draw = np.random.default_rng([seed, done, n])
                 image_condition = condition

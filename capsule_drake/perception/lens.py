@@ -288,3 +288,26 @@ class Lens:
         rays = self.unproject(self.pixel_grid())
         return (rays.reshape(self.height, self.width, 3),
                 self.in_field(rays).reshape(self.height, self.width))
+
+    def solid_angles(self) -> np.ndarray:
+        """(H, W): the solid angle (sr) each pixel sees, 0 outside the field: the area of
+        the parallelogram spanned by the unit ray's change across the pixel's width and
+        height (central differences over the pixel, where the map is smooth). A pinhole's
+        pixels see less toward the image's edge (cos^3 of the angle off the axis, before
+        distortion); an equidistant fisheye's about sin(theta) / theta as much. Computed
+        once per lens."""
+        if getattr(self, "_solid_angles", None) is None:
+            H, W = self.height, self.width
+            grid = self.pixel_grid()
+
+            def rays(du, dv):
+                r = self.unproject(grid + np.array([du, dv]))
+                return (r / np.linalg.norm(r, axis=1, keepdims=True)).reshape(H, W, 3)
+
+            across = rays(0.5, 0.0) - rays(-0.5, 0.0)
+            down = rays(0.0, 0.5) - rays(0.0, -0.5)
+            omega = np.linalg.norm(np.cross(across, down), axis=2)
+            field = self.pixel_rays()[1]
+            self._solid_angles = np.where(field, np.nan_to_num(omega), 0.0)
+            self._solid_angles.setflags(write=False)
+        return self._solid_angles

@@ -127,6 +127,18 @@ def symmetry(images, unit, code: int):
     return (*images, np.array([u, v], np.float32))
 
 
+def unsymmetry(unit, code: int) -> np.ndarray:
+    """A point moved by `symmetry` with `code`, moved back."""
+    u, v = float(unit[0]), float(unit[1])
+    if code & 4:
+        v = -v
+    if code & 2:
+        u = -u
+    if code & 1:
+        u, v = v, u
+    return np.array([u, v])
+
+
 # --- layers (channels last: N, H, W, C) ---------------------------------------------------
 
 def _columns(x, stride, dilation):
@@ -358,12 +370,26 @@ class LumenNet:
         extra = {"info_" + key: np.asarray(value) for key, value in self.info.items()}
         np.savez_compressed(path, **self.weights, **extra)
 
-    def predict(self, rgb: np.ndarray, field: np.ndarray | None = None):
-        """(pixel (u, v) in the frame, probability that a lumen is in view)."""
-        x, _, cells = preprocess(rgb, field)
+    def predict(self, rgb: np.ndarray, field: np.ndarray | None = None,
+                symmetries: int = 1):
+        """(pixel (u, v) in the frame, probability that a lumen is in view). With
+        `symmetries` > 1 the network reads the frame under that many of the square's eight
+        symmetries (codes 0, 1, ... of `symmetry`) at once and the answers, each moved back,
+        are averaged (positions, and visible logits)."""
+        x, inside, cells = preprocess(rgb, field)
         if not cells.any():
             return np.full(2, np.nan), 0.0
-        position, vis, _ = forward(self.weights, x[None], cells[None])
-        return to_pixel(position[0], rgb.shape), float(1.0 / (1.0 + np.exp(-np.clip(
-            vis[0], -50.0, 50.0))))
+        codes = range(symmetries)
+        xs = np.empty((symmetries,) + x.shape, np.float32)
+        cs = np.empty((symmetries,) + cells.shape, bool)
+        for i, code in enumerate(codes):
+            log, ins, cs[i], _ = symmetry((x[..., 0], inside, cells), np.zeros(2), code)
+            xs[i, ..., 0] = log
+            xs[i, ..., 1] = ins
+            xs[i, ..., 2:] = x[..., 2:]
+        position, vis, _ = forward(self.weights, xs, cs)
+        back = np.array([unsymmetry(p, code) for p, code in zip(position, codes)])
+        logit = float(np.mean(vis))
+        return (to_pixel(back.mean(axis=0), rgb.shape),
+                float(1.0 / (1.0 + np.exp(-np.clip(logit, -50.0, 50.0)))))
 
