@@ -51,7 +51,7 @@ def main():
                     continue
                 for q in QUANTILES:
                     centre = far_region(range_image, caster.field, config.far, q,
-                                        solid_angle=caster.lens.solid_angles()).pixel
+                                        lens=caster.lens).pixel
                     errors[la, q].append(np.linalg.norm(centre - pixel) / diagonal)
     print(f"The farthest part of the view against the lumen truth: colon seeds {args.seed}-"
           f"{args.seed + 4}, {args.frames} poses, {args.lens} lens "

@@ -57,13 +57,13 @@ def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, 
                     depth = caster.range_image(hits)
                     images = []
                     far = far_region(depth, caster.field, config.far,
-                                     solid_angle=caster.lens.solid_angles())
+                                     lens=caster.lens)
                     for _ in range(raycast_variants):
                         rgb = caster.shade(hits, Shading.sample(rng))
                         images.append((0, rgb, caster.field, far))
                     rgb, depth_vtk, lens_vtk, field = render(X_WC)
                     far_vtk = far_region(depth_vtk, field, config.far,
-                                         solid_angle=lens_vtk.solid_angles())
+                                         lens=lens_vtk)
                     for _ in range(vtk_variants):
                         images.append((1, rgb, field, far_vtk))
                     for source, rgb, field, truth in images:

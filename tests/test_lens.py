@@ -194,3 +194,24 @@ def test_a_pinhole_pixel_sees_cos_cubed_of_the_axis_pixels_solid_angle():
     cos = rays[..., 2] / np.linalg.norm(rays, axis=-1)
     np.testing.assert_allclose(lens.solid_angles(), cos ** 3 / (lens.fx * lens.fy),
                                rtol=1e-3)
+
+
+def test_inside_angles_are_the_angle_to_the_fields_edge():
+    """The equidistant fisheye's: theta_max - theta (its image circle is a cone), to within
+    the border pixels' spacing. The undistorted pinhole's, on the principal row: the angle
+    to the image's side, atan((W / 2) / f) - theta, where the side is nearest."""
+    fisheye = Lens(CONFIGS["equidistant"])
+    rays, field = fisheye.pixel_rays()
+    theta = np.degrees(np.arccos(np.clip(rays[..., 2], -1.0, 1.0)))
+    step = math.degrees(fisheye.max_theta) / (fisheye.width / 2)
+    np.testing.assert_allclose(fisheye.inside_angles()[field],
+                               (math.degrees(fisheye.max_theta) - theta)[field],
+                               atol=1.5 * step)
+    assert np.all(fisheye.inside_angles()[~field] == 0.0)
+    pinhole = Lens(CONFIGS["pinhole"])
+    rays, _ = pinhole.pixel_rays()
+    row = pinhole.height // 2
+    u = np.arange(pinhole.width // 2 + 1, pinhole.width - 1)
+    edge = math.degrees(math.atan((pinhole.width - 1 - pinhole.cx) / pinhole.fx))
+    off = np.degrees(np.arctan((u - pinhole.cx) / pinhole.fx))
+    np.testing.assert_allclose(pinhole.inside_angles()[row, u], edge - off, atol=0.5)

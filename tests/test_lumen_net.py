@@ -202,7 +202,7 @@ def test_shipped_network_finds_the_far_region_of_a_straight_tube(fisheye_tube, a
     X_WC = RigidTransform(RotationMatrix.MakeYRotation(np.radians(angle)), [0.0, 0.0, 0.0])
     hits = caster.cast(X_WC)
     truth = far_region(caster.range_image(hits), caster.field, caster.far,
-                       solid_angle=caster.lens.solid_angles())
+                       lens=caster.lens)
     assert truth.visible
     rgb = caster.shade(hits, Shading())
     detection = load_detector("net")(rgb, caster.field)
@@ -216,7 +216,7 @@ def test_shipped_network_sees_no_lumen_facing_the_wall(fisheye_tube):
     X_WC = RigidTransform(RotationMatrix.MakeYRotation(np.radians(90.0)), [0.0, 0.0, 0.0])
     hits = caster.cast(X_WC)
     assert not far_region(caster.range_image(hits), caster.field, caster.far,
-                          solid_angle=caster.lens.solid_angles()).visible
+                          lens=caster.lens).visible
     detection = load_detector("net")(caster.shade(hits, Shading()), caster.field)
     assert not detection.visible and np.all(np.isnan(detection.pixel))
 

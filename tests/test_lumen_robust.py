@@ -184,7 +184,7 @@ def test_far_region_of_a_straight_tube_is_the_cone_around_its_axis(tube_lens_cas
     caster = tube_lens_caster
     omega = caster.lens.solid_angles()
     range_image = caster.range_image(caster.cast(_looking(0.0)))
-    region = far_region(range_image, caster.field, caster.far, solid_angle=omega)
+    region = far_region(range_image, caster.field, caster.far, lens=caster.lens)
     centre = caster.lens.project(np.array([[0.0, 0.0, 1.0]]))[0][0]
     np.testing.assert_allclose(region.pixel, centre, atol=0.5)
     assert region.visible and region.rim_distance > 0.3
@@ -208,7 +208,7 @@ def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_
     for angle in (15.0, 30.0):
         X_WC = _looking(angle)
         region = far_region(caster.range_image(caster.cast(X_WC)), caster.field, caster.far,
-                            solid_angle=caster.lens.solid_angles())
+                            lens=caster.lens)
         axis_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
         axis_pixel = caster.lens.project(axis_C[None, :])[0][0]
         assert region.visible
@@ -218,7 +218,7 @@ def test_far_region_turns_with_the_view_and_leaves_it_facing_the_wall(tube_lens_
         assert abs(region.pixel[0] - centre[0]) > abs(last - centre[0]) + 2.0
         last = region.pixel[0]
     wall = far_region(caster.range_image(caster.cast(_looking(90.0))), caster.field,
-                      caster.far, solid_angle=caster.lens.solid_angles())
+                      caster.far, lens=caster.lens)
     assert not wall.visible and wall.rim_distance < RIM_MARGIN
 
 
@@ -235,7 +235,7 @@ def test_far_region_is_the_same_direction_through_either_lens(tube_caster):
         for caster, by_pixels_off in ((fisheye, None), (tube_caster, 3.0)):
             range_image = caster.range_image(caster.cast(X_WC))
             region = far_region(range_image, caster.field, caster.far,
-                                solid_angle=caster.lens.solid_angles())
+                                lens=caster.lens)
             ray = caster.lens.unproject(region.pixel[None])[0]
             assert np.degrees(np.arccos(ray @ axis_C / np.linalg.norm(ray))) < 1.0
             if by_pixels_off is not None:

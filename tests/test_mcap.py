@@ -379,7 +379,7 @@ def test_far_region_topic_is_the_far_region_of_the_logged_depth(recorded):
         with np.errstate(invalid="ignore", divide="ignore"):
             range_m = np.where(np.isinf(z), np.where(z > 0, np.inf, 0.0), z / rays[..., 2])
         region = far_region(range_m, field, scenario.capsule.camera.far,
-                            solid_angle=lens.solid_angles())
+                            lens=lens)
         assert (far.point.z == 1.0) == region.visible
         np.testing.assert_allclose([far.point.x, far.point.y], region.pixel, atol=0.05)
         seen += region.visible

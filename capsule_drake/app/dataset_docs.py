@@ -15,7 +15,7 @@ import yaml
 from pydrake.math import RigidTransform
 
 from capsule_drake.app.dataset import DEPTH_BEYOND, DEPTH_NONE, DEPTH_SCALE, quaternion_xyzw
-from capsule_drake.perception.lumen_truth import FAR_FRACTION, RIM_MARGIN
+from capsule_drake.perception.lumen_truth import FAR_FRACTION, RIM_ANGLE_DEG
 
 
 @dataclasses.dataclass
@@ -389,7 +389,7 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         f"range-weighted centre of the farthest {100 * FAR_FRACTION:g} % of the lens's field "
         "of view (each pixel counted by the solid angle it sees; what sees past the "
         "depth's full scale counts as that scale), far_visible = 1 when that centre lies at "
-        f"least {100 * RIM_MARGIN:g} % of the image diagonal inside the field's edge (a far "
+        f"least {RIM_ANGLE_DEG:g} degrees inside the field's edge (a far "
         "region hugging the rim "
         "is the lumen's ends seen past a wall; NaN pixel when the view has no farther part). "
         "Computed from the frame's own pose and depth.",

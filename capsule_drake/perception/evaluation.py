@@ -140,7 +140,7 @@ def condition_frames(count: int, colons: int = 5, seed: int = 0, renderer: str =
             point, _ = lumen_target(colon, X_WC.translation(), X_WC.rotation().col(2),
                                     lookahead)
             pixel, visible = project_lumen(lens_model, X_WC, point, depth)
-            far = far_region(depth, field, config.far, solid_angle=lens_model.solid_angles())
+            far = far_region(depth, field, config.far, lens=lens_model)
             for n, condition in enumerate(conditions):
                 draw = np.random.default_rng([seed, done, n])
                 image_condition = condition

@@ -311,3 +311,26 @@ class Lens:
             self._solid_angles = np.where(field, np.nan_to_num(omega), 0.0)
             self._solid_angles.setflags(write=False)
         return self._solid_angles
+
+    def inside_angles(self) -> np.ndarray:
+        """(H, W): how far each pixel's ray lies inside the field's edge (degrees: the least
+        angle to the ray of a pixel on the field's border, the image's edge included), 0
+        outside the field. An equidistant fisheye's is its angle from the image circle; a
+        pinhole's shrinks toward the image's edge faster than its pixels do. Computed once
+        per lens."""
+        if getattr(self, "_inside_angles", None) is None:
+            rays, field = self.pixel_rays()
+            padded = np.pad(field, 1, constant_values=False)
+            interior = (padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2]
+                        & padded[1:-1, 2:] & field)
+            border = rays[field & ~interior]
+            border = border / np.linalg.norm(border, axis=1, keepdims=True)
+            unit = rays.reshape(-1, 3) / np.linalg.norm(rays.reshape(-1, 3), axis=1,
+                                                         keepdims=True)
+            nearest = np.full(len(unit), -1.0)
+            for start in range(0, len(unit), 4096):
+                nearest[start:start + 4096] = (unit[start:start + 4096] @ border.T).max(axis=1)
+            angle = np.degrees(np.arccos(np.clip(nearest, -1.0, 1.0))).reshape(field.shape)
+            self._inside_angles = np.where(field, angle, 0.0)
+            self._inside_angles.setflags(write=False)
+        return self._inside_angles

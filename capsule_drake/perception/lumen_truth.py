@@ -77,6 +77,16 @@ diagonal inside it (ray-cast range images of the evaluation's wall-facing poses,
 its centre lies 15-31 % inside (5th-95th percentile, fisheye; 10-31 % pinhole)."""
 
 
+RIM_ANGLE_DEG = 19.5
+"""Through a lens (`far_region`'s `lens`), the lumen is in view when the far region's
+centre lies at least this angle inside the field's edge (`Lens.inside_angles`): RIM_MARGIN
+on the default 172-degree fisheye, whose 8 % of the 362 px diagonal is 29 px of 0.67 degree
+each, turned into an angle so that it means the same through any lens. Counted in pixels,
+the 120-degree pinhole's 8 % was 7 degrees where its pixels are densest, and 65 % of the
+wall-facing views of colon seeds 65-69 kept a far region inside it once the pixels counted
+by their solid angle (none do inside 19.5 degrees; the fisheye's 1 of 61)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class FarRegion:
     """The image-side lumen truth of one view (`far_region`)."""
@@ -89,7 +99,7 @@ class FarRegion:
 
 
 def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
-               rim: float = RIM_MARGIN, solid_angle=None) -> FarRegion:
+               rim: float = RIM_MARGIN, lens=None) -> FarRegion:
     """The farthest part of the view, from its range image: the definition every lumen score
     against the image (`eval-lumen`, `tune_lumen.py`, datasets' `far_u_px`, `far_v_px`,
     `far_visible`) uses.
@@ -97,10 +107,10 @@ def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
     - Ranges: a pixel that sees nothing within `far` (+inf) counts as `far`: the open lumen
       beyond the camera's clip; a surface nearer than the near plane (0) as 0; a NaN, like a
       pixel outside the lens's `field`, does not count. Ranges are capped at `far`.
-    - Each pixel counts by the solid angle it sees (`solid_angle`, (H, W): the lens's
-      `Lens.solid_angles()`; None: every pixel alike). The part of the view is then a part
-      of the field of view, not of the image: the same scene gives the same region through
-      any lens, where a count of pixels would favour a pinhole's stretched edges.
+    - Each pixel counts by the solid angle it sees (`lens.solid_angles()`; without a
+      `lens`, every pixel alike). The part of the view is then a part of the field of
+      view, not of the image: the same scene gives the same region through any lens, where
+      a count of pixels would favour a pinhole's stretched edges.
     - The far set: the field's pixels at or beyond the range beyond which `fraction` of the
       field's solid angle lies (every pixel at `far` when more than `fraction` of it sees
       beyond the clip; when that range is the nearest, as where a small window sees past a
@@ -108,21 +118,26 @@ def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
     - The far region: the set's 8-connected component with the largest sum of range times
       solid angle; its pixel is the centroid of that component weighted by range times
       solid angle.
-    - In view: the pixel lies at least `rim` of the image diagonal inside the field's edge
-      (a region hugging the rim is the lumen's ends seen sideways past the wall, not a
-      lumen ahead). A view whose ranges are all equal (nothing farther) has none.
+    - In view: the pixel's ray lies at least RIM_ANGLE_DEG inside the field's edge
+      (`lens.inside_angles()`; without a `lens`, the pixel lies at least `rim` of the image
+      diagonal inside it): a region hugging the rim is the lumen's ends seen sideways past
+      the wall, not a lumen ahead. A view whose ranges are all equal (nothing farther) has
+      none.
+
+    `lens`: the `Lens` the range image was taken through (its size the image's), or None
+    for a bare image whose pixels all see alike.
     """
     r = np.asarray(range_image, dtype=float)
     field = np.asarray(field, dtype=bool)
     if r.shape != field.shape:
         raise ValueError(f"far_region: range image {r.shape} and field {field.shape} differ")
-    if solid_angle is None:
+    if lens is None:
         omega = np.ones(r.shape)
     else:
-        omega = np.asarray(solid_angle, dtype=float)
+        omega = lens.solid_angles()
         if omega.shape != r.shape:
-            raise ValueError(f"far_region: solid angles {omega.shape} and range image "
-                             f"{r.shape} differ")
+            raise ValueError(f"far_region: the lens's image {omega.shape} and the range "
+                             f"image {r.shape} differ")
     counted = field & ~np.isnan(r) & (omega > 0.0)
     r = np.clip(np.nan_to_num(r, nan=0.0, posinf=far), 0.0, far)
     empty = FarRegion(np.array([np.nan, np.nan]), False, np.zeros_like(field), 0.0, 0.0)
@@ -146,7 +161,9 @@ def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
     diagonal = float(np.hypot(*field.shape))
     row, column = int(round(pixel[1])), int(round(pixel[0]))
     depth_in = float(inside_distance(field)[row, column]) / diagonal
-    return FarRegion(pixel, depth_in >= rim, mask, depth_in, float(np.mean(r[v, u])))
+    visible = (depth_in >= rim if lens is None
+               else float(lens.inside_angles()[row, column]) >= RIM_ANGLE_DEG)
+    return FarRegion(pixel, visible, mask, depth_in, float(np.mean(r[v, u])))
 
 
 class LumenTruth(LeafSystem):
@@ -191,7 +208,7 @@ class LumenTruth(LeafSystem):
         self._far = float(far)
         # The lens's field (an ideal pinhole without one sees the whole image).
         self._field = lens.pixel_rays()[1] if hasattr(lens, "pixel_rays") else None
-        self._solid_angle = lens.solid_angles() if hasattr(lens, "solid_angles") else None
+        self._far_lens = lens if hasattr(lens, "solid_angles") else None
         self._far_memo = None  # (depth image's hash, (pixel, visible)) of the last frame
         self._colon = colon
         self._lens = lens
@@ -240,13 +257,13 @@ class LumenTruth(LeafSystem):
         return pixel, visible, np.asarray(point_W, dtype=float), float(s)
 
     def far_at(self, depth) -> FarRegion | None:
-        """The image-side truth (`far_region`, through this camera's lens: its field and its
-        pixels' solid angles) of a range image (H x W, m); None when the image is not the
+        """The image-side truth (`far_region`, through this camera's lens: its field, its
+        pixels' solid angles and its edge) of a range image (H x W, m); None when the image is not the
         lens's size or holds no finite range."""
         field = self._field if self._field is not None else np.ones(depth.shape, bool)
         if depth.shape != field.shape or not np.isfinite(depth).any():
             return None
-        return far_region(depth, field, self._far, solid_angle=self._solid_angle)
+        return far_region(depth, field, self._far, lens=self._far_lens)
 
     def _calc_truth(self, context, abstract_value):
         X_WC = self.camera_pose(self._state_port.Eval(context))
