@@ -29,29 +29,35 @@ from capsule_drake.perception import lumen_net, photometry
 from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, _vtk_renderer, seeded_poses
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen_truth import far_region
-from capsule_drake.perception.raycast import RayCaster, Shading
+from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 
 LENSES = {"fisheye": "equidistant", "pinhole": "pinhole_radtan"}
 
 
-def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, log=print):
-    """Writes one .npz of frames per group of five colon seeds."""
+def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, log=print,
+             light_group=None):
+    """Writes one .npz of frames per group of five colon seeds. `light_group` (a key of
+    raycast.SHADING_GROUPS): the ray caster's light varies in that group alone (the rest
+    at its defaults) rather than in all of them at once, and no frame of the simulator's
+    renderer is made (vtk_variants is then ignored); the files are named after it."""
     out.mkdir(parents=True, exist_ok=True)
     groups = [seeds[i:i + 5] for i in range(0, len(seeds), 5)]
     for group in groups:
-        path = out / f"frames_{group[0]}-{group[-1]}.npz"
+        suffix = f"_{light_group}" if light_group else ""
+        path = out / f"frames_{group[0]}-{group[-1]}{suffix}.npz"
         if path.exists():
             continue
         started = time.time()
         rows = {key: [] for key in ("log", "inside", "cells", "target", "visible", "source")}
         configs = {lens: CameraConfig(lens=LensConfig(model=model))
                    for lens, model in LENSES.items()}
-        rng = np.random.default_rng([group[0], 7])
+        rng = np.random.default_rng([group[0], 7] + ([sorted(SHADING_GROUPS).index(
+            light_group) + 1] if light_group else []))
         for colon_params, colon, poses in seeded_poses(poses_per_colon * len(group),
                                                        len(group), group[0]):
             for lens, config in configs.items():
                 caster = RayCaster(colon.visual_mesh(), config.lens, far=config.far)
-                render = _vtk_renderer(colon_params, config)
+                render = None if light_group else _vtk_renderer(colon_params, config)
                 for kind, X_WC, _ in poses:
                     hits = caster.cast(X_WC)
                     depth = caster.range_image(hits)
@@ -59,13 +65,13 @@ def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, 
                     far = far_region(depth, caster.field, config.far,
                                      lens=caster.lens)
                     for _ in range(raycast_variants):
-                        rgb = caster.shade(hits, Shading.sample(rng))
+                        rgb = caster.shade(hits, Shading.sample(rng, light_group))
                         images.append((0, rgb, caster.field, far))
-                    rgb, depth_vtk, lens_vtk, field = render(X_WC)
-                    far_vtk = far_region(depth_vtk, field, config.far,
-                                         lens=lens_vtk)
-                    for _ in range(vtk_variants):
-                        images.append((1, rgb, field, far_vtk))
+                    if not light_group:
+                        rgb, depth_vtk, lens_vtk, field = render(X_WC)
+                        far_vtk = far_region(depth_vtk, field, config.far, lens=lens_vtk)
+                        for _ in range(vtk_variants):
+                            images.append((1, rgb, field, far_vtk))
                     for source, rgb, field, truth in images:
                         condition = IMAGE_CONDITIONS[rng.integers(len(IMAGE_CONDITIONS))]
                         image = photometry.apply(condition, rgb, field, rng)
@@ -182,6 +188,9 @@ def main(argv=None) -> int:
     data.add_argument("--raycast-variants", type=int, default=3)
     data.add_argument("--vtk-variants", type=int, default=2)
     data.add_argument("--out", type=Path, default=Path("runs/lumen_net_data"))
+    data.add_argument("--light-group", choices=sorted(SHADING_GROUPS), default=None,
+                      help="ray-caster frames with this group of its light alone varied "
+                           "(files frames_A-B_<group>.npz)")
     fit = sub.add_parser("train", help="train on generated frames")
     fit.add_argument("--data", type=Path, default=Path("runs/lumen_net_data"))
     fit.add_argument("--train-seeds", default="20-59")
@@ -193,17 +202,21 @@ def main(argv=None) -> int:
     fit.add_argument("--out", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
     fit.add_argument("--widths", default=",".join(map(str, lumen_net.WIDTHS)),
                      help="the layers' widths (comma-separated, one per layer)")
+    fit.add_argument("--light-groups", default="",
+                     help="comma-separated light groups whose frames (made by 'data "
+                          "--light-group') join the training seeds' frames")
     fit.add_argument("--init", type=Path, default=None,
                      help="go on training these weights (a second cosine cycle)")
     args = parser.parse_args(argv)
     if args.command == "data":
         generate(parse_seeds(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
-                 args.out)
+                 args.out, light_group=args.light_group)
         return 0
 
-    def files(text):
+    def files(text, groups=("",)):
         seeds = parse_seeds(text)
-        paths = [args.data / f"frames_{s}-{s + 4}.npz" for s in seeds[::5]]
+        paths = [args.data / f"frames_{s}-{s + 4}{'_' + g if g else ''}.npz"
+                 for g in groups for s in seeds[::5]]
         missing = [str(p) for p in paths if not p.exists()]
         if missing:
             raise SystemExit(f"train_lumen_net: no frames at {', '.join(missing)}; run 'data' first")
@@ -229,11 +242,15 @@ def main(argv=None) -> int:
             if str(first.info.get(key)) != getattr(args, key):
                 raise SystemExit(f"train_lumen_net: --init {args.init} was trained with "
                                  f"{key} {first.info.get(key)}, not {getattr(args, key)}")
-    weights = train(load(files(args.train_seeds)), load(files(args.valid_seeds)), args.epochs,
+    groups = ("",) + tuple(g for g in args.light_groups.split(",") if g)
+    weights = train(load(files(args.train_seeds, groups)), load(files(args.valid_seeds)),
+                    args.epochs,
                     args.batch, args.rate, args.seed, start=start, widths=widths)
     info = {"train_seeds": args.train_seeds, "valid_seeds": args.valid_seeds,
             "epochs": args.epochs, "widths": ",".join(map(str, widths)),
-            "cycles": " ".join(before + [f"{args.epochs}@{args.rate:g}"])}
+            "cycles": " ".join(before + [f"{args.epochs}@{args.rate:g}"
+                                         + (f"+{args.light_groups}" if args.light_groups
+                                            else "")])}
     lumen_net.LumenNet(weights, info).save(args.out)
     print(f"wrote {args.out}")
     return 0
