@@ -223,7 +223,7 @@ class DatasetWriter(LeafSystem):
         depth_full_scale: metres that the 16-bit depth value 65535 stands for.
         lumen_truth: optional `lumen_truth(X_WC, depth) -> (pixel (2,), visible, point_W (3,),
             s)`, the lumen ground truth of a frame; without it lumen_truth.csv is not written.
-        far_truth: optional `far_truth(range (H, W)) -> FarRegion | None`, the image-side
+        far_truth: optional `far_truth(range (H, W)) -> FarRegion`, the image-side
             truth through the camera's lens (`LumenTruth.far_at`: its field and its pixels'
             solid angles); without it, `far_region` of the `mask` with every pixel alike.
         texts: {file name: text} written at once (README.md, camera.yaml, sensors.yaml).
@@ -362,8 +362,6 @@ class DatasetWriter(LeafSystem):
             x, y, z = point_W
             far = (self._far_truth(depth) if self._far_truth is not None
                    else far_region(depth, mask, self._depth_full_scale))
-            if far is None:
-                far = far_region(np.full(depth.shape, np.nan), mask, self._depth_full_scale)
             self._write("lumen", f"{index},{frame_time:.6f},{pixel[0]:.3f},{pixel[1]:.3f},"
                                  f"{int(visible)},{x:.6f},{y:.6f},{z:.6f},{s:.6f},"
                                  f"{far.pixel[0]:.3f},{far.pixel[1]:.3f},{int(far.visible)}")

@@ -116,7 +116,8 @@ class LumenParams:
     # --- the "net" detector (perception/lumen_net.py) ---
     # How many of the square frame's eight symmetries (flips and quarter turns, as trained)
     # the network reads each frame under, its answers moved back and averaged (1: the
-    # frame alone). Each costs about 0.2 ms.
+    # frame alone). Each more costs about 0.4 ms (benchmarks/bench_lumen.py: 1.0-1.1 ms for
+    # one, 2.3-2.4 ms for four).
     net_symmetries: int = 4
 
 

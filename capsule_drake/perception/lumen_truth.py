@@ -97,6 +97,11 @@ class FarRegion:
     rim_distance: float   # its centre's distance inside the field's edge, share of the diagonal
     range: float          # its mean range (m, at most `far`)
 
+    @classmethod
+    def none(cls, shape) -> "FarRegion":
+        """No far region in an (H, W) view: NaN pixel, not in view, an empty mask."""
+        return cls(np.array([np.nan, np.nan]), False, np.zeros(shape, dtype=bool), 0.0, 0.0)
+
 
 def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
                rim: float = RIM_MARGIN, lens=None) -> FarRegion:
@@ -140,7 +145,7 @@ def far_region(range_image, field, far: float, fraction: float = FAR_FRACTION,
                              f"image {r.shape} differ")
     counted = field & ~np.isnan(r) & (omega > 0.0)
     r = np.clip(np.nan_to_num(r, nan=0.0, posinf=far), 0.0, far)
-    empty = FarRegion(np.array([np.nan, np.nan]), False, np.zeros_like(field), 0.0, 0.0)
+    empty = FarRegion.none(field.shape)
     if not counted.any():
         return empty
     values, weights = r[counted], omega[counted]
@@ -256,13 +261,13 @@ class LumenTruth(LeafSystem):
                                        self._depth_is_range)
         return pixel, visible, np.asarray(point_W, dtype=float), float(s)
 
-    def far_at(self, depth) -> FarRegion | None:
+    def far_at(self, depth) -> FarRegion:
         """The image-side truth (`far_region`, through this camera's lens: its field, its
-        pixels' solid angles and its edge) of a range image (H x W, m); None when the image is not the
-        lens's size or holds no finite range."""
+        pixels' solid angles and its edge) of a range image (H x W, m); `FarRegion.none`
+        when the image is not the lens's size or holds no finite range."""
         field = self._field if self._field is not None else np.ones(depth.shape, bool)
         if depth.shape != field.shape or not np.isfinite(depth).any():
-            return None
+            return FarRegion.none(depth.shape)
         return far_region(depth, field, self._far, lens=self._far_lens)
 
     def _calc_truth(self, context, abstract_value):
@@ -286,9 +291,7 @@ class LumenTruth(LeafSystem):
             key = hash(depth.tobytes())
             if self._far_memo is None or self._far_memo[0] != key:
                 region = self.far_at(depth)
-                if region is not None:
-                    answer = (region.pixel, bool(region.visible))
-                self._far_memo = (key, answer)
+                self._far_memo = (key, (region.pixel, bool(region.visible)))
             answer = self._far_memo[1]
         abstract_value.set_value(answer)
 
