@@ -32,6 +32,8 @@ from capsule_drake.perception.lumen_truth import far_region
 from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 
 LENSES = {"fisheye": "equidistant", "pinhole": "pinhole_radtan"}
+SOURCE_NAMES = ("raycast fisheye", "raycast pinhole", "vtk fisheye", "vtk pinhole")
+"""The frames' `source` codes: 2 x (simulator's renderer) + (pinhole)."""
 
 
 def generate(seeds, poses_per_colon, raycast_variants, vtk_variants, out: Path, log=print,
@@ -127,14 +129,27 @@ def evaluate(weights, data, batch=256):
         probs.append(1 / (1 + np.exp(-vis)))
     errors, probs = np.concatenate(errors), np.concatenate(probs)
     visible = data["visible"]
-    names = ("raycast fisheye", "raycast pinhole", "vtk fisheye", "vtk pinhole")
-    for code, name in enumerate(names):
+    for code, name in enumerate(SOURCE_NAMES):
         sel = data["source"] == code
         hit = sel & visible & (probs >= 0.5)
         out[name] = (100 * np.median(errors[hit]), 100 * np.percentile(errors[hit], 90),
                      100 * np.mean(probs[sel & visible] >= 0.5),
                      100 * np.mean(probs[sel & ~visible] >= 0.5))
     return out
+
+
+def visible_logits(weights, data, symmetries=1, batch=256):
+    """The visible logit of every frame, averaged over the first `symmetries` of the
+    square's eight as the detector reads a frame (LumenNet.predict)."""
+    out = []
+    for start in range(0, len(data["log"]), batch):
+        index = np.arange(start, min(start + batch, len(data["log"])))
+        total = 0.0
+        for code in range(symmetries):
+            x, cells, _, _ = batch_input(data, index, np.full(len(index), code))
+            total = total + lumen_net.forward(weights, x, cells)[1]
+        out.append(total / symmetries)
+    return np.concatenate(out)
 
 
 def train(data, valid, epochs, batch, rate, seed, log=print, start=None,
@@ -179,6 +194,48 @@ def train(data, valid, epochs, batch, rate, seed, log=print, start=None,
     return best
 
 
+def calibrate(args, files) -> int:
+    """Moves the network's visible bias so that its probability 0.5 (the detector's default
+    min_confidence) sits at `lumen_net.operating_point` on the validation frames, read as the
+    detector reads them; the shift and the rates it gives are kept in the weights' info."""
+    if not 0.0 <= args.false_positives < 1.0:
+        raise SystemExit("train_lumen_net: --false-positives must be in [0, 1)")
+    try:
+        net = lumen_net.LumenNet.load(args.weights)
+    except ValueError as e:
+        raise SystemExit(f"train_lumen_net: --weights: {e}")
+    if str(net.info.get("valid_seeds")) != args.valid_seeds:
+        print(f"train_lumen_net: note: {args.weights} chose its epoch on seeds "
+              f"{net.info.get('valid_seeds')}, calibrating on {args.valid_seeds}")
+    groups = [g for g in args.light_groups.split(",") if g]
+    data = load(files(args.valid_seeds))
+    logits = [visible_logits(net.weights, data, args.symmetries)]
+    visible, sources = [data["visible"]], [np.array(SOURCE_NAMES)[data["source"]]]
+    for group in groups:
+        part = load(files(args.valid_seeds, (group,)))
+        logits.append(visible_logits(net.weights, part, args.symmetries))
+        visible.append(part["visible"])
+        sources.append(np.array([f"{SOURCE_NAMES[c]} ({group} light)" for c in part["source"]]))
+    logits, visible, sources = (np.concatenate(v) for v in (logits, visible, sources))
+    earlier = float(net.info.get("visible_shift", 0.0))
+    threshold, rates = lumen_net.operating_point(logits, visible, sources, args.false_positives)
+    for source, (detection, false_pos) in rates.items():
+        print(f"{source:34s} detected {100 * detection:5.1f} %  false positives "
+              f"{100 * false_pos:4.1f} %")
+    net.weights["vis_b"] = (net.weights["vis_b"] - np.float32(threshold)).astype(np.float32)
+    net.info.update({
+        "visible_shift": earlier - threshold,
+        "operating_point": f"at most {100 * args.false_positives:g} % false positives per "
+                           f"source on seeds {args.valid_seeds} ({', '.join(['all'] + groups)} "
+                           f"light), {args.symmetries} symmetries",
+    })
+    out = args.out or args.weights
+    net.save(out)
+    print(f"logit threshold {threshold:+.3f} (probability {1 / (1 + np.exp(-threshold)):.3f}) "
+          f"moved to 0.5; wrote {out}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -207,6 +264,20 @@ def main(argv=None) -> int:
                           "--light-group') join the training seeds' frames")
     fit.add_argument("--init", type=Path, default=None,
                      help="go on training these weights (a second cosine cycle)")
+    cal = sub.add_parser("calibrate", help="set the detector's operating point on the "
+                         "validation seeds' frames")
+    cal.add_argument("--weights", type=Path, default=lumen_net.DEFAULT_WEIGHTS)
+    cal.add_argument("--data", type=Path, default=Path("runs/lumen_net_data"))
+    cal.add_argument("--valid-seeds", default="60-64")
+    cal.add_argument("--light-groups", default="spot",
+                     help="comma-separated light groups whose validation frames (made by "
+                          "'data --light-group') count as sources of their own")
+    cal.add_argument("--false-positives", type=float, default=0.05,
+                     help="the most of any source's frames without a lumen in view that may "
+                          "be called visible (default 0.05)")
+    cal.add_argument("--symmetries", type=int, default=4,
+                     help="symmetries averaged, as the detector reads a frame (default 4)")
+    cal.add_argument("--out", type=Path, default=None, help="default: --weights, rewritten")
     args = parser.parse_args(argv)
     if args.command == "data":
         generate(parse_seeds(args.seeds), args.poses, args.raycast_variants, args.vtk_variants,
@@ -222,6 +293,8 @@ def main(argv=None) -> int:
             raise SystemExit(f"train_lumen_net: no frames at {', '.join(missing)}; run 'data' first")
         return paths
 
+    if args.command == "calibrate":
+        return calibrate(args, files)
     try:
         widths = tuple(int(w) for w in args.widths.split(","))
         if len(widths) != len(lumen_net.LAYERS) or min(widths) < 1:

@@ -227,3 +227,29 @@ def test_shipped_network_was_trained_away_from_every_reported_seed():
     info = lumen_net.LumenNet.load().info
     used = set(parse_seeds(info["train_seeds"])) | set(parse_seeds(info["valid_seeds"]))
     assert used and not used & (set(range(100, 105)) | set(range(0, 20)))
+
+
+def test_operating_point_is_the_lowest_threshold_within_every_sources_budget():
+    """Against a scan of every candidate threshold (each logit, and just above it)."""
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        n = int(rng.integers(20, 200))
+        sources = rng.choice(["a", "b", "c"], n)
+        visible = rng.random(n) < 0.6
+        logits = np.round(rng.normal(size=n) + 2.0 * visible, 1)  # ties on purpose
+        budget = float(rng.choice([0.0, 0.05, 0.1, 0.3]))
+        threshold, rates = lumen_net.operating_point(logits, visible, sources, budget)
+
+        def within(t):
+            return all(np.mean(logits[(sources == s) & ~visible] >= t) <= budget
+                       for s in np.unique(sources) if ((sources == s) & ~visible).any())
+        candidates = np.sort(np.concatenate([logits, np.nextafter(logits, np.inf)]))
+        lowest = next(t for t in candidates if within(t))
+        assert within(threshold)
+        assert threshold <= lowest
+        # nothing lies between the scan's answer and ours
+        assert not ((logits >= threshold) & (logits < lowest)).any()
+        for s, (detection, false_pos) in rates.items():
+            assert detection == pytest.approx(np.mean(logits[(sources == s) & visible]
+                                                      >= threshold))
+            assert not false_pos > budget  # NaN: no frame without a lumen

@@ -76,8 +76,10 @@ class LumenParams:
     max_rim_fraction: float = 0.35
     max_radius: float = 0.85
     # Confidence at or above which the lumen is reported visible. "core": the fitted
-    # probability that a lumen is in view (0.5 by default). "gaussian" and "median": 0.5 means every gate passed, 1 contrast 1 and the
-    # region well inside the field.
+    # probability that a lumen is in view (0.5 by default). "net": the network's, its 0.5
+    # set at the operating point chosen on the validation seeds (lumen_net.py). "gaussian"
+    # and "median": 0.5 means every gate passed, 1 contrast 1 and the region well inside
+    # the field.
     min_confidence: float = 0.5
     # --- the "core" detector (detect_lumen_core) ---
     # Longest side of its working image (px).

@@ -20,6 +20,12 @@ cells' centres into the answer's position (a soft-argmax: sub-cell precision, tr
 distance itself); and the mean and maximum of the last features over the field, through a
 dense layer, to the logit that a lumen is in view.
 
+Its operating point: `benchmarks/train_lumen_net.py calibrate` moves the visible logit's
+bias so that the detector's default threshold (probability 0.5) sits where, on the
+validation seeds' frames read as the detector reads them, no image path, lens or light
+calls more than a set share of the views without a lumen visible (`operating_point`); the
+weights' info records the shift and the rule.
+
 Inference is numpy only (one frame: about a millisecond); the backward pass is here too, so
 that the training script and the gradient test share one implementation.
 """
@@ -338,6 +344,30 @@ def loss_and_gradients(weights, x, cells, target, visible, position_scale=1.0,
         grads[name + "_b"] = db
         dh = dx
     return loss_pos + loss_vis, grads, {"position": loss_pos, "visible": loss_vis}
+
+
+def operating_point(logits, visible, sources, budget):
+    """The lowest threshold on the visible logit at which no source calls more than `budget`
+    of its frames without a lumen in view visible (a Neyman-Pearson operating point: the
+    false positives fixed, the detection then as high as they allow). Returns (threshold,
+    {source: (detection rate, false-positive rate)})."""
+    logits, visible, sources = (np.asarray(v) for v in (logits, visible, sources))
+    lowest = -np.inf
+    for source in np.unique(sources):
+        negatives = np.sort(logits[(sources == source) & ~visible])
+        if len(negatives) == 0:
+            continue
+        # at most floor(budget * n) negatives may lie at or above the threshold
+        allowed = int(np.floor(budget * len(negatives)))
+        bound = negatives[len(negatives) - allowed - 1] if allowed < len(negatives) else -np.inf
+        lowest = max(lowest, np.nextafter(bound, np.inf))
+    threshold = float(lowest if np.isfinite(lowest) else logits.min())
+    def rate(values):
+        return float(np.mean(values >= threshold)) if len(values) else float("nan")
+    rates = {source: (rate(logits[(sources == source) & visible]),
+                      rate(logits[(sources == source) & ~visible]))
+             for source in np.unique(sources)}
+    return threshold, rates
 
 
 # --- the detector -------------------------------------------------------------------------
