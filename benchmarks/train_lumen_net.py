@@ -5,9 +5,10 @@ writes its weights to models/lumen_net.npz.
     python benchmarks/train_lumen_net.py train    # 24 epochs; writes models/lumen_net.npz
     python benchmarks/train_lumen_net.py calibrate  # its operating point (0.5) on seeds 60-64
 
-The shipped weights' `cycles` (in their info) say which runs made them, e.g. a second run
-`train --init models/lumen_net.npz --epochs 12 --rate 1e-3 --light-groups spot` after
-`data --seeds 20-64 --light-group spot --raycast-variants 2`.
+The shipped weights' `cycles` (in their info) say which runs made them: `train`; then, after
+`data --seeds 20-64 --light-group spot --raycast-variants 2`, `train --init W --epochs 12
+--rate 1e-3 --light-groups spot` and again with `--light-groups spot,spot`; `calibrate` last
+(a run goes on from weights before their calibration: `train` does not carry the shift).
 
 Frames: the evaluation's seeded poses (perception/evaluation.py, `seeded_poses`: a quarter
 facing the wall) in colon seeds that no reported figure uses (the default 20-59: eval-lumen

@@ -362,6 +362,7 @@ def operating_point(logits, visible, sources, budget):
         bound = negatives[len(negatives) - allowed - 1] if allowed < len(negatives) else -np.inf
         lowest = max(lowest, np.nextafter(bound, np.inf))
     threshold = float(lowest if np.isfinite(lowest) else logits.min())
+
     def rate(values):
         return float(np.mean(values >= threshold)) if len(values) else float("nan")
     rates = {source: (rate(logits[(sources == source) & visible]),
