@@ -29,7 +29,7 @@ from capsule_drake.capsule.model import capsule_model
 from capsule_drake.epm.paths import External, epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
-from capsule_drake.io.guard import DIVERGED, RunGuard, parse_guard_reason
+from capsule_drake.io.guard import ENDING_OF_KIND, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
@@ -56,7 +56,8 @@ class RunResult:
     context: object = None     # context (for the loggers an `extend` added), and the
     station: object = None     # station
     # How the run ended: "completed" (its duration), "goal" (stop_when), "diverged" or
-    # "left_colon" (the run guard), "error" (inside the simulation), "interrupted".
+    # "left_colon" (the run guard), "epm_clearance" (the EPM's clearance watch), "error"
+    # (inside the simulation), "interrupted".
     status: str = "completed"
 
 
@@ -231,8 +232,8 @@ _SETTLED: dict = {}
 class Ending:
     """How a run ended before its time was up (or None from `Run.advance_to`: it was not)."""
 
-    # "goal" (stop_when), "diverged" or "left_colon" (the run guard), "error" (inside the
-    # simulation), "interrupted" (a signal).
+    # "goal" (stop_when), "diverged" or "left_colon" (the run guard), "epm_clearance" (the
+    # EPM's clearance watch), "error" (inside the simulation), "interrupted" (a signal).
     status: str
     text: str                  # one line: the goal's text, or what stopped it and when
     traceback: str | None = None   # an error's
@@ -360,8 +361,9 @@ class Run:
         if found is None:
             return Ending("goal", result.message())
         kind, text = found
-        return Ending("diverged" if kind in DIVERGED else "left_colon",
-                      f"stopped by the run guard at {text}")
+        if kind == "epm_clearance":
+            return Ending(ENDING_OF_KIND[kind], f"stopped by the EPM's clearance watch at {text}")
+        return Ending(ENDING_OF_KIND[kind], f"stopped by the run guard at {text}")
 
     def drain(self) -> dict | None:
         """Moves the loggers' samples out (the LOG_KEYS of app/outputs.py), or None without

@@ -22,11 +22,15 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.blocks import block, checked
 from capsule_drake.epm.arm import Arm, ArmMount, check_arm_config
+from capsule_drake.epm.clearance import (CLEARANCE_TOLERANCE, EpmClearanceWatch,
+                                        largest_pull)
 from capsule_drake.epm.guard import (EpmCommandGuard, EpmGuard, command_workspace,
                                     floor_guard)
 from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.epm.stage import KinematicStageMount, Stage, StageMount, check_stage
+from capsule_drake.epm.shaping import EpmPathShaper
+from capsule_drake.epm.stage import (KinematicStageMount, Stage, StageMount, check_stage,
+                                    check_stage_servo)
 from capsule_drake.physics.magnetics import check_magnet_geometry
 from capsule_drake.schema import need_range
 
@@ -49,13 +53,21 @@ class EpmParts:
 
     def command_input(self, builder, parts):
         """The input a pose-command driver connects its [p_WE, m_hat_W] to: the guard's,
-        whose safe command goes to the carrier. One driver per EPM (a second one raises)."""
+        whose safe command goes through the path shaper (`epm_path_shaper`, shaping.py: a
+        path clear of the skin, at speeds the carrier can follow) to the carrier; exports
+        the shaped command as epm.reference. One driver per EPM (a second one raises)."""
         if self.driven:
             raise RuntimeError("the EPM already has a pose-command driver")
         self.driven = True
         self.command_guard.watch()
+        shaper = builder.AddNamedSystem("epm_path_shaper", EpmPathShaper(
+            self.guard.lowest_centre_height, self.mount.motion_limits(), self.start_command,
+            period=parts.plant.time_step()))
         builder.Connect(self.command_guard.GetOutputPort("epm_command"),
+                        shaper.GetInputPort("epm_command"))
+        builder.Connect(shaper.GetOutputPort("epm_command"),
                         self.mount.carrier_input(builder, parts))
+        parts.export(shaper.GetOutputPort("epm_command"), "epm.reference")
         return self.command_guard.GetInputPort("epm_command")
 
 
@@ -74,6 +86,10 @@ def check_epm_mount(mount, scenario) -> None:
         checked("", check_arm_config, mount)
     else:
         checked("epm.mount.", check_stage, mount)
+        if not mount.kinematic:
+            pull, twist = largest_pull(epm.magnet, scenario.capsule.ipm, epm.clearance)
+            checked("epm.mount: ", check_stage_servo, mount, pull, twist, epm.magnet,
+                    CLEARANCE_TOLERANCE)
 
 
 def add_epm_models(parts, mount):
@@ -113,15 +129,21 @@ for _mount in (Stage, Arm):
 @block("epm.pose")
 def add_epm_pose(builder, parts, scenario):
     """`epm_pose`: the EPM's centre and moment direction, exported as epm.pose (the
-    kinematic stage's own pose output, or read from the plant's body poses)."""
+    kinematic stage's own pose output, or read from the plant's body poses); and the watch
+    on its clearance (`epm_clearance_watch`, clearance.py), which ends a simulation whose
+    magnet, where it is, comes inside its clearance."""
     if parts.epm.instance is None:
-        parts.export(parts.epm.mount.pose_output(), "epm.pose")
-        return
-    plant = parts.plant
-    pose = builder.AddNamedSystem("epm_pose", MagnetPose(
-        plant, plant.GetBodyByName(EPM_BODY, parts.epm.instance)))
-    builder.Connect(plant.get_body_poses_output_port(), pose.GetInputPort("body_poses"))
-    parts.export(pose.GetOutputPort("pose"), "epm.pose")
+        pose_output = parts.epm.mount.pose_output()
+    else:
+        plant = parts.plant
+        pose = builder.AddNamedSystem("epm_pose", MagnetPose(
+            plant, plant.GetBodyByName(EPM_BODY, parts.epm.instance)))
+        builder.Connect(plant.get_body_poses_output_port(), pose.GetInputPort("body_poses"))
+        pose_output = pose.GetOutputPort("pose")
+    parts.export(pose_output, "epm.pose")
+    watch = builder.AddNamedSystem("epm_clearance_watch", EpmClearanceWatch(
+        parts.colon.abdomen, parts.epm.magnet, parts.epm.clearance))
+    builder.Connect(pose_output, watch.GetInputPort("epm_pose"))
 
 
 class MagnetPose(LeafSystem):

@@ -11,6 +11,7 @@ EPM's guard (epm/guard.py) and `PoseToStage`.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -22,6 +23,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 
 from capsule_drake.epm.poses import stage_joint_positions, stage_to_pose
+from capsule_drake.epm.shaping import MotionLimits
 from capsule_drake.lifetime import weak_method
 from capsule_drake.models import model_url
 from capsule_drake.schema import need_range
@@ -52,6 +54,12 @@ class Stage:
     translation_gains: Gains = dataclasses.field(default_factory=Gains)
     # Servo gains of the yaw and pitch axes.
     rotation_gains: Gains = dataclasses.field(default_factory=lambda: Gains(p=400.0, d=4.0))
+    # How fast the servoed stage is asked to move the EPM toward a pose command (epm/
+    # shaping.py): speed (m/s), acceleration (m/s^2), turn rate of the moment (rad/s). The
+    # kinematic stage is where it is asked to be; a path driver's trajectory sets its own.
+    max_speed: float = 0.1
+    max_acceleration: float = 1.0
+    max_turn_rate: float = 1.0
 
 
 def check_stage(config: Stage) -> None:
@@ -62,6 +70,74 @@ def check_stage(config: Stage) -> None:
         unit = ("N/m", "N s/m") if name == "translation_gains" else ("N m/rad", "N m s/rad")
         need_range(gains.p, f"{name}.p", "> 0", unit[0])
         need_range(gains.d, f"{name}.d", ">= 0", unit[1])
+    need_range(config.max_speed, "max_speed", "[0.001, 1]", "m/s")
+    need_range(config.max_acceleration, "max_acceleration", "[0.01, 10]", "m/s^2")
+    need_range(config.max_turn_rate, "max_turn_rate", "[0.01, 10]", "rad/s")
+
+
+# The servoed stage's moving masses (models/epm_stage.sdf; tests/test_epm_clearance.py reads
+# them from the model): the x axis carries every link (9.7 kg), y all but x's carriage
+# (8.7 kg), z the yaw link and the magnet (7.7 kg); the yaw and pitch axes turn the magnet
+# (its 0.00933 kg m^2 across its axis, plus the yaw link's 0.001 about the vertical).
+AXIS_MASSES = {"x": 9.7, "y": 8.7, "z": 7.7}
+TURN_INERTIAS = {"yaw": 0.00933 + 0.001, "pitch": 0.00933}
+
+
+def overshoot_factor(zeta: float) -> float:
+    """1 + the overshoot of a second-order servo of damping ratio zeta: what an error the
+    servo would settle to without overshoot may reach on the way."""
+    if zeta >= 1.0:
+        return 1.0
+    return 1.0 + math.exp(-math.pi * zeta / math.sqrt(1.0 - zeta * zeta))
+
+
+def servo_errors(config: Stage, pull: float, twist: float, magnet) -> tuple[float, float]:
+    """(translation, turn) parts of the worst lag of the servoed stage's magnet toward the
+    skin (m), over its axes, given the largest pull (N) and twist (N m) the capsule's magnet
+    puts on the EPM. Translation: what the pull and the shaped reference's acceleration
+    (max_acceleration) deflect the servo by, (pull + m a) / p. Turn: the twist's deflection
+    and the lag behind the start of a turn at max_turn_rate (a critically damped servo lags
+    a velocity step w by at most w / (e wn)), times how fast a turn moves the magnet's
+    lowest point (its half diagonal per radian). Each times `overshoot_factor`."""
+    t, r = config.translation_gains, config.rotation_gains
+    translation = max(
+        (pull + mass * config.max_acceleration) / t.p
+        * overshoot_factor(t.d / (2.0 * math.sqrt(t.p * mass)))
+        for mass in AXIS_MASSES.values())
+    radius, half = magnet_half_diagonal(magnet)
+    turn = max(
+        (twist / r.p + config.max_turn_rate / (math.e * math.sqrt(r.p / inertia)))
+        * overshoot_factor(r.d / (2.0 * math.sqrt(r.p * inertia)))
+        for inertia in TURN_INERTIAS.values()) * math.hypot(radius, half)
+    return translation, turn
+
+
+def magnet_half_diagonal(magnet) -> tuple[float, float]:
+    """(radius, half length) of the cylinder that bounds the magnet."""
+    dims = magnet.dimensions
+    if magnet.shape == "sphere":
+        return 0.5 * dims[0], 0.0
+    if magnet.shape == "cylinder":
+        return 0.5 * dims[0], 0.5 * dims[1]
+    return 0.5 * float(np.hypot(dims[0], dims[1])), 0.5 * dims[2]
+
+
+def check_stage_servo(config: Stage, pull: float, twist: float, magnet,
+                      tolerance: float) -> None:
+    """Raises ValueError when the servoed stage, as configured, may let the EPM lag or give
+    toward the skin by more than `tolerance` (m) under the largest `pull` (N) and `twist`
+    (N m) of the magnets (servo_errors): softer gains, less damping or a faster reference
+    than that would take the magnet inside its clearance."""
+    translation, turn = servo_errors(config, pull, twist, magnet)
+    if translation + turn <= tolerance:
+        return
+    raise ValueError(
+        f"the servoed stage may let the EPM sag {(translation + turn) * 1000:.1f} mm toward "
+        f"the skin ({translation * 1000:.1f} mm on x, y, z under a {pull:.3g} N pull and "
+        f"its max_acceleration, {turn * 1000:.1f} mm on yaw and pitch), more than the "
+        f"{tolerance * 1000:g} mm the EPM's clearance allows: stiffer or better damped "
+        "translation_gains or rotation_gains, or a lower max_acceleration or "
+        "max_turn_rate")
 
 
 class PoseToStage(LeafSystem):
@@ -77,11 +153,15 @@ class PoseToStage(LeafSystem):
         - desired_state
 
     A non-finite command holds the last state. Samples every `period` (s): the stations use
-    the plant's step, the finest at which the EPM's pose can act on the capsule.
+    the plant's step, the finest at which the EPM's pose can act on the capsule. With
+    `rates`, the desired rates are the joints' change since the last sample over the period
+    (a servo's velocity feedforward along a shaped path), else zero.
     """
 
-    def __init__(self, initial_stage_q, period: float = 0.001):
+    def __init__(self, initial_stage_q, period: float = 0.001, rates: bool = False):
         super().__init__()
+        self._rates = rates
+        self._period = float(period)
         self._command = self.DeclareVectorInputPort("epm_command", 6)
         initial = np.concatenate([np.asarray(initial_stage_q, dtype=float)[:5], np.zeros(5)])
         self._state = self.DeclareDiscreteState(BasicVector(initial))
@@ -104,7 +184,11 @@ class PoseToStage(LeafSystem):
         if np.all(np.isfinite(command)) and np.linalg.norm(command[3:]) > 1e-9:
             q = stage_joint_positions(command[:3], command[3:] / np.linalg.norm(command[3:]))
             q[3] = x[3] + np.angle(np.exp(1j * (q[3] - x[3])))
+            if self._rates:
+                x[5:] = (q - x[:5]) / self._period
             x[:5] = q
+        elif self._rates:
+            x[5:] = 0.0
         discrete_state.set_value(self._state, x)
         self._last = (key, x)
 
@@ -184,6 +268,10 @@ class KinematicStageMount:
     def add_models(self, plant, parser):
         """Nothing goes into the plant."""
         return None
+
+    def motion_limits(self) -> MotionLimits:
+        """The kinematic stage is where it is asked to be (its path: the shaper's lines)."""
+        return MotionLimits()
 
     def add_visual(self, scene_graph, magnet):
         """The EPM's look: a cylinder of the magnet's size with its north face marked."""
@@ -267,6 +355,11 @@ class StageMount:
                 PdControllerGains(p=gains.p, d=gains.d))
         return self.instance
 
+    def motion_limits(self) -> MotionLimits:
+        """The speeds the servoed stage is asked to move at (Stage's max_*)."""
+        c = self.config
+        return MotionLimits(c.max_speed, c.max_acceleration, c.max_turn_rate)
+
     def connect(self, builder, parts, q0):
         """After Finalize: start at the stage joints `q0`; exports epm.state (stage joints
         [x y z yaw pitch, rates])."""
@@ -298,7 +391,7 @@ class StageMount:
         EPM's guard (drivers connect to `EpmParts.command_input`); exports
         epm.desired_state."""
         stage = builder.AddNamedSystem("epm_stage_command", PoseToStage(
-            self._q0, period=parts.plant.time_step()))
+            self._q0, period=parts.plant.time_step(), rates=True))
         builder.Connect(stage.get_output_port(),
                         parts.plant.get_desired_state_input_port(self.instance))
         parts.export(stage.get_output_port(), "epm.desired_state")

@@ -67,6 +67,12 @@ def check_guard_config(config: GuardConfig) -> None:
 # A GuardTrip's `kind` for the reasons after which a run's distances mean nothing.
 DIVERGED = ("not_finite", "speed", "wall")
 
+# A run's ending (app/run.py, Ending.status) for each kind of guard stop: the run guard's
+# here, and the EPM's clearance watch (epm/clearance.py), which stops a run whose magnet came
+# too close to the skin (the capsule's figures still mean what they say).
+ENDING_OF_KIND = {**{kind: "diverged" for kind in DIVERGED}, "left_colon": "left_colon",
+                  "epm_clearance": "epm_clearance"}
+
 
 def guard_reason(kind: str, text: str) -> str:
     """The message a guard stop carries: 'guard:<kind>: <text>'."""
