@@ -111,7 +111,8 @@ def check_arm_config(config: Arm) -> None:
     need_range(config.base_xyz, "epm.mount.base_xyz", "[-2, 2]", "m",
                "beside the patient table")
     need_range(config.base_yaw_deg, "epm.mount.base_yaw_deg", "[-360, 360]", "deg")
-    need_range(config.joint_stiffness, "epm.mount.joint_stiffness", "[0, 1e6]", "N m/rad")
+    need_range(config.joint_stiffness, "epm.mount.joint_stiffness", "(0, 1e6]", "N m/rad",
+               "a joint without stiffness does not hold the magnet")
     need_range(config.joint_damping, "epm.mount.joint_damping", "[0, 1e5]", "N m s/rad")
     need_range(config.control_period, "epm.mount.control_period", "[0.0001, 0.1]", "s")
     need_range(config.velocity_scale, "epm.mount.velocity_scale", "[0.01, 1]", "",

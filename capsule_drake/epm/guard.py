@@ -9,8 +9,9 @@ and counts what it had to do, exported as `epm.guard_counts` (GUARD_COUNTS).
 import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from capsule_drake.epm.poses import (highest_skin_under, magnet_footprint_radius,
-                                    magnet_vertical_half_extent)
+from capsule_drake.epm.poses import (disc_samples, highest_skin_under,
+                                    magnet_footprint_radius, magnet_vertical_half_extent,
+                                    vertical_half_extents)
 
 
 class EpmGuard:
@@ -30,6 +31,13 @@ class EpmGuard:
     def lowest_centre_height(self, x: float, y: float, m_hat: np.ndarray) -> float:
         skin = highest_skin_under(self.abdomen, x, y, self._footprint)
         return skin + self.clearance + magnet_vertical_half_extent(m_hat, self.geometry)
+
+    def lowest_centre_heights(self, x, y, m_hat) -> np.ndarray:
+        """`lowest_centre_height` over many points at once: x, y (N), unit moments (N, 3)."""
+        dx, dy = disc_samples(self._footprint)
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        skin = np.max(self.abdomen.skin_height(x[:, None] + dx, y[:, None] + dy), axis=1)
+        return skin + self.clearance + vertical_half_extents(m_hat, self.geometry)
 
     def apply(self, p_WE, m_hat_W):
         p = np.array(p_WE, dtype=float)

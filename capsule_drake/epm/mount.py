@@ -61,7 +61,7 @@ class EpmParts:
         self.driven = True
         self.command_guard.watch()
         shaper = builder.AddNamedSystem("epm_path_shaper", EpmPathShaper(
-            self.guard.lowest_centre_height, self.mount.motion_limits(), self.start_command,
+            self.guard.lowest_centre_heights, self.mount.motion_limits(), self.start_command,
             period=parts.plant.time_step()))
         builder.Connect(self.command_guard.GetOutputPort("epm_command"),
                         shaper.GetInputPort("epm_command"))

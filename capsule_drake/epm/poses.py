@@ -53,6 +53,20 @@ def magnet_vertical_half_extent(m_hat_W, geometry: MagnetGeometry) -> float:
     return half_length * cos_tilt + radius * np.sqrt(max(0.0, 1.0 - cos_tilt**2))
 
 
+def vertical_half_extents(m_hat_W, geometry: MagnetGeometry) -> np.ndarray:
+    """`magnet_vertical_half_extent` of many unit moments (N, 3) at once."""
+    m_hat_W = np.asarray(m_hat_W, dtype=float)
+    dims = geometry.dimensions
+    if geometry.shape == "sphere":
+        return np.full(len(m_hat_W), 0.5 * dims[0])
+    if geometry.shape == "cylinder":
+        radius, half_length = 0.5 * dims[0], 0.5 * dims[1]
+    else:
+        radius, half_length = 0.5 * np.hypot(dims[0], dims[1]), 0.5 * dims[2]
+    cos_tilt = np.abs(m_hat_W[:, 2])
+    return half_length * cos_tilt + radius * np.sqrt(np.maximum(0.0, 1.0 - cos_tilt**2))
+
+
 def magnet_footprint_radius(geometry: MagnetGeometry) -> float:
     """Radius of a disc that covers the magnet's shadow on the skin in any orientation."""
     dims = geometry.dimensions
@@ -64,7 +78,7 @@ def magnet_footprint_radius(geometry: MagnetGeometry) -> float:
 
 
 @functools.lru_cache(maxsize=16)
-def _disc_samples(radius: float) -> tuple[np.ndarray, np.ndarray]:
+def disc_samples(radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Offsets of a 9 x 9 grid's points inside a disc of `radius` (cached: the guards call
     `highest_skin_under` hundreds of times a second with the magnet's one radius)."""
     offsets = np.linspace(-radius, radius, 9)
@@ -82,7 +96,7 @@ def highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
 def _highest_skin_under(abdomen, x: float, y: float, radius: float) -> float:
     # Cached on the exact arguments: in a teleoperation step the mapping and the arm's
     # guard ask about the same EPM position several times.
-    dx, dy = _disc_samples(radius)
+    dx, dy = disc_samples(radius)
     return float(np.max(abdomen.skin_height(x + dx, y + dy)))
 
 

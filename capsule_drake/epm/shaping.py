@@ -68,32 +68,51 @@ class MotionLimits:
 
 
 def unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=float)
-    return v / np.linalg.norm(v)
+    """v / |v|, for any finite v of three components and non-zero length (its largest
+    component first scaled to 1: a moment of 1e300 A m^2 has a direction too)."""
+    x, y, z = (float(c) for c in v)
+    scale = max(abs(x), abs(y), abs(z))
+    x, y, z = x / scale, y / scale, z / scale
+    n = math.sqrt(x * x + y * y + z * z)
+    return np.array([x / n, y / n, z / n])
+
+
+def _cross(a, b) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def turn_angle(m0, m1) -> float:
-    """Angle (rad) between two unit moments."""
-    return float(np.arctan2(np.linalg.norm(np.cross(m0, m1)), float(np.dot(m0, m1))))
+    """Angle (rad) between two moments (of any non-zero length)."""
+    m0, m1 = unit(m0), unit(m1)
+    c = _cross(m0, m1)
+    return math.atan2(math.sqrt(float(c @ c)), float(m0 @ m1))
+
+
+def turn_toward_many(m0, m1, fractions) -> np.ndarray:
+    """(N, 3) unit moments the given fractions of the way from m0 to m1 along the great
+    circle (a half turn goes about an axis across m0 chosen from m0 alone)."""
+    fractions = np.asarray(fractions, dtype=float)
+    a, b = unit(m0), unit(m1)
+    angle = turn_angle(a, b)
+    if angle < ARRIVED:
+        return np.tile(a, (len(fractions), 1))
+    axis = _cross(a, b)
+    if math.sqrt(float(axis @ axis)) < 1e-12:   # opposite: any axis across m0
+        axis = _cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    across = _cross(unit(axis), a)   # a and `across`: the great circle's plane
+    phi = np.clip(fractions, 0.0, 1.0)[:, None] * angle
+    return a * np.cos(phi) + across * np.sin(phi)
 
 
 def turn_toward(m0, m1, fraction: float) -> np.ndarray:
-    """The unit moment `fraction` of the way from m0 to m1 along the great circle (a half
-    turn goes about an axis across m0 chosen from m0 alone)."""
+    """The unit moment `fraction` of the way from m0 to m1 along the great circle; m0 or m1
+    themselves, as given, at a fraction of 0 or 1 (so that a move's end is its command)."""
     if fraction >= 1.0:
         return np.array(m1, dtype=float)
-    angle = turn_angle(m0, m1)
-    if angle < ARRIVED or fraction <= 0.0:
+    if fraction <= 0.0 or turn_angle(m0, m1) < ARRIVED:
         return np.array(m0, dtype=float)
-    axis = np.cross(m0, m1)
-    if np.linalg.norm(axis) < 1e-12:   # opposite: any axis across m0
-        helper = [1.0, 0.0, 0.0] if abs(m0[0]) < 0.9 else [0.0, 1.0, 0.0]
-        axis = np.cross(m0, helper)
-    axis = unit(axis)
-    phi = fraction * angle
-    m = (m0 * math.cos(phi) + np.cross(axis, m0) * math.sin(phi)
-         + axis * float(axis @ m0) * (1.0 - math.cos(phi)))
-    return unit(m)
+    return turn_toward_many(m0, m1, [fraction])[0]
 
 
 def _samples(length: float, angle: float, ends: bool) -> np.ndarray:
@@ -107,17 +126,18 @@ def _samples(length: float, angle: float, ends: bool) -> np.ndarray:
 
 def chord_is_clear(floor, p0, m0, p1, m1) -> bool:
     """True when the straight line from pose (p0, m0) to (p1, m1), the moment turned in step
-    with the move, keeps the EPM's centre over `floor(x, y, m_hat)` (within CHORD_SLACK) at
-    every sample. The ends are the caller's (each a guarded command or a shaped pose)."""
+    with the move, keeps the EPM's centre over the floor (within CHORD_SLACK) at every
+    sample. `floor(x, y, m)`: the lowest centre heights the clearance allows over points
+    (x, y) (arrays, N) for unit moments m (N, 3). The ends are the caller's (each a guarded
+    command or a shaped pose)."""
     p0, p1 = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
     length, angle = float(np.linalg.norm(p1 - p0)), turn_angle(m0, m1)
     if length < ARRIVED and angle < ARRIVED:
         return True
-    for t in _samples(length, angle, ends=False):
-        p = p0 + t * (p1 - p0)
-        if p[2] < floor(p[0], p[1], turn_toward(m0, m1, t)) - CHORD_SLACK:
-            return False
-    return True
+    t = _samples(length, angle, ends=False)
+    points = p0 + t[:, None] * (p1 - p0)
+    lowest = floor(points[:, 0], points[:, 1], turn_toward_many(m0, m1, t))
+    return bool(np.all(points[:, 2] >= lowest - CHORD_SLACK))
 
 
 def route_height(floor, p0, m0, p1, m1) -> float:
@@ -126,11 +146,10 @@ def route_height(floor, p0, m0, p1, m1) -> float:
     ends included) plus ROUTE_MARGIN, and no lower than either end."""
     p0, p1 = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
     length = float(np.hypot(*(p1[:2] - p0[:2])))
-    top = max(p0[2], p1[2])
-    for t in _samples(length, turn_angle(m0, m1), ends=True):
-        xy = p0[:2] + t * (p1[:2] - p0[:2])
-        top = max(top, floor(xy[0], xy[1], turn_toward(m0, m1, t)) + ROUTE_MARGIN)
-    return float(top)
+    t = _samples(length, turn_angle(m0, m1), ends=True)
+    xy = p0[:2] + t[:, None] * (p1[:2] - p0[:2])
+    lowest = floor(xy[:, 0], xy[:, 1], turn_toward_many(m0, m1, t))
+    return float(max(p0[2], p1[2], float(np.max(lowest)) + ROUTE_MARGIN))
 
 
 # The shaper's state: [p (3), v (3), m (3), the command planned for (6), leg, height]. The
@@ -215,14 +234,14 @@ def shape_step(state: np.ndarray, command: np.ndarray, floor, limits: MotionLimi
                dt: float) -> np.ndarray:
     """The shaper's next state for the guarded `command` [p, m_hat]: a new command is
     planned, the leg followed one step, the pose kept over the floor. `floor(x, y, m)`
-    takes any moment of non-zero length."""
+    is chord_is_clear's."""
     x = state.copy()
     if not np.array_equal(command, x[PLANNED]):
         x = plan(x, command, floor)
     aim, m_aim = aim_of(x)
     p, v, m = move_toward(x[P], x[V], x[M], aim, m_aim, limits, dt)
     if not limits.instant and (not np.array_equal(p, x[P]) or not np.array_equal(m, x[M])):
-        lowest = floor(p[0], p[1], m)
+        lowest = float(floor(p[:1], p[1:2], unit(m)[None, :])[0])
         if p[2] < lowest:   # never under the floor, whatever the filter did
             v[2] = max(v[2], (lowest - x[P][2]) / dt)
             p[2] = lowest
@@ -249,8 +268,9 @@ class EpmPathShaper(LeafSystem):
     same instant as it did the guard's), kept as state every `period` (the plant's step).
 
     Args:
-        floor: function (x, y, m_hat) -> the lowest EPM centre height the clearance allows
-            (EpmGuard.lowest_centre_height; m_hat unit).
+        floor: function (x, y, m_hat) -> the lowest EPM centre heights the clearance allows
+            over points (x, y) for unit moments m_hat (arrays: N, N, (N, 3);
+            EpmGuard.lowest_centre_heights).
         limits: MotionLimits of the carrier.
         start_command: the EPM's start pose [p_WE, m_hat_W] (guarded).
         period: s.
@@ -258,7 +278,7 @@ class EpmPathShaper(LeafSystem):
 
     def __init__(self, floor, limits: MotionLimits, start_command, period: float):
         super().__init__()
-        self._floor = lambda x, y, m: floor(x, y, unit(m))
+        self._floor = floor
         self._limits = limits
         self._dt = float(period)
         self._input = self.DeclareVectorInputPort("epm_command", 6)
