@@ -33,9 +33,9 @@ itself moves in quiet breathing (a clearance is a margin for that, and for the s
 own error); closer than that, the clearance no longer means what the scenario says."""
 
 CHECK_PERIOD = 0.005
-"""How often (s) the watch reads the EPM's pose: the shaped EPM moves at most 0.1 m/s on the
-servoed stage and 0.2 m/s on the arm (0.5 and 1 mm a period), a servo's sag under the
-magnets' pull builds over tens of milliseconds (the stage's servo: 9 Hz)."""
+"""How often (s) the watch reads the EPM's pose: the shaped EPM moves at most 0.25 m/s on the
+servoed stage and 0.2 m/s on the arm by default (about 1 mm a period), a servo's sag under
+the magnets' pull builds over tens of milliseconds (the stage's servo: 7-8 Hz)."""
 
 
 @functools.lru_cache(maxsize=1)

@@ -57,7 +57,7 @@ class Stage:
     # How fast the servoed stage is asked to move the EPM toward a pose command (epm/
     # shaping.py): speed (m/s), acceleration (m/s^2), turn rate of the moment (rad/s). The
     # kinematic stage is where it is asked to be; a path driver's trajectory sets its own.
-    max_speed: float = 0.1
+    max_speed: float = 0.25
     max_acceleration: float = 1.0
     max_turn_rate: float = 1.0
 

@@ -5,7 +5,7 @@ straight way between two of them passes through the belly."""
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-FLANK_X = 0.25   # m: beyond the dome of the default abdomen (its skin falls to the flanks)
+FLANK_X = 0.2   # m: the default abdomen's dome falls to the flanks' 0.11 m there
 
 
 class FlankSweep(LeafSystem):
@@ -29,5 +29,5 @@ class FlankSweep(LeafSystem):
 
 
 def flanks(context):
-    """Over the right flank from t = 0, the left from 1.5 s, and so on."""
-    return FlankSweep(context, 1.5)
+    """Over the right flank from t = 0, the left from 2.5 s, and so on."""
+    return FlankSweep(context, 2.5)
