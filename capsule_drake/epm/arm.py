@@ -12,6 +12,7 @@ track in the plant. The magnet's reaction wrench loads the arm through those ser
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
@@ -70,9 +71,6 @@ class Arm:
     # of its moment (rad/s). Commands that move slower are followed exactly.
     max_speed: float = 0.2
     max_turn_rate: float = 1.0
-    # Fastest change of the speed toward a pose command (m/s^2): the path the arm is asked
-    # to follow (epm/shaping.py) speeds up and slows down within it.
-    max_acceleration: float = 1.0
     # Descent toward the skin: at most approach_speed (m/s) plus the height above the
     # clearance floor over approach_time (s), so the magnet arrives at the floor slowly.
     approach_speed: float = 0.005
@@ -124,7 +122,6 @@ def check_arm_config(config: Arm) -> None:
         need_range(config.posture_deg, "epm.mount.posture_deg", "[-360, 360]", "deg")
     need_range(config.max_speed, "epm.mount.max_speed", "[0.001, 2]", "m/s")
     need_range(config.max_turn_rate, "epm.mount.max_turn_rate", "[0.001, 10]", "rad/s")
-    need_range(config.max_acceleration, "epm.mount.max_acceleration", "[0.01, 10]", "m/s^2")
     need_range(config.approach_speed, "epm.mount.approach_speed", "(0, 1]", "m/s")
     need_range(config.approach_time, "epm.mount.approach_time", "(0, 10]", "s")
     need_range(config.reach, "epm.mount.reach", "[0.1, 1.5]", "m",
@@ -357,9 +354,11 @@ class ArmMount:
         return self.instance
 
     def motion_limits(self) -> MotionLimits:
-        """The speeds the arm is asked to move the EPM at (Arm's max_*)."""
+        """The arm's controller moves the magnet toward its command at max_speed and turns
+        it at max_turn_rate, changing speed at once (its differential IK): the path it is
+        given goes no faster, so that it follows that path, not a line of its own."""
         c = self.config
-        return MotionLimits(c.max_speed, c.max_acceleration, c.max_turn_rate)
+        return MotionLimits(c.max_speed, math.inf, c.max_turn_rate)
 
     def controller_plant(self):
         """The controller's own model: the arm alone, welded at the same pose."""

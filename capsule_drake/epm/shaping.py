@@ -214,6 +214,10 @@ def move_toward(p, v, m, aim, m_aim, limits: MotionLimits, dt: float):
         if turnable >= 1.0:
             return aim.copy(), np.zeros(3), m_aim.copy()
         return p.copy(), np.zeros(3), turn_toward(m, m_aim, turnable)
+    step_velocity = d / dt
+    if distance <= limits.max_speed * dt and turnable >= 1.0 and \
+            float(np.linalg.norm(step_velocity - v)) <= limits.max_acceleration * dt:
+        return aim.copy(), step_velocity, m_aim.copy()   # within reach of this step
     speed = min(limits.max_speed, math.sqrt(2.0 * limits.max_acceleration * distance),
                 distance / dt)
     change = d * (speed / distance) - v
