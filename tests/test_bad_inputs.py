@@ -212,11 +212,12 @@ PLUGINS = [
                                           "!Plugin {factory: "
                                           "'plugins.misbehaving:image_as_vector'}}}"),
      r"navigator 'plugins\.misbehaving:image_as_vector': input port 'rgb_image' is a vector "
-     r"of size 3; the station gives it an abstract value \(ImageRgba8U\)"),
+     r"of size 3; the station gives it an abstract value \(Image\[PixelType\.kRgba8U\]\)"),
     ("navigator grey image", _text("{capsule: {camera: {latency: 0.0}}, epm: {driver: "
                                    "!Plugin {factory: 'plugins.misbehaving:grey_image'}}}"),
      r"navigator 'plugins\.misbehaving:grey_image': input port 'rgb_image' is an abstract "
-     r"value \(ImageGrey8U\); the station gives it an abstract value \(ImageRgba8U\)"),
+     r"value \(Image\[PixelType\.kGrey8U\]\); the station gives it an abstract value "
+     r"\(Image\[PixelType\.kRgba8U\]\)"),
 ]
 
 # Output paths, all checked together before anything is built (app/outputs.py's
