@@ -7,8 +7,8 @@ it is imported, so that what runs is never a surprise.
 
 A plug-in that breaks is named in the one line that reports it: one that cannot be imported
 (it raised, or exited, as it was imported) is a ValueError here; one whose code raises or
-exits inside a simulation is found in the error's traceback (`failure_text`), among the
-plug-ins the run loaded (`noting_loads`).
+exits as its run is built or simulated is found in the error's traceback (`culprit`), among
+the plug-ins the run loaded (`noting_loads`).
 """
 
 import contextlib
@@ -69,12 +69,18 @@ def noting_loads():
 
 
 def failure_text(error: BaseException, loads=()) -> str:
-    """One line on an error: a PluginError's message; else, when the code of one of `loads`
-    (`noting_loads`) is in the error's traceback, "<the plug-in> raised X: ..." (or
-    "exited ..."), the innermost such code naming it; else "X: ...". Plug-ins from the same
-    module are told apart by their functions in the traceback, or all named."""
+    """One line on an error: a PluginError's message; "<the plug-in> raised X: ..." (or
+    "exited ...") when the code of one of `loads` raised it (`culprit`); else "X: ..."."""
     if isinstance(error, PluginError):
         return str(error)
+    plugin = culprit(error, loads)
+    return f"{plugin} {what_it_did(error)}" if plugin else first_line(error)
+
+
+def culprit(error: BaseException, loads=()) -> str | None:
+    """The plug-in of `loads` (`noting_loads`) whose code is innermost in the error's
+    traceback ("navigator 'package.module:function'"), or None. Plug-ins from the same
+    module are told apart by their functions in the traceback, or all named."""
     frames = [frame for frame, _ in traceback.walk_tb(error.__traceback__)][::-1]
     for frame in frames:
         mine = [load for load in loads
@@ -82,9 +88,8 @@ def failure_text(error: BaseException, loads=()) -> str:
         if mine:
             codes = {f.f_code for f in frames}
             called = [load for load in mine if getattr(load[2], "__code__", None) in codes]
-            names = dict.fromkeys(name for _, name, _ in (called or mine))
-            return f"{' or '.join(names)} {what_it_did(error)}"
-    return first_line(error)
+            return " or ".join(dict.fromkeys(name for _, name, _ in (called or mine)))
+    return None
 
 
 def load_function(what: str, name: str, choices: str, announce: bool = True):

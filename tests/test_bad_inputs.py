@@ -194,6 +194,11 @@ PLUGINS = [
                                              "'plugins.misbehaving:exits_in_factory'}}}"),
      r"navigator 'plugins\.misbehaving:exits_in_factory' failed to build its system "
      r"\(SystemExit: 0\)"),
+    ("navigator exits as the run is built", _text("{epm: {driver: !Plugin {factory: "
+                                                  "'plugins.misbehaving:exits_as_it_is_built'"
+                                                  "}}}"),
+     r"scenario: navigator 'plugins\.misbehaving:exits_as_it_is_built' exited "
+     r"\(SystemExit: 0\) as the run was built"),
     # Ports that do not fit the station: before, Drake's connection error, reported as an
     # internal error (status 70, "please report it").
     ("navigator command of 3", _text("{epm: {driver: !Plugin {factory: "

@@ -8,9 +8,9 @@ suite runs in parallel processes on this machine (`engine="local"`) or on a Dask
 address), with a progress line, and gives the same table for the same seeds either way.
 A run whose process crashes, that outlives its wall-time limit (`run_timeout`), or that an
 error ended (a plug-in's that raised or exited, naming it) is a row marked failed with its
-reason (`status`, `error`), and the suite goes on; Ctrl-C and the
-termination signals stop every run's processes (the run's worker and its camera's render
-process), keeping the runs that finished.
+reason (`status`, `error`), and the suite goes on; Ctrl-C and the termination signals stop
+every run's processes (the run's worker and its camera's render process), keeping the runs
+that finished.
 
 Navigators, each a named scenario whose `epm.driver` drives the EPM (diagrams/default.yaml),
 all run through the one run loop (app/run.py `simulate`, which seeds the random context):

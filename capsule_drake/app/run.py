@@ -4,6 +4,7 @@ progress)."""
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import json
@@ -37,7 +38,7 @@ from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_ro
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
 from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.physics.contact_monitor import ContactMonitor
-from capsule_drake.plugins import failure_text, noting_loads
+from capsule_drake.plugins import FAILURES, culprit, failure_text, noting_loads, what_it_did
 from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
 
@@ -247,6 +248,22 @@ def _error_ending(e: BaseException, t: float, plugins=()) -> Ending:
                   traceback.format_exc())
 
 
+@contextlib.contextmanager
+def _plugins_as_bad_input(plugins):
+    """Within the block (a run's build), an error that the code of one of `plugins` (those
+    the run loaded) raises or exits with is a bad input: ScenarioError, one line naming it,
+    and nothing is simulated (e.g. Drake allocating a value of a navigator's port as the
+    run's context is made)."""
+    try:
+        yield
+    except FAILURES as e:
+        plugin = culprit(e, plugins)
+        if plugin is None or isinstance(e, ScenarioError):
+            raise
+        raise ScenarioError(f"scenario: {plugin} {what_it_did(e)} as the run was built") \
+            from None
+
+
 def _interrupted(name: str, t: float) -> Ending:
     return Ending("interrupted", f"interrupted ({name}) at t = {t:.3f} s", signal=name)
 
@@ -284,7 +301,7 @@ class Run:
         builder = DiagramBuilder()
         self._finish = None
         # The plug-ins the station and the extensions load: an error they raise names them.
-        with noting_loads() as self.plugins:
+        with noting_loads() as self.plugins, _plugins_as_bad_input(self.plugins):
             station, colon, monitor = add_guarded_station(builder, scenario, meshcat,
                                                           capsule_start)
             try:  # a build that fails closes what the station and the extensions opened

@@ -1,8 +1,8 @@
 """Navigators whose code misbehaves as a user's might (tests/test_benchmark.py,
 tests/test_bad_inputs.py). Most creep like `navigators.creep`, then, at 0.5 s simulated,
 take their process down, never return, exit or interrupt; others end the program in their
-factory, declare ports that do not fit the station, or write into the camera image they are
-given."""
+factory or as their run is built, declare ports that do not fit the station, or write into
+the camera image they are given."""
 
 import os
 import signal
@@ -146,3 +146,17 @@ def grey_image(context):
 
 def paints_its_image(context):
     return _Ports(context, image="rgba")
+
+
+class _ExitsAsItIsBuilt(Creep):
+    """Has an output port more, whose value Drake allocates as the run's context is made
+    (after the factory has returned): the allocation calls sys.exit(0)."""
+
+    def __init__(self, context):
+        super().__init__(context)
+        self.DeclareAbstractOutputPort("notes", lambda: sys.exit(0),
+                                       lambda context, output: None)
+
+
+def exits_as_it_is_built(context):
+    return _ExitsAsItIsBuilt(context)
