@@ -372,7 +372,7 @@ class Run:
         try:
             result = self.simulator.AdvanceTo(t)
         except KeyboardInterrupt as e:
-            if not self._raised_by_code():
+            if not self.raised_by_plugin(e):
                 raise
             return _error_ending(e, self.time, self.plugins)
         except (Exception, SystemExit) as e:  # Drake's errors; its failed assertions exit
@@ -388,11 +388,12 @@ class Run:
         return Ending("diverged" if kind in DIVERGED else "left_colon",
                       f"stopped by the run guard at {text}")
 
-    def _raised_by_code(self) -> bool:
-        """Whether a KeyboardInterrupt out of the simulation was raised by code (a plug-in's)
-        rather than by a signal: while `signals` are noted, a signal raises only when one
-        is pending already (the second)."""
-        return self._signals is not None and self._signals.pending is None
+    def raised_by_plugin(self, interrupt: KeyboardInterrupt) -> bool:
+        """Whether a KeyboardInterrupt out of the simulation was raised by a plug-in's code
+        itself, not by a signal: while `signals` are noted, a signal raises only when one is
+        pending already (the second)."""
+        return (self._signals is not None and self._signals.pending is None
+                and culprit(interrupt, self.plugins) is not None)
 
     def drain(self) -> dict | None:
         """Moves the loggers' samples out (the LOG_KEYS of app/outputs.py), or None without
@@ -516,7 +517,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     except KeyboardInterrupt as e:  # a second signal: Ctrl-C, or the CLI's `Interrupted`
         if not built:
             raise
-        if run._raised_by_code():  # e.g. a plug-in's, as the run initialises
+        if run.raised_by_plugin(e):  # as the run initialises
             ending = _error_ending(e, run.time, run.plugins)
         else:
             ending = _interrupted(getattr(e, "signal_name", "SIGINT"), run.time)
