@@ -59,13 +59,14 @@ def noting_loads():
     """Within the block, each plug-in `load_function` loads (in this thread) is noted in the
     list it yields, as (its module's file, "navigator 'package.module:function'", the
     function): a run notes those it builds with, to name the one whose code broke it."""
-    stack = _noting.__dict__.setdefault("stack", [])
+    if not hasattr(_noting, "stack"):
+        _noting.stack = []
     loads: list[tuple[str, str, object]] = []
-    stack.append(loads)
+    _noting.stack.append(loads)
     try:
         yield loads
     finally:
-        stack.remove(loads)
+        _noting.stack.remove(loads)
 
 
 def failure_text(error: BaseException, loads=()) -> str:
