@@ -172,6 +172,57 @@ PLUGINS = [
      r"'justaname' is not"),
     ("detector missing", _text("{capsule: {camera: {}, lumen_tracker: "
                                "{detector: 'nosuch_mod:f'}}}"), r"no module 'nosuch_mod'"),
+    # Before: a module that exits as it is imported, or a factory that exits, ended the
+    # command with status 0, no outputs and no message.
+    ("navigator exits at import", _text("{epm: {driver: !Plugin {factory: "
+                                        "'plugins.exits_on_import:make'}}}"),
+     r"navigator 'plugins\.exits_on_import:make': importing 'plugins\.exits_on_import' "
+     r"failed \(SystemExit: 0\)"),
+    ("detector exits at import", _text("{capsule: {camera: {}, lumen_tracker: {detector: "
+                                       "'plugins.exits_on_import:detect'}}}"),
+     r"lumen detector 'plugins\.exits_on_import:detect': importing "
+     r"'plugins\.exits_on_import' failed \(SystemExit: 0\)"),
+    ("benchmark navigator exits at import",
+     ["benchmark", "--seeds", "0", "--duration", "1", "--out", "{out}", "--navigators",
+      "plugins.exits_on_import:make"], r"importing 'plugins\.exits_on_import' failed "
+                                       r"\(SystemExit: 0\)"),
+    ("eval-lumen detector exits at import",
+     ["eval-lumen", "--out", "{out}", "--detector", "plugins.exits_on_import:detect"],
+     r"--detector: lumen detector 'plugins\.exits_on_import:detect': importing "
+     r"'plugins\.exits_on_import' failed \(SystemExit: 0\)"),
+    ("navigator exits in its factory", _text("{epm: {driver: !Plugin {factory: "
+                                             "'plugins.misbehaving:exits_in_factory'}}}"),
+     r"navigator 'plugins\.misbehaving:exits_in_factory' failed to build its system "
+     r"\(SystemExit: 0\)"),
+    ("navigator exits as the run is built", _text("{epm: {driver: !Plugin {factory: "
+                                                  "'plugins.misbehaving:exits_as_it_is_built'"
+                                                  "}}}"),
+     r"scenario: navigator 'plugins\.misbehaving:exits_as_it_is_built' exited "
+     r"\(SystemExit: 0\) as the run was built"),
+    # Ports that do not fit the station: before, Drake's connection error, reported as an
+    # internal error (status 70, "please report it").
+    ("navigator command of 3", _text("{epm: {driver: !Plugin {factory: "
+                                     "'plugins.misbehaving:short_command'}}}"),
+     r"navigator 'plugins\.misbehaving:short_command': output port 'epm_command' is a vector "
+     r"of size 3; the station needs a vector of size 6"),
+    ("navigator command not a vector", _text("{epm: {driver: !Plugin {factory: "
+                                             "'plugins.misbehaving:abstract_command'}}}"),
+     r"navigator 'plugins\.misbehaving:abstract_command': output port 'epm_command' is an "
+     r"abstract value \(float\); the station needs a vector of size 6"),
+    ("navigator state of 7", _text("{epm: {driver: !Plugin {factory: "
+                                   "'plugins.misbehaving:long_state'}}}"),
+     r"navigator 'plugins\.misbehaving:long_state': input port 'capsule_state' is a vector "
+     r"of size 7; the station gives it a vector of size 13"),
+    ("navigator image as a vector", _text("{capsule: {camera: {latency: 0.0}}, epm: {driver: "
+                                          "!Plugin {factory: "
+                                          "'plugins.misbehaving:image_as_vector'}}}"),
+     r"navigator 'plugins\.misbehaving:image_as_vector': input port 'rgb_image' is a vector "
+     r"of size 3; the station gives it an abstract value \(Image\[PixelType\.kRgba8U\]\)"),
+    ("navigator grey image", _text("{capsule: {camera: {latency: 0.0}}, epm: {driver: "
+                                   "!Plugin {factory: 'plugins.misbehaving:grey_image'}}}"),
+     r"navigator 'plugins\.misbehaving:grey_image': input port 'rgb_image' is an abstract "
+     r"value \(Image\[PixelType\.kGrey8U\]\); the station gives it an abstract value "
+     r"\(Image\[PixelType\.kRgba8U\]\)"),
 ]
 
 # Output paths, all checked together before anything is built (app/outputs.py's
@@ -358,6 +409,9 @@ def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, ca
     # Nothing was simulated: no output folder left behind, or (if the run had started) one
     # holding what it logged.
     out = tmp_path / "out"
+    if name in {c[0] for c in PLUGINS}:  # a plug-in that cannot be used is a bad input
+        assert code == 2, err
+        assert not out.exists() or not any(out.iterdir())
     if out.exists() and any(out.iterdir()):
         assert (out / "metrics.json").is_file() and (out / "logs.npz").is_file()
     if name in {c[0] for c in OUTPUT_PATHS}:  # refused before anything was made or changed
@@ -389,16 +443,64 @@ def test_a_diverging_run_stops_in_one_line_with_its_logs(tmp_path, capsys):
     assert json.loads((out / "metrics.json").read_text())["advance_m"] is None
 
 
-def test_an_error_inside_the_simulation_is_one_line_with_its_logs(tmp_path, capsys):
+# Plug-ins that break inside the simulation, and the one line that names each. Before: the
+# line did not name the navigator; one that exited was reported as such a line too, and one
+# that raised KeyboardInterrupt itself as a Ctrl-C (status 130).
+BROKEN_IN_THE_RUN = [
+    ("plugins.navigators:fails_later", "ZeroDivisionError",
+     r"navigator 'plugins\.navigators:fails_later' raised ZeroDivisionError: the navigator "
+     r"divided by zero"),
+    ("plugins.misbehaving:exits_later", "SystemExit",
+     r"navigator 'plugins\.misbehaving:exits_later' exited \(SystemExit: 0\)"),
+    ("plugins.misbehaving:interrupts_later", "KeyboardInterrupt",
+     r"navigator 'plugins\.misbehaving:interrupts_later' raised KeyboardInterrupt"),
+    ("plugins.misbehaving:shrinks_later", "size",
+     r"navigator 'plugins\.misbehaving:shrinks_later' raised \w+: .*size"),
+]
+
+
+@pytest.mark.parametrize("navigator,error,culprit", BROKEN_IN_THE_RUN,
+                         ids=[n.split(":")[1] for n, *_ in BROKEN_IN_THE_RUN])
+def test_an_error_inside_the_simulation_is_one_line_with_its_logs(navigator, error, culprit,
+                                                                   tmp_path, capsys):
     out = tmp_path / "run"
     code = cli_main(RUN[:-1] + ["2", "--scenario-text",
-                                "{epm: {driver: !Plugin {factory: 'plugins.navigators:fails_later'}}}",
+                                f"{{epm: {{driver: !Plugin {{factory: '{navigator}'}}}}}}",
                                 "--out", str(out)])
     line = _assert_one_line(code, capsys.readouterr().err,
-                            r"simulation error at t = 0\.\d+ s: .*ZeroDivisionError")
+                            r"simulation error at t = 0\.5\d* s: " + culprit)
     assert code == 1, line
+    assert json.loads((out / "metrics.json").read_text())["status"] == "error"
     assert load_logs(out)["times"][-1] >= 0.4
-    assert "ZeroDivisionError" in (out / "error.txt").read_text()
+    assert error in (out / "error.txt").read_text()
+
+
+# A user's lumen detector in the tracker that ends the program or returns what is not a
+# result. Before: the one that exited was reported without its name; the others were
+# counted as the tracker's failures, a warning each frame, and the run exited 0.
+TRACKER = ("{capsule: {camera: {fps: 10.0, latency: 0.0}, lumen_tracker: {detector: "
+           "'plugins.detectors:%s'}}}")
+BROKEN_DETECTORS = [
+    ("exits", r"lumen detector 'plugins\.detectors:exits' exited \(SystemExit: 0\)"),
+    ("wrong_shape", r"lumen detector 'plugins\.detectors:wrong_shape' returned pixel = "
+                    r"\[10, 20, 1\] of shape \(3,\), not a pair \(u, v\)"),
+    ("returns_none", r"lumen detector 'plugins\.detectors:returns_none' returned None, which "
+                     r"is not a result"),
+]
+
+
+@pytest.mark.parametrize("detector,culprit", BROKEN_DETECTORS,
+                         ids=[d for d, _ in BROKEN_DETECTORS])
+def test_a_detector_that_breaks_in_the_run_fails_it_in_one_line(detector, culprit, tmp_path,
+                                                                 capsys):
+    out = tmp_path / "run"
+    code = cli_main(RUN[:-1] + ["0.5", "--scenario-text", TRACKER % detector,
+                                "--out", str(out)])
+    line = _assert_one_line(code, capsys.readouterr().err,
+                            r"simulation error at t = 0\.\d+ s: " + culprit)
+    assert code == 1, line
+    assert json.loads((out / "metrics.json").read_text())["status"] == "error"
+    assert load_logs(out)["times"].size >= 1 and (out / "error.txt").is_file()
 
 
 @contextlib.contextmanager
@@ -515,6 +617,15 @@ FAILING_DETECTORS = [
                   r"True: a lumen it sees needs a finite \(u, v\), on frame 0 of 1"),
     ("wrong_shape", r"plugins\.detectors:wrong_shape returned pixel = \[10, 20, 1\] "
                     r"of shape \(3,\), not a pair \(u, v\), on frame 0"),
+    # Before: the exit ended eval-lumen with status 0, taking the core detector's scores.
+    ("exits", r"lumen detector plugins\.detectors:exits exited \(SystemExit: 0\) on frame 0 "
+              r"of 1 \(raycast, fisheye, nominal"),
+    # Before: it wrote into the frames the next detectors score, with status 0.
+    ("scribbles", r"lumen detector plugins\.detectors:scribbles raised ValueError: "
+                  r"assignment destination is read-only \(a detector is given a read-only "
+                  r"frame and field mask: copy them to change them\) on frame 0 of 1"),
+    ("clears_the_mask", r"lumen detector plugins\.detectors:clears_the_mask raised "
+                        r"ValueError: .*read-only .* on frame 0 of 1"),
 ]
 
 
@@ -533,9 +644,10 @@ def test_a_users_detector_that_fails_is_one_line_and_keeps_the_scores(detector, 
         "frames"] == 1
     assert f"Stopped: lumen detector plugins.detectors:{detector}" in (
         out / "tables.md").read_text()
-    if detector == "raises":  # the user's traceback, for the user
+    if detector in ("raises", "exits", "scribbles", "clears_the_mask"):  # its traceback
         details = (out / "error.txt").read_text()
-        assert "Traceback" in details and "the detector divided by zero" in details
+        assert "Traceback" in details and ("the detector divided by zero" in details
+                                           or detector != "raises")
     else:
         assert not (out / "error.txt").exists()
 

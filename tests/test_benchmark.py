@@ -258,6 +258,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CAMERA = "{capsule: {camera: {fps: 2.0, latency: 0.05}}}"
 CREEP, FAILS_LATER = "plugins.navigators:creep", "plugins.navigators:fails_later"
 CRASHES, HANGS = "plugins.misbehaving:crashes", "plugins.misbehaving:hangs"
+EXITS_LATER = "plugins.misbehaving:exits_later"
+EXITS_IN_FACTORY = "plugins.misbehaving:exits_in_factory"
 
 
 class _Suite:
@@ -375,26 +377,63 @@ def test_a_run_that_crashes_or_hangs_is_a_failed_row_and_the_suite_goes_on(tmp_p
     rows = suite.rows()
     assert [row["navigator"] for row in rows] == [HANGS, CREEP, FAILS_LATER, CRASHES]
     hang, creep, fails_later, crash = rows
-    assert [row["status"] for row in rows] == ["failed", "finished", "finished", "failed"]
+    assert [row["status"] for row in rows] == ["failed", "finished", "failed", "failed"]
     assert hang["error"] == "timed out after 45 s" and 45 <= float(hang["wall_time_s"]) < 75
     assert crash["error"] == "crashed: worker exited with signal 9 (SIGKILL)"
-    # The good runs as they would be alone; an error inside the simulation is a finished
-    # run, as before.
+    # The good run as it would be alone; the navigator that raised inside the simulation
+    # failed its run.
     assert creep["error"] == "" and float(creep["sim_time_s"]) == pytest.approx(1.0)
     assert creep["stuck_in"].startswith("time limit (rectum, at ")
-    assert fails_later["stuck_in"] == ("simulation error: ZeroDivisionError: the navigator "
-                                       "divided by zero")
-    assert float(fails_later["sim_time_s"]) == pytest.approx(0.5)
+    assert fails_later["error"] == (f"simulation error at t = 0.500 s: navigator "
+                                    f"'{FAILS_LATER}' raised ZeroDivisionError: the navigator "
+                                    "divided by zero")
     assert sorted(row["navigator"] for row in suite.rows_as_finished()) == sorted(
         row["navigator"] for row in rows)
     for name in ("summary.csv", "progress.png", "segments.png", "results.json"):
         assert (suite.out / name).exists(), name
     err = suite.err()
     assert "Traceback" not in err and err.splitlines()[-1] == (
-        f"capsule-sim: 2 of 4 runs failed (the error column says why): {HANGS} seed 0, "
-        f"{CRASHES} seed 0")
+        f"capsule-sim: 3 of 4 runs failed (the error column says why): {HANGS} seed 0, "
+        f"{FAILS_LATER} seed 0, {CRASHES} seed 0")
     assert suite.render_processes()  # each run had its camera's render process
     assert suite.left_behind() == []
+
+
+@pytest.mark.slow
+def test_a_suite_whose_navigators_raise_or_exit_inside_their_runs_fails(tmp_path, suites):
+    # Before: both runs were "finished" rows and the suite exited 0, where `run` with either
+    # navigator exits 1.
+    suite = suites(tmp_path, [FAILS_LATER, EXITS_LATER], "--workers", "2")
+    assert suite.finish(timeout=600) == 1, suite.err()
+    fails_later, exits_later = suite.rows()
+    assert [fails_later["status"], exits_later["status"]] == ["failed", "failed"]
+    assert fails_later["error"] == (f"simulation error at t = 0.500 s: navigator "
+                                    f"'{FAILS_LATER}' raised ZeroDivisionError: the navigator "
+                                    "divided by zero")
+    assert exits_later["error"] == (f"simulation error at t = 0.500 s: navigator "
+                                    f"'{EXITS_LATER}' exited (SystemExit: 0)")
+    assert float(exits_later["sim_time_s"]) == pytest.approx(0.5)
+    err = suite.err()
+    assert "Traceback" not in err and err.splitlines()[-1] == (
+        f"capsule-sim: 2 of 2 runs failed (the error column says why): {FAILS_LATER} seed 0, "
+        f"{EXITS_LATER} seed 0")
+    assert suite.left_behind() == []
+
+
+@pytest.mark.slow
+def test_a_navigator_that_exits_fails_its_run_on_a_dask_cluster():
+    pytest.importorskip("distributed", reason="dask.distributed is not installed")
+    # Before: the exit in the factory killed the Dask worker ("crashed: the Dask worker
+    # running it died"), and the exit inside the simulation was a finished row.
+    tasks = [Task(navigator, 0, duration=1.0, scenario_text=TEXT)
+             for navigator in (EXITS_IN_FACTORY, EXITS_LATER)]
+    in_factory, later = (r["row"] for r in run_suite(tasks, workers=2, engine="dask",
+                                                     progress=False))
+    assert in_factory["status"] == "failed" and in_factory["error"] == (
+        f"raised ScenarioError: scenario: epm.driver: navigator '{EXITS_IN_FACTORY}' failed "
+        "to build its system (SystemExit: 0)")
+    assert later["status"] == "failed" and later["error"] == (
+        f"simulation error at t = 0.500 s: navigator '{EXITS_LATER}' exited (SystemExit: 0)")
 
 
 @pytest.mark.slow
@@ -410,7 +449,7 @@ def test_ctrl_c_during_a_hang_keeps_the_finished_rows_and_leaves_no_process(tmp_
     assert suite.err().splitlines()[-1] == "capsule-sim: interrupted (SIGINT)"
     rows = suite.rows()
     assert [row["navigator"] for row in rows] == [CREEP, FAILS_LATER, CRASHES]
-    assert [row["status"] for row in rows] == ["finished", "finished", "failed"]
+    assert [row["status"] for row in rows] == ["finished", "failed", "failed"]
     assert (suite.out / "results.json").exists() and (suite.out / "summary.csv").exists()
     assert len(suite.render_processes()) >= 1
     assert suite.left_behind() == []

@@ -6,10 +6,11 @@ capsule reaches the cecum (its centreline station within `CECUM_MARGIN` of the e
 suite runs in parallel processes on this machine (`engine="local"`) or on a Dask cluster
 (`engine="dask"`: a local cluster of `workers` processes, or an existing scheduler's
 address), with a progress line, and gives the same table for the same seeds either way.
-A run whose process crashes, or that outlives its wall-time limit (`run_timeout`), is a row
-marked failed with its reason (`status`, `error`), and the suite goes on; Ctrl-C and the
-termination signals stop every run's processes (the run's worker and its camera's render
-process), keeping the runs that finished.
+A run whose process crashes, that outlives its wall-time limit (`run_timeout`), or that an
+error ended (a plug-in's that raised or exited, naming it) is a row marked failed with its
+reason (`status`, `error`), and the suite goes on; Ctrl-C and the termination signals stop
+every run's processes (the run's worker and its camera's render process), keeping the runs
+that finished.
 
 Navigators, each a named scenario whose `epm.driver` drives the EPM (diagrams/default.yaml),
 all run through the one run loop (app/run.py `simulate`, which seeds the random context):
@@ -54,7 +55,7 @@ from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator
-from capsule_drake.plugins import load_function
+from capsule_drake.plugins import first_line, load_function, what_it_did
 from capsule_drake.scenario import load_scenario
 
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
@@ -80,8 +81,9 @@ COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to
            "seen_small", "polyps_large", "seen_large", "polyps_detected", "polyp_fp_per_min",
            "diverticula", "seen_diverticula", "sim_time_s", "wall_time_s", "status", "error")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
-# cecum, the guard, an error inside the simulation), or it failed (`error` says how: its
-# process crashed, it outlived its wall-time limit, or it raised before it could simulate).
+# cecum, the guard), or it failed (`error` says how: its process crashed, it outlived its
+# wall-time limit, it raised or exited before it could simulate, or an error ended its
+# simulation, naming the plug-in whose code raised or exited if one did).
 FINISHED, FAILED = "finished", "failed"
 
 
@@ -163,10 +165,11 @@ def run_task(task: Task, progress=None) -> dict:
     lesions = lesion_scene(scenario.colon)
     polyps, pouches = lesions.polyps, lesions.diverticula
     lesion_views, pouch_views = [], []
-    detector = (load_function("polyp detector", task.polyp_detector, "a function")
-                if task.polyp_detector else None)
 
     def extend(builder, station):
+        # Loaded as the run is built, so that the run names it if it breaks the run.
+        detector = (load_function("polyp detector", task.polyp_detector, "a function")
+                    if task.polyp_detector else None)
         if station.HasOutputPort("capsule.camera.rgb_image"):
             camera = station.GetSubsystemByName("capsule.camera")
             coverage = builder.AddNamedSystem("coverage", MucosaCoverage(
@@ -220,11 +223,19 @@ def run_task(task: Task, progress=None) -> dict:
         return "reached the cecum" if s >= length - CECUM_MARGIN else None
 
     result = simulate(scenario, progress=False, extend=extend, stop_when=at_cecum)
+    s = colon.centerline.closest(result.capsule_state[4:7].T)[0]
+    step = max(1, int(round(1.0 / period)))
+    curve = (result.times[::step].tolist(), s[::step].tolist())
+    if result.status == "error":  # an error ended it (a plug-in's, or the simulation's)
+        failed = failed_result(task, result.metrics["stopped_early"],
+                               result.metrics.get("wall_time_s", np.nan))
+        failed["row"]["sim_time_s"] = round(float(result.context.get_time()), 3)
+        failed.update(curve=curve, segments=colon.centerline.segment_ranges(),
+                      worker_pid=os.getpid())
+        return failed
     camera = extra.pop("camera", None)
     data = {name: log.FindLog(result.context) for name, log in extra.items()}
     stopped = result.metrics.get("stopped_early")
-    if stopped and stopped.startswith("simulation error"):
-        stopped = "simulation error: " + stopped.split(": ", 1)[1]
     row = _metrics(task, colon, result, data, camera, stopped)
     if result.status == "diverged":  # nothing measured in such a run means anything
         row.update({key: np.nan for key in DIVERGED_NAN})
@@ -238,17 +249,15 @@ def run_task(task: Task, progress=None) -> dict:
     row["seen_diverticula"] = (0 if not pouches else np.nan if pouches_shown is None
                                else int(np.sum(pouches_shown >= SEEN_SECONDS)))
     score = (lesion_views[0].detector_score(None if shown is None else shown >= SEEN_SECONDS)
-             if lesion_views and detector else None)
+             if lesion_views and task.polyp_detector else None)
     row.update(polyps_detected=np.nan if score is None else score["seen_detected"],
                polyp_fp_per_min=np.nan if score is None else round(score["fp_per_min"], 2))
     row["patient"] = patient_label(scenario.colon)
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
     row.update(status=FINISHED, error="")
-    s = colon.centerline.closest(result.capsule_state[4:7].T)[0]
-    step = max(1, int(round(1.0 / period)))
-    return {"row": row, "curve": (result.times[::step].tolist(), s[::step].tolist()),
-            "segments": colon.centerline.segment_ranges(), "worker_pid": os.getpid()}
+    return {"row": row, "curve": curve, "segments": colon.centerline.segment_ranges(),
+            "worker_pid": os.getpid()}
 
 
 def lesion_columns(polyps, shown_s) -> dict:
@@ -431,19 +440,15 @@ class EngineError(Exception):
 
 
 def failed_result(task: Task, error: str, wall_time: float = np.nan) -> dict:
-    """The result of a run that failed (its process crashed, it timed out, or it raised
-    before simulating): its row has the navigator and seed, `status` FAILED, the reason in
-    `error`, the wall time it took, and nothing measured."""
+    """The result of a run that failed (its process crashed, it timed out, it raised or
+    exited before simulating, or an error ended its simulation): its row has the navigator
+    and seed, `status` FAILED, the reason in `error`, the wall time it took, and nothing
+    measured."""
     row = dict.fromkeys(COLUMNS, np.nan)
     row.update(navigator=task.navigator, seed=task.seed, reached_cecum=False, stuck_in="",
                wall_time_s=round(float(wall_time), 1), status=FAILED, error=error,
                segments_passed=[])
     return {"row": row, "curve": ([], []), "segments": {}, "worker_pid": None}
-
-
-def _first_line(error: BaseException) -> str:
-    text = str(error).strip().splitlines()[0] if str(error).strip() else ""
-    return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
 class NotedSignals:
@@ -531,7 +536,7 @@ def _worker_main(parent: int, fd: int) -> None:
     try:
         result = run_task(task, progress=lambda info: channel.send(("progress", info)))
     except BaseException as e:  # the run failed before it simulated (its station, a plug-in)
-        channel.send(("error", f"raised {_first_line(e)}"))
+        channel.send(("error", what_it_did(e)))
     else:
         channel.send(("result", result))
     channel.close()
@@ -678,11 +683,17 @@ def _run_local(tasks, workers, display, finish, run_timeout):
 
 def _run_task_reporting_to_dask(task: Task, key: int) -> dict:
     """run_task on a Dask worker, its progress sent as events on PROGRESS_TOPIC (through
-    the scheduler, so a worker on another machine reports the same way)."""
+    the scheduler, so a worker on another machine reports the same way). A run that raises
+    or exits before it simulates is a failed result here: a SystemExit (a plug-in's
+    sys.exit()) would take the worker down with it."""
     from distributed import get_worker
     worker = get_worker()
-    return run_task(task, progress=lambda info: worker.log_event(
-        PROGRESS_TOPIC, {"key": key, **info}))
+    began = time.monotonic()
+    try:
+        return run_task(task, progress=lambda info: worker.log_event(
+            PROGRESS_TOPIC, {"key": key, **info}))
+    except BaseException as e:
+        return failed_result(task, what_it_did(e), time.monotonic() - began)
 
 
 def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
@@ -696,8 +707,9 @@ def run_suite(tasks: list[Task], workers: int = 2, engine: str = "local",
     cluster of `workers` processes (EngineError when it cannot be reached).
     run_timeout: the wall-time limit of a run (s; None: none), from its process's start
     (local) or its first report (Dask).
-    A run that crashes its process, outlives its limit or raises before it simulates gives
-    a result of status FAILED (`failed_result`: `error` says why), and the others go on.
+    A run that crashes its process, outlives its limit, raises or exits before it simulates,
+    or that an error ends gives a result of status FAILED (`failed_result`: `error` says
+    why), and the others go on.
     on_result: called with each result as its run finishes (e.g. `RowWriter`), so a long
     suite that is interrupted keeps the runs it finished. Ctrl-C or a termination signal
     (where Python handles it) kills every run's processes, then is raised.
@@ -745,7 +757,7 @@ def _run_dask(tasks, workers, address, display, finish, run_timeout):
             if cluster is not None:
                 raise
             raise EngineError(f"cannot reach a Dask scheduler at {address!r} "
-                              f"({_first_line(e)})") from None
+                              f"({first_line(e)})") from None
         with client:
             started: dict[int, float] = {}
 
@@ -770,8 +782,7 @@ def _run_dask(tasks, workers, address, display, finish, run_timeout):
                         continue
                     error = future.exception()
                     reason = ("crashed: the Dask worker running it died"
-                              if isinstance(error, KilledWorker)
-                              else f"raised {_first_line(error)}")
+                              if isinstance(error, KilledWorker) else what_it_did(error))
                     finish(k, failed_result(tasks[k], reason,
                                             time.monotonic() - started.get(k, np.nan)))
                 if run_timeout is not None:

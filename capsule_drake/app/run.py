@@ -4,6 +4,7 @@ progress)."""
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import json
@@ -37,6 +38,7 @@ from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_ro
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
 from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.plugins import FAILURES, culprit, failure_text, noting_loads, what_it_did
 from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
 
@@ -240,10 +242,27 @@ class Ending:
     signal: str | None = None      # an interruption's: "SIGINT", "SIGTERM", "SIGHUP"
 
 
-def _error_ending(e: BaseException, t: float) -> Ending:
-    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-    return Ending("error", f"simulation error at t = {t:.3f} s: {type(e).__name__}: {text}",
+def _error_ending(e: BaseException, t: float, plugins=()) -> Ending:
+    """An error that ended the run: one line, naming the plug-in (of `plugins`, those the run
+    loaded) whose code raised or exited, if one did."""
+    return Ending("error", f"simulation error at t = {t:.3f} s: {failure_text(e, plugins)}",
                   traceback.format_exc())
+
+
+@contextlib.contextmanager
+def _plugins_as_bad_input(plugins):
+    """Within the block (a run's build), an error that the code of one of `plugins` (those
+    the run loaded) raises or exits with is a bad input: ScenarioError, one line naming it,
+    and nothing is simulated (e.g. Drake allocating a value of a navigator's port as the
+    run's context is made)."""
+    try:
+        yield
+    except FAILURES as e:
+        plugin = culprit(e, plugins)
+        if plugin is None or isinstance(e, ScenarioError):
+            raise
+        raise ScenarioError(f"scenario: {plugin} {what_it_did(e)} as the run was built") \
+            from None
 
 
 def _interrupted(name: str, t: float) -> Ending:
@@ -281,24 +300,26 @@ class Run:
         self.scenario = scenario
         capsule_start = settled_start(scenario) if scenario.capsule.settle > 0.0 else None
         builder = DiagramBuilder()
-        station, colon, monitor = add_guarded_station(builder, scenario, meshcat,
-                                                      capsule_start)
         self._finish = None
-        try:  # a build that fails closes what the station and the extensions opened
-            period = scenario.outputs.log_period
-            self._loggers = (
-                LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
-                LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
-                LogVectorOutput(monitor.GetOutputPort("peak_pressure"), builder, period),
-                LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
-            ) if log else ()
-            self._finish = extend(builder, station) if extend is not None else None
-            diagram = builder.Build()
-            simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
-        except BaseException:
-            _close_quietly(self._finish)
-            close_render_worker(station)
-            raise
+        # The plug-ins the station and the extensions load: an error they raise names them.
+        with noting_loads() as self.plugins, _plugins_as_bad_input(self.plugins):
+            station, colon, monitor = add_guarded_station(builder, scenario, meshcat,
+                                                          capsule_start)
+            try:  # a build that fails closes what the station and the extensions opened
+                period = scenario.outputs.log_period
+                self._loggers = (
+                    LogVectorOutput(station.GetOutputPort("capsule.state"), builder, period),
+                    LogVectorOutput(monitor.GetOutputPort("contact_load"), builder, period),
+                    LogVectorOutput(monitor.GetOutputPort("peak_pressure"), builder, period),
+                    LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
+                ) if log else ()
+                self._finish = extend(builder, station) if extend is not None else None
+                diagram = builder.Build()
+                simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
+            except BaseException:
+                _close_quietly(self._finish)
+                close_render_worker(station)
+                raise
         self.station, self.colon, self.contact_monitor = station, colon, monitor
         self.diagram, self.simulator = diagram, simulator
         self.context = simulator.get_mutable_context()
@@ -346,13 +367,17 @@ class Run:
     def advance_to(self, t: float) -> Ending | None:
         """Simulates up to time t. Returns None if it got there, else how the run ended:
         the run guard (io/guard.py), `stop_when`'s goal, an error inside the simulation
-        (Drake's, including its failed assertions, or a plug-in's), or a signal. A second
-        signal before the first was acted on raises (KeyboardInterrupt, or the CLI's
-        `Interrupted`)."""
+        (Drake's, including its failed assertions, or a plug-in's: one that raised, exited
+        or raised KeyboardInterrupt itself), or a signal. A second signal before the first
+        was acted on raises (KeyboardInterrupt, or the CLI's `Interrupted`)."""
         try:
             result = self.simulator.AdvanceTo(t)
+        except KeyboardInterrupt as e:
+            if not self.raised_by_plugin(e):
+                raise
+            return _error_ending(e, self.time, self.plugins)
         except (Exception, SystemExit) as e:  # Drake's errors; its failed assertions exit
-            return _error_ending(e, self.time)
+            return _error_ending(e, self.time, self.plugins)
         if self._signals is not None and self._signals.pending is not None:
             return _interrupted(signal.Signals(self._signals.pending).name, self.time)
         if result.reason() != SimulatorStatus.ReturnReason.kReachedTerminationCondition:
@@ -364,6 +389,13 @@ class Run:
         if kind == "epm_clearance":
             return Ending(ENDING_OF_KIND[kind], f"stopped by the EPM's clearance watch at {text}")
         return Ending(ENDING_OF_KIND[kind], f"stopped by the run guard at {text}")
+
+    def raised_by_plugin(self, interrupt: KeyboardInterrupt) -> bool:
+        """Whether a KeyboardInterrupt out of the simulation was raised by a plug-in's code
+        itself, not by a signal: while `signals` are noted, a signal raises only when one is
+        pending already (the second)."""
+        return (self._signals is not None and self._signals.pending is None
+                and culprit(interrupt, self.plugins) is not None)
 
     def drain(self) -> dict | None:
         """Moves the loggers' samples out (the LOG_KEYS of app/outputs.py), or None without
@@ -487,11 +519,14 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
     except KeyboardInterrupt as e:  # a second signal: Ctrl-C, or the CLI's `Interrupted`
         if not built:
             raise
-        ending = _interrupted(getattr(e, "signal_name", "SIGINT"), run.time)
+        if run.raised_by_plugin(e):  # as the run initialises
+            ending = _error_ending(e, run.time, run.plugins)
+        else:
+            ending = _interrupted(getattr(e, "signal_name", "SIGINT"), run.time)
     except (Exception, SystemExit) as e:  # e.g. a plug-in's error as the run initialises
         if not built:
             raise
-        ending = _error_ending(e, run.time)
+        ending = _error_ending(e, run.time, run.plugins)
     # However it ended: close what the run opened, score it, write it, with Ctrl-C and the
     # termination signals held until the files are whole.
     with signals.held():

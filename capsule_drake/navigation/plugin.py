@@ -8,7 +8,9 @@ world frame), and may have any of these input ports, connected by name:
 `lumen_confidence` (the lumen tracker's: switch it on with `capsule: {lumen_tracker: {}}`),
 and `lumen_truth_ray`, `lumen_truth_visible` (the lumen truth, as a ray in the camera
 frame; needs the camera). A user's lumen detector plugs into the tracker instead:
-`capsule: {lumen_tracker: {detector: "package.module:function"}}`.
+`capsule: {lumen_tracker: {detector: "package.module:function"}}`. A port of the wrong size
+or kind is refused as the station is built (one line naming it); `rgb_image` is the
+navigator's own copy of the camera's frame (what it writes into it, nothing else sees).
 
 The command passes the EPM's guard on its way to the carrier, as every driver's does
 (epm/guard.py): raised to the clearance floor (`floor_height`), its centre kept within the
@@ -20,13 +22,17 @@ station's `epm.guard_counts` counts each. `epm.command` is the navigator's own c
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import System
+from pydrake.common import pretty_class_name
+from pydrake.systems.framework import PortDataType, System
+from pydrake.systems.primitives import PassThrough
 
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
-from capsule_drake.plugins import load_function
+from capsule_drake.plugins import FAILURES, first_line, load_function
 from capsule_drake.blocks import block
 from capsule_drake.schema import ScenarioError
 
+# The size of the command a navigator's `epm_command` port gives: [p_WE (3), m_hat_W (3)].
+COMMAND_SIZE = 6
 PLUGIN_INPUTS = {
     "capsule_state": None, "epm_pose": "epm.pose",
     "rgb_image": "capsule.camera.rgb_image", "frame_info": "capsule.camera.frame_info",
@@ -87,13 +93,21 @@ def add_plugin(builder, parts, config: Plugin):
                                np.array(parts.epm.start_command))
     try:
         system = load_navigator(name)(context)
-    except Exception as e:  # the user's code: one line, naming it
-        text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    except FAILURES as e:  # the user's code (or its sys.exit()): one line, naming it
         raise ScenarioError(f"scenario: epm.driver: navigator {name!r} failed to build its "
-                            f"system ({type(e).__name__}: {text})") from None
+                            f"system ({first_line(e)})") from None
     if not isinstance(system, System):
         raise ScenarioError(f"scenario: epm.driver: navigator {name!r} returned a "
                             f"{type(system).__name__}, not a Drake LeafSystem")
+    if not system.HasOutputPort("epm_command"):
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r} has no output port "
+                            "'epm_command'")
+    command = system.GetOutputPort("epm_command")
+    if not (command.get_data_type() == PortDataType.kVectorValued
+            and command.size() == COMMAND_SIZE):
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r}: output port "
+                            f"'epm_command' is {_kind(command)}; the station needs a vector of "
+                            f"size {COMMAND_SIZE}")
     system = builder.AddNamedSystem("navigator", system)
     truth = None
     for i in range(system.num_input_ports()):
@@ -112,15 +126,41 @@ def add_plugin(builder, parts, config: Plugin):
         if input_name.startswith("lumen_truth_"):
             if truth is None:
                 truth = add_lumen_ray_from_truth(builder, parts, "lumen_truth_ray")
-            builder.Connect(truth.GetOutputPort(input_name.removeprefix("lumen_truth_")), port)
+            given = truth.GetOutputPort(input_name.removeprefix("lumen_truth_"))
         elif source is None:
-            builder.Connect(parts.capsule_state, port)
+            given = parts.capsule_state
         else:
-            builder.Connect(parts.output(source), port)
-    if not system.HasOutputPort("epm_command"):
-        raise ScenarioError(f"scenario: epm.driver: navigator {name!r} has no output port "
-                            "'epm_command'")
-    command = system.GetOutputPort("epm_command")
+            given = parts.output(source)
+        _connect_input(builder, name, given, port)
     builder.Connect(command, parts.epm.command_input(builder, parts))
     parts.export(command, "epm.command")
     return system
+
+
+def _connect_input(builder, name: str, given, port) -> None:
+    """Connects the station's output port `given` to the navigator's input `port`, or raises
+    ScenarioError (one line) when the port does not take what `given` gives. A value that is
+    not a vector (the camera's image) reaches the navigator through a copy of its own: what
+    the navigator does to it, no other system sees."""
+    vector = PortDataType.kVectorValued
+    fits = (given.get_data_type() == port.get_data_type()
+            and (given.size() == port.size() if given.get_data_type() == vector
+                 else type(given.Allocate()) is type(port.Allocate())))
+    if not fits:
+        raise ScenarioError(f"scenario: epm.driver: navigator {name!r}: input port "
+                            f"{port.get_name()!r} is {_kind(port)}; the station gives it "
+                            f"{_kind(given)}")
+    if given.get_data_type() != vector:
+        copy = builder.AddNamedSystem(f"navigator.{port.get_name()}",
+                                      PassThrough(given.Allocate()))
+        builder.Connect(given, copy.get_input_port())
+        given = copy.get_output_port()
+    builder.Connect(given, port)
+
+
+def _kind(port) -> str:
+    """What a port carries, as a user would say it: "a vector of size 6", "an abstract
+    value (Image[PixelType.kRgba8U])"."""
+    if port.get_data_type() == PortDataType.kVectorValued:
+        return f"a vector of size {port.size()}"
+    return f"an abstract value ({pretty_class_name(type(port.Allocate().get_value()))})"

@@ -35,6 +35,7 @@ from capsule_drake.perception.lumen import detection_problem
 from capsule_drake.perception.lumen_truth import far_region, lumen_target, project_lumen
 from capsule_drake.perception.raycast import SHADING_GROUPS, RayCaster, Shading
 from capsule_drake.perception.views import camera_scene
+from capsule_drake.plugins import FAILURES, read_only, what_it_did
 
 KINDS = ("lumen", "wall")
 RENDERERS = ("vtk", "raycast")
@@ -363,14 +364,18 @@ def evaluate(frames: list[Frame], detector, name: str = "detector",
     that is not (u, v), ...: `detection_problem`)."""
     detections, milliseconds, errors, ahead = [], [], [], []
     for index, frame in enumerate(frames):
+        # Read-only views: the frames are every detector's, one after another.
+        rgb, field = read_only(frame.rgb), read_only(frame.field)
         start = time.perf_counter()
         try:
-            detection = detector(frame.rgb, frame.field)
-        except Exception as e:
-            text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+            detection = detector(rgb, field)
+        except FAILURES as e:  # its error, or its sys.exit()
+            hint = (" (a detector is given a read-only frame and field mask: copy them to "
+                    "change them)" if isinstance(e, ValueError) and "read-only" in str(e)
+                    else "")
             raise DetectorError(
-                f"lumen detector {name} raised {type(e).__name__}"
-                f"{': ' + text if text else ''} on {describe_frame(frames, index, where)}",
+                f"lumen detector {name} {what_it_did(e)}{hint} on "
+                f"{describe_frame(frames, index, where)}",
                 "".join(traceback.format_exception(e))) from e
         milliseconds.append(1e3 * (time.perf_counter() - start))
         problem = detection_problem(detection, frame.rgb.shape)

@@ -564,6 +564,10 @@ def net_detector(params: LumenParams | None = None, path=None) -> Detector:
     return detect
 
 
+# The built-in detectors' names (`load_detector`); any other name is a user's plug-in.
+BUILT_IN_DETECTORS = ("core", "gaussian", "median", "net")
+
+
 def load_detector(name: str, params: LumenParams | None = None) -> Detector:
     """A detector by name: "core" (detect_lumen_core), "gaussian", "median" (the
     dark-class detectors of the seed and of STORM), "net" (the learned detector,
@@ -578,8 +582,10 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
     (`LumenDetection.nothing(rgb.shape)`); None, NaN or any other value is not a result.
     `capsule-sim eval-lumen` stops at a result that breaks the contract (one line naming
     the value and the frame, exit status 1), as at a detector that raises; the lumen
-    tracker in a simulation counts either as a failure and reports no lumen for that
-    frame."""
+    tracker in a simulation counts a detector that raises as a failure and reports no lumen
+    for that frame, and a user's result that breaks the contract ends the run (one line
+    naming the detector and the value, exit status 1). A detector is given read-only views
+    of the frame and the field mask: it may not write into them."""
     if name == "core":
         return core_detector(params)
     if name == "gaussian":
@@ -588,4 +594,5 @@ def load_detector(name: str, params: LumenParams | None = None) -> Detector:
         return median_detector(params)
     if name == "net":
         return net_detector(params)
-    return load_function("lumen detector", name, "'core', 'gaussian', 'median', 'net'")
+    return load_function("lumen detector", name,
+                         ", ".join(repr(built_in) for built_in in BUILT_IN_DETECTORS))

@@ -9,7 +9,10 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageGrey8U, ImageRgba8U
 
 from capsule_drake.blocks import block, checked, need
-from capsule_drake.perception.lumen import LumenParams, check_lumen_params, load_detector
+from capsule_drake.perception.lumen import (BUILT_IN_DETECTORS, LumenParams,
+                                            check_lumen_params, detection_problem,
+                                            load_detector)
+from capsule_drake.plugins import PluginError, read_only
 from capsule_drake.schema import need_range
 
 log = logging.getLogger(__name__)
@@ -67,13 +70,16 @@ class LumenTracker(LeafSystem):
 
     rgb_image, frame_info: the CapsuleCamera's outputs; a frame is new when the frame count
     (frame_info[1]) changes. The tracker checks at `period` (the camera's tick), `delay`
-    after the camera's ticks, so it sees the frame taken at that tick.
+    after the camera's ticks, so it sees the frame taken at that tick. The detector is given
+    read-only views of the frame and the field mask.
     lumen_pixel: (u, v) px, NaN when not visible. lumen_ray: unit ray through that pixel in
     the camera frame (x right, y down, z forward), through the lens model; [0, 0, 0] when
     not visible. lumen_confidence: [0, 1]. lumen_visible: 1.0 or 0.0. region: ImageGrey8U,
     255 on the detected dark region (for overlays). stats: [frames processed, detector
     failures]; a detector that raises or returns garbage counts as a failure and reports
-    "not visible" for that frame: the simulation goes on.
+    "not visible" for that frame: the simulation goes on. A user's detector (a plug-in named
+    in `config.detector`) is held to the detector contract instead: a result that breaks it
+    (perception/lumen.py `detection_problem`) raises PluginError, which ends the run.
 
     Args:
         lens: the camera's lens model (`unproject`, `pixel_rays`).
@@ -90,8 +96,12 @@ class LumenTracker(LeafSystem):
         check_lumen_tracker_config(self._config)
         self._cos_agree = float(np.cos(np.radians(self._config.agree_deg)))
         self._detector = detector or load_detector(self._config.detector, self._config.params)
+        # The user's detector named in the config, held to the contract (None: a built-in).
+        self._plugin = (self._config.detector if detector is None
+                        and self._config.detector not in BUILT_IN_DETECTORS else None)
         self._lens = lens
-        _, self._field = lens.pixel_rays()
+        _, field = lens.pixel_rays()
+        self._field = read_only(field)
         W, H = lens.width, lens.height
         self._rgb_port = self.DeclareAbstractInputPort("rgb_image",
                                                        AbstractValue.Make(ImageRgba8U(W, H)))
@@ -116,13 +126,21 @@ class LumenTracker(LeafSystem):
         """Runs the detector on one image; returns (pixel (2,), ray (3,), confidence,
         visible, region (H, W) uint8 or None, failed)."""
         nothing = (np.full(2, np.nan), np.zeros(3), 0.0, False, None)
+        rgb = read_only(rgb)
         try:
             result = self._detector(rgb, self._field)
+        except Exception as e:  # a detector's error must not stop the simulation
+            log.warning("lumen detector failed on a frame: %s: %s", type(e).__name__, e)
+            return nothing + (True,)
+        problem = detection_problem(result, rgb.shape) if self._plugin is not None else None
+        if problem is not None:
+            raise PluginError(f"lumen detector {self._plugin!r} {problem}")
+        try:
             visible = bool(result.visible)
             pixel = np.asarray(result.pixel, dtype=float).reshape(2)
             confidence = float(result.confidence)
             region = getattr(result, "region", None)
-        except Exception as e:  # a user's detector must not stop the simulation
+        except Exception as e:  # a result that is not one
             log.warning("lumen detector failed on a frame: %s: %s", type(e).__name__, e)
             return nothing + (True,)
         if not np.isfinite(confidence):
