@@ -438,6 +438,65 @@ def test_a_full_disk_is_found_before_the_run(tmp_path, capsys):
         _assert_one_line(code, capsys.readouterr().err, r"MB free, but the run will write")
 
 
+def test_a_full_disk_leaves_nothing_that_blocks_the_retry(tmp_path, capsys):
+    # A real full disk: the run is refused in one line and leaves no folder; once there is
+    # room, the same --out (without --force) runs.
+    with _tmpfs(tmp_path / "disk", "40m") as disk:
+        if disk is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        filler = disk / "filler"
+        with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):
+            while True:
+                f.write(b"\0" * (1 << 20))
+        args = ["run", "--duration", "0.05", "--no-recording", "--quiet",
+                "--out", str(disk / "run")]
+        code = cli_main(args)
+        _assert_one_line(code, capsys.readouterr().err, re.escape(
+            f"{disk / 'run'}: cannot write to the output folder (No space left on device)"))
+        assert code == 2
+        assert not (disk / "run").exists()
+        filler.unlink()
+        assert cli_main(args) == 0, capsys.readouterr().err
+        assert sorted(p.name for p in (disk / "run").iterdir()) == [
+            "logs.npz", "metrics.json", "scenario.yaml"]
+
+
+def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, capsys,
+                                                                    monkeypatch):
+    # The MCAP log's disk is full when its first chunk is written (the room check is told
+    # there is room, as if another program filled the disk during the run). Before, an
+    # empty run.mcap stayed, which the retry refused even with --force (not an MCAP log of
+    # this simulator).
+    real_statvfs = os.statvfs
+
+    class Roomy:
+        def __init__(self, real):
+            self._real = real
+
+        def __getattr__(self, name):
+            return 10 ** 9 if name == "f_bavail" else getattr(self._real, name)
+
+    monkeypatch.setattr(outputs.os, "statvfs", lambda path: Roomy(real_statvfs(path)))
+    with _tmpfs(tmp_path / "disk", "1m") as disk:
+        if disk is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        filler = disk / "filler"
+        with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):
+            while True:
+                f.write(b"\0" * 4096)
+        mcap = disk / "run.mcap"
+        args = RUN + ["--scenario-text", "{capsule: {imu: {}}}", "--mcap", str(mcap)]
+        code = cli_main(args + ["--out", str(tmp_path / "a")])
+        line = _assert_one_line(code, capsys.readouterr().err,
+                                re.escape(f"--mcap {mcap}: could not write the MCAP log (No "
+                                          "space left on device)"))
+        assert code == 1, line
+        assert not mcap.exists()   # it held nothing: removed
+        filler.unlink()
+        assert cli_main(args + ["--out", str(tmp_path / "b")]) == 0, capsys.readouterr().err
+        assert "MCAP log: " in capsys.readouterr().out
+
+
 def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkeypatch):
     # 4 MB: room for the logs, not for the 16 MB recording. The room check is told there
     # is plenty, as if another program filled the disk during the run.
@@ -605,3 +664,25 @@ def test_a_killed_run_leaves_its_spooled_logs(tmp_path):
     logs = load_logs(out)  # from logs.parts/: at most ~5 simulated seconds are lost
     assert logs["times"][0] == 0.0 and logs["times"][-1] >= 5.0
     assert (out / "scenario.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_a_second_run_into_the_folder_of_a_running_one_is_refused(tmp_path, capsys):
+    # Before: the second run, with --force, removed the first one's outputs as it ran, and
+    # both reported success with a folder of mixed files.
+    process, out = _start(tmp_path)
+    try:
+        _wait_for_simulation(out, process)
+        code = cli_main(RUN + ["--out", str(out), "--force"])
+        _assert_one_line(code, capsys.readouterr().err,
+                         re.escape(f"--out {out}: another capsule-sim command is writing into "
+                                   "this folder"))
+        assert code == 2
+    finally:
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err
+    assert json.loads((out / "metrics.json").read_text())["status"] == "interrupted"
+    assert "duration: 60.0" in (out / "scenario.yaml").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
+                                                     "scenario.yaml"]

@@ -25,7 +25,7 @@ from capsule_drake.app.eval_lumen import EvaluationStopped, evaluate_paths
 from capsule_drake.app.mcap_log import add_mcap_logger, expected_mcap_bytes
 from capsule_drake.app.record import record, record_seeds, with_all_sensors
 from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUTS,
-                                      OutputError, plan_outputs)
+                                      OutputError, plan_outputs, release_claims)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
 from capsule_drake.app.benchmark import (FAILED, TIERS, EngineError, NotedSignals, RowWriter,
                                          Task, default_run_timeout, report, run_suite,
@@ -320,7 +320,8 @@ def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: floa
 
 
 def _claim(plan) -> Path:
-    """The planned folder, made (or a previous run's outputs removed from it, --force)."""
+    """The planned folder, made (or a previous run's outputs removed from it, --force), and
+    held by this command until it ends (another command naming it is refused)."""
     folder = plan.claim()
     if not plan.existed:
         _created_folders.append(folder)
@@ -339,6 +340,7 @@ _created_folders: list[Path] = []
 
 
 def _remove_unused_folders():
+    release_claims()
     for folder in _created_folders:
         with contextlib.suppress(OSError):
             folder.rmdir()  # only if empty
@@ -816,6 +818,8 @@ def main(argv=None, noted=None) -> int:
         return 1
     except Exception as e:  # a defect, not the user's mistake: one line, the details on disk
         return _internal_error(e)
+    finally:
+        release_claims()  # the output folders this command held (the system would, at exit)
     return 0
 
 
