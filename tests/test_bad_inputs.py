@@ -97,6 +97,22 @@ SCENARIO_VALUES = [
      r"capsule\.start_s 0\.018 m: the capsule would stick out of the colon's open end"),
     ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),
      r"target_realtime_rate"),
+    # Text read otherwise than it looks (README: the last of a key given twice won; YAML 1.1
+    # read these forms as other numbers or booleans; Python's float() reads other digits).
+    ("key given twice", _text("{epm: {clearance: 0.03, clearance: 0.04}}"),
+     r"override:1: epm\.clearance: given twice"),
+    ("hexadecimal number", _text("{colon: {seed: 0x10}}"),
+     r"colon\.seed: 0x10 reads as the hexadecimal number 16"),
+    ("base-60 number", _text("{random_seed: 1:30}"),
+     r"random_seed: 1:30 reads as the base-60 number 90"),
+    ("yes for true", _text("{magnet_force: {apply: yes}}"),
+     r"magnet_force\.apply: yes reads as true"),
+    ("number in quotes", _text("{epm: {clearance: '0.03'}}"),
+     r"epm\.clearance: expected a number, got the text '0\.03' \(in quotes\)"),
+    ("Arabic-Indic digits", _text("{colon: {seed: \u0663}}"),
+     r"colon\.seed: expected an integer, got .*digits 0-9"),
+    ("full-width digits", _text("{epm: {clearance: \uff10.\uff10\uff13}}"),
+     r"epm\.clearance: expected a number, got .*digits 0-9"),
 ]
 
 SCENARIO_FILES = [
