@@ -387,6 +387,78 @@ def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, ca
         assert (bad_files / "own_mesh" / "wall.obj").stat().st_size > 1000
 
 
+# Flags that would do nothing in the combination given: refused in one line, exit 2, before
+# anything is written (the commands run in an empty folder, where a run without --out would
+# make its own). Before, each was accepted and ignored.
+BENCH = ["benchmark", "--seeds", "0", "--navigators", "autonomy-truth", "--duration", "0.1",
+         "--quiet"]
+EVAL_ONE = ["eval-lumen", "--frames", "1", "--colons", "1", "--renderer", "raycast", "--lens",
+            "fisheye", "--conditions", "nominal", "--detector", "core", "--quiet"]
+IDLE_FLAGS = [
+    ("run --force without --out", RUN + ["--force"],
+     r"--force: only with --out or --mcap \(it replaces a previous run's outputs there\)"),
+    ("teleop --force without --out", ["teleop", "--duration", "0.1", "--quiet", "--force"],
+     r"--force: only with --out or --mcap"),
+    ("benchmark --force without --out", BENCH + ["--force"], r"--force: only with --out"),
+    ("eval-lumen --force without --out", EVAL_ONE + ["--force"], r"--force: only with --out"),
+    ("--address without --engine dask", BENCH + ["--address", "127.0.0.1:8786"],
+     r"--address: only with --engine dask"),
+    ("--workers with --address", BENCH + ["--engine", "dask", "--address", "127.0.0.1:1",
+                                          "--workers", "3"],
+     r"--workers: not with --address \(the scheduler's own workers run the benchmark\)"),
+    ("benchmark --scenario for built-in navigators", BENCH + ["--scenario", "Default"],
+     r"--scenario: only with a user's navigator"),
+    ("run --port without --meshcat", RUN + ["--port", "7123"], r"--port: only with --meshcat"),
+    ("teleop --port, simulated operator", ["teleop", "--duration", "0.1", "--quiet",
+                                           "--operator", "simulated", "--port", "7123"],
+     r"--port: the simulated operator"),
+    ("eval-lumen light conditions with vtk", EVAL_ONE[:5] + ["--renderer", "vtk", "--lens",
+                                                              "fisheye", "--conditions",
+                                                              "light_all", "--quiet"],
+     r"--conditions light_all: .*only with the ray caster"),
+]
+
+
+@pytest.mark.parametrize("name,args,culprit", IDLE_FLAGS, ids=[c[0] for c in IDLE_FLAGS])
+def test_a_flag_that_would_do_nothing_is_refused(name, args, culprit, tmp_path, monkeypatch,
+                                                capsys):
+    monkeypatch.chdir(tmp_path)
+    code, err = cli_main(args), capsys.readouterr().err
+    _assert_one_line(code, err, culprit)
+    assert code == 2
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_no_recording_with_a_live_page_writes_no_recording(tmp_path):
+    # Before, --no-recording did nothing with --meshcat: the run still wrote recording.html.
+    out = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["run", "--duration", "0.1", "--quiet", "--meshcat",
+                                      "--port", "0", "--no-recording", "--out", str(out)],
+                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        for line in process.stderr:  # it serves the page after the run, until Ctrl-C
+            if line.startswith("serving Meshcat"):
+                break
+        process.send_signal(signal.SIGINT)
+        stdout, _ = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert "outputs in " in stdout and "recording.html" not in stdout, stdout
+    assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
+                                                     "scenario.yaml"]
+
+
+def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
+    # --force does something without --out when there is an --mcap to replace.
+    monkeypatch.chdir(tmp_path)
+    args = RUN[:-1] + ["0.05", "--mcap", str(tmp_path / "run.mcap")]
+    assert cli_main(args) == 0
+    assert cli_main(args + ["--force"]) == 0, capsys.readouterr().err
+    assert len(list((tmp_path / "runs").iterdir())) == 2
+
+
 def test_there_are_at_least_60_cases():
     assert len(CASES) >= 60
     assert len({name for name, *_ in CASES}) == len(CASES)
