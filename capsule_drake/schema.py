@@ -198,6 +198,11 @@ def _check_size(text: str, source: str) -> None:
     aliases) to too many nodes. Reads the YAML's events, which takes no recursion and no
     memory beyond the open collections, before anything builds the document."""
     size = len(text.encode("utf-8", "surrogatepass"))
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as e:  # an argument that is not UTF-8 (Python's surrogateescape)
+        raise SchemaError(f"{source}: not text (a byte that is not UTF-8 at character "
+                          f"{e.start})") from None
     if size > MAX_TEXT_BYTES:
         raise SchemaError(f"{source}: {size / 1e6:.1f} MB, larger than the "
                           f"{MAX_TEXT_BYTES / 1e6:g} MB a scenario may be")

@@ -153,3 +153,16 @@ def test_a_scenario_named_twice_is_refused(tmp_path):
     path.write_text("Yes: {duration: 5}\n")
     with pytest.raises(ScenarioError, match=r"the key Yes reads as true"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize("text", ["# no change", "\n\n", "   ", "\x85", "---\n...\n"])
+def test_an_override_of_nothing_changes_nothing(text):
+    # Before: "override: YAML root was a <class 'NoneType'> but should have been a dict".
+    assert load_scenario(override=text).duration == load_scenario().duration
+
+
+def test_an_override_that_is_not_utf8_is_one_line():
+    # A command-line argument of bytes that are not UTF-8 reaches Python as surrogates.
+    # Before: UnicodeEncodeError, an internal error.
+    assert _refused("{duration: \udcff}") == ("override: not text (a byte that is not UTF-8 "
+                                               "at character 11)")
