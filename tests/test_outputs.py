@@ -296,6 +296,10 @@ def test_two_commands_that_check_a_folder_at_once_cannot_both_claim_it(tmp_path)
         assert first.claim() == new
         with pytest.raises(OutputError, match="another capsule-sim command is writing"):
             second.claim()
+        # A run's own new folder (no --out) is held too: --out naming it is refused.
+        mine = plan_outputs(None, parent=tmp_path / "runs", name="Default").claim()
+        with pytest.raises(OutputError, match="another capsule-sim command is writing"):
+            plan_outputs(mine, force=True)
     finally:
         release_claims()
     assert plan_outputs(out, force=True).claim() == out  # released: free again
