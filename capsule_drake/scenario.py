@@ -33,6 +33,7 @@ import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
@@ -314,6 +315,8 @@ def _load_one(text: str, source: str, child_name: str | None, base: Scenario | N
     try:
         if doc is None:
             doc = parse_yaml(text, source)
+        if doc is None and child_name is None:  # an override of blank lines or comments
+            return base if base is not None else Scenario()
         node = doc if child_name is None else doc[child_name]
         if node is None:
             node = {}
@@ -324,7 +327,8 @@ def _load_one(text: str, source: str, child_name: str | None, base: Scenario | N
     try:
         return yaml_load_typed(schema=Scenario, data=text, child_name=child_name,
                                defaults=base if base is not None else Scenario())
-    except (RuntimeError, ValueError, TypeError, KeyError, ArithmeticError) as e:
+    except (RuntimeError, ValueError, TypeError, KeyError, ArithmeticError,
+            yaml.YAMLError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ScenarioError(f"{source}: {first}") from None
 

@@ -97,6 +97,22 @@ SCENARIO_VALUES = [
      r"capsule\.start_s 0\.018 m: the capsule would stick out of the colon's open end"),
     ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),
      r"target_realtime_rate"),
+    # Text read otherwise than it looks (README: the last of a key given twice won; YAML 1.1
+    # read these forms as other numbers or booleans; Python's float() reads other digits).
+    ("key given twice", _text("{epm: {clearance: 0.03, clearance: 0.04}}"),
+     r"override:1: epm\.clearance: given twice"),
+    ("hexadecimal number", _text("{colon: {seed: 0x10}}"),
+     r"colon\.seed: 0x10 reads as the hexadecimal number 16"),
+    ("base-60 number", _text("{random_seed: 1:30}"),
+     r"random_seed: 1:30 reads as the base-60 number 90"),
+    ("yes for true", _text("{magnet_force: {apply: yes}}"),
+     r"magnet_force\.apply: yes reads as true"),
+    ("number in quotes", _text("{epm: {clearance: '0.03'}}"),
+     r"epm\.clearance: expected a number, got the text '0\.03' \(in quotes\)"),
+    ("Arabic-Indic digits", _text("{colon: {seed: \u0663}}"),
+     r"colon\.seed: expected an integer, got .*digits 0-9"),
+    ("full-width digits", _text("{epm: {clearance: \uff10.\uff10\uff13}}"),
+     r"epm\.clearance: expected a number, got .*digits 0-9"),
 ]
 
 SCENARIO_FILES = [
@@ -425,6 +441,78 @@ def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, ca
         assert (bad_files / "own_mesh" / "wall.obj").stat().st_size > 1000
 
 
+# Flags that would do nothing in the combination given: refused in one line, exit 2, before
+# anything is written (the commands run in an empty folder, where a run without --out would
+# make its own). Before, each was accepted and ignored.
+BENCH = ["benchmark", "--seeds", "0", "--navigators", "autonomy-truth", "--duration", "0.1",
+         "--quiet"]
+EVAL_ONE = ["eval-lumen", "--frames", "1", "--colons", "1", "--renderer", "raycast", "--lens",
+            "fisheye", "--conditions", "nominal", "--detector", "core", "--quiet"]
+IDLE_FLAGS = [
+    ("run --force without --out", RUN + ["--force"],
+     r"--force: only with --out or --mcap \(it replaces a previous run's outputs there\)"),
+    ("teleop --force without --out", ["teleop", "--duration", "0.1", "--quiet", "--force"],
+     r"--force: only with --out or --mcap"),
+    ("benchmark --force without --out", BENCH + ["--force"], r"--force: only with --out"),
+    ("eval-lumen --force without --out", EVAL_ONE + ["--force"], r"--force: only with --out"),
+    ("--address without --engine dask", BENCH + ["--address", "127.0.0.1:8786"],
+     r"--address: only with --engine dask"),
+    ("--workers with --address", BENCH + ["--engine", "dask", "--address", "127.0.0.1:1",
+                                          "--workers", "3"],
+     r"--workers: not with --address \(the scheduler's own workers run the benchmark\)"),
+    ("benchmark --scenario for built-in navigators", BENCH + ["--scenario", "Default"],
+     r"--scenario: only with a user's navigator"),
+    ("run --port without --meshcat", RUN + ["--port", "7123"], r"--port: only with --meshcat"),
+    ("teleop --port, simulated operator", ["teleop", "--duration", "0.1", "--quiet",
+                                           "--operator", "simulated", "--port", "7123"],
+     r"--port: the simulated operator"),
+    ("eval-lumen light conditions with vtk", EVAL_ONE[:5] + ["--renderer", "vtk", "--lens",
+                                                              "fisheye", "--conditions",
+                                                              "light_all", "--quiet"],
+     r"--conditions light_all: .*only with the ray caster"),
+]
+
+
+@pytest.mark.parametrize("name,args,culprit", IDLE_FLAGS, ids=[c[0] for c in IDLE_FLAGS])
+def test_a_flag_that_would_do_nothing_is_refused(name, args, culprit, tmp_path, monkeypatch,
+                                                capsys):
+    monkeypatch.chdir(tmp_path)
+    code, err = cli_main(args), capsys.readouterr().err
+    _assert_one_line(code, err, culprit)
+    assert code == 2
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_no_recording_with_a_live_page_writes_no_recording(tmp_path):
+    # Before, --no-recording did nothing with --meshcat: the run still wrote recording.html.
+    out = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["run", "--duration", "0.1", "--quiet", "--meshcat",
+                                      "--port", "0", "--no-recording", "--out", str(out)],
+                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        for line in process.stderr:  # it serves the page after the run, until Ctrl-C
+            if line.startswith("serving Meshcat"):
+                break
+        process.send_signal(signal.SIGINT)
+        stdout, _ = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert "outputs in " in stdout and "recording.html" not in stdout, stdout
+    assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
+                                                     "scenario.yaml"]
+
+
+def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
+    # --force does something without --out when there is an --mcap to replace.
+    monkeypatch.chdir(tmp_path)
+    args = RUN[:-1] + ["0.05", "--mcap", str(tmp_path / "run.mcap")]
+    assert cli_main(args) == 0
+    assert cli_main(args + ["--force"]) == 0, capsys.readouterr().err
+    assert len(list((tmp_path / "runs").iterdir())) == 2
+
+
 def test_there_are_at_least_60_cases():
     assert len(CASES) >= 60
     assert len({name for name, *_ in CASES}) == len(CASES)
@@ -538,6 +626,65 @@ def test_a_full_disk_is_found_before_the_run(tmp_path, capsys):
             pytest.skip("needs root to mount a small tmpfs (a real full disk)")
         code = cli_main(["run", "--duration", "30", "--quiet", "--out", str(full / "run")])
         _assert_one_line(code, capsys.readouterr().err, r"MB free, but the run will write")
+
+
+def test_a_full_disk_leaves_nothing_that_blocks_the_retry(tmp_path, capsys):
+    # A real full disk: the run is refused in one line and leaves no folder; once there is
+    # room, the same --out (without --force) runs.
+    with _tmpfs(tmp_path / "disk", "40m") as disk:
+        if disk is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        filler = disk / "filler"
+        with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):
+            while True:
+                f.write(b"\0" * (1 << 20))
+        args = ["run", "--duration", "0.05", "--no-recording", "--quiet",
+                "--out", str(disk / "run")]
+        code = cli_main(args)
+        _assert_one_line(code, capsys.readouterr().err, re.escape(
+            f"{disk / 'run'}: cannot write to the output folder (No space left on device)"))
+        assert code == 2
+        assert not (disk / "run").exists()
+        filler.unlink()
+        assert cli_main(args) == 0, capsys.readouterr().err
+        assert sorted(p.name for p in (disk / "run").iterdir()) == [
+            "logs.npz", "metrics.json", "scenario.yaml"]
+
+
+def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, capsys,
+                                                                    monkeypatch):
+    # The MCAP log's disk is full when its first chunk is written (the room check is told
+    # there is room, as if another program filled the disk during the run). Before, an
+    # empty run.mcap stayed, which the retry refused even with --force (not an MCAP log of
+    # this simulator).
+    real_statvfs = os.statvfs
+
+    class Roomy:
+        def __init__(self, real):
+            self._real = real
+
+        def __getattr__(self, name):
+            return 10 ** 9 if name == "f_bavail" else getattr(self._real, name)
+
+    monkeypatch.setattr(outputs.os, "statvfs", lambda path: Roomy(real_statvfs(path)))
+    with _tmpfs(tmp_path / "disk", "1m") as disk:
+        if disk is None:
+            pytest.skip("needs root to mount a small tmpfs (a real full disk)")
+        filler = disk / "filler"
+        with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):
+            while True:
+                f.write(b"\0" * 4096)
+        mcap = disk / "run.mcap"
+        args = RUN + ["--scenario-text", "{capsule: {imu: {}}}", "--mcap", str(mcap)]
+        code = cli_main(args + ["--out", str(tmp_path / "a")])
+        line = _assert_one_line(code, capsys.readouterr().err,
+                                re.escape(f"--mcap {mcap}: could not write the MCAP log (No "
+                                          "space left on device)"))
+        assert code == 1, line
+        assert not mcap.exists()   # it held nothing: removed
+        filler.unlink()
+        assert cli_main(args + ["--out", str(tmp_path / "b")]) == 0, capsys.readouterr().err
+        assert "MCAP log: " in capsys.readouterr().out
 
 
 def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkeypatch):
@@ -717,3 +864,25 @@ def test_a_killed_run_leaves_its_spooled_logs(tmp_path):
     logs = load_logs(out)  # from logs.parts/: at most ~5 simulated seconds are lost
     assert logs["times"][0] == 0.0 and logs["times"][-1] >= 5.0
     assert (out / "scenario.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_a_second_run_into_the_folder_of_a_running_one_is_refused(tmp_path, capsys):
+    # Before: the second run, with --force, removed the first one's outputs as it ran, and
+    # both reported success with a folder of mixed files.
+    process, out = _start(tmp_path)
+    try:
+        _wait_for_simulation(out, process)
+        code = cli_main(RUN + ["--out", str(out), "--force"])
+        _assert_one_line(code, capsys.readouterr().err,
+                         re.escape(f"--out {out}: another capsule-sim command is writing into "
+                                   "this folder"))
+        assert code == 2
+    finally:
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err
+    assert json.loads((out / "metrics.json").read_text())["status"] == "interrupted"
+    assert "duration: 60.0" in (out / "scenario.yaml").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
+                                                     "scenario.yaml"]

@@ -4,7 +4,10 @@ through the command line: tests/test_bad_inputs.py."""
 
 import json
 import os
+import re
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -14,7 +17,8 @@ from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app.outputs import (LogSpool, OutputError, check_room, claim_folder,
-                                      load_logs, new_run_folder, write_atomic)
+                                      load_logs, new_run_folder, plan_outputs, release_claims,
+                                      write_atomic)
 from capsule_drake.app.run import Interrupted, chain_extends, simulate
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.scenario import load_scenario
@@ -249,3 +253,145 @@ def test_a_failed_build_closes_the_render_worker_and_the_extensions_already_adde
         simulate(scenario, progress=False, extend=chain_extends(first, second))
     assert closed == ["first"]
     assert not set(started) & set(_render_workers())
+
+
+# --- Claiming a folder: one command at a time ------------------------------------------
+
+# A process that claims a folder as a command does (plan, then claim) and holds it until
+# it is killed; it prints "claimed" once it holds it.
+_HOLDER = """
+import sys, time
+from capsule_drake.app.outputs import plan_outputs
+plan_outputs(sys.argv[1], force=True).claim()
+print("claimed", flush=True)
+time.sleep(600)
+"""
+
+
+def _hold(folder: Path):
+    """A process holding the claim on `folder` (killed by the caller)."""
+    process = subprocess.Popen([sys.executable, "-c", _HOLDER, str(folder)],
+                               stdout=subprocess.PIPE, text=True)
+    assert process.stdout.readline().strip() == "claimed"
+    return process
+
+
+def test_two_commands_that_check_a_folder_at_once_cannot_both_claim_it(tmp_path):
+    # Two runs started at the same moment both find the folder free (the plan); only the
+    # first claim wins, the second is refused in one line and removes nothing. Before: both
+    # claims succeeded and the runs overwrote each other's files.
+    out = tmp_path / "run"
+    out.mkdir()   # an empty folder a user made for the run
+    first, second = plan_outputs(out, force=True), plan_outputs(out, force=True)
+    try:
+        assert first.claim() == out
+        (out / "metrics.json").write_text("first")
+        with pytest.raises(OutputError, match=re.escape(f"--out {out}: another capsule-sim "
+                                                        "command is writing into this folder")):
+            second.claim()
+        assert (out / "metrics.json").read_text() == "first"
+        # A folder the first made for itself: the same.
+        new = tmp_path / "new"
+        first, second = plan_outputs(new), plan_outputs(new)
+        assert first.claim() == new
+        with pytest.raises(OutputError, match="another capsule-sim command is writing"):
+            second.claim()
+        # A run's own new folder (no --out) is held too: --out naming it is refused.
+        mine = plan_outputs(None, parent=tmp_path / "runs", name="Default").claim()
+        with pytest.raises(OutputError, match="another capsule-sim command is writing"):
+            plan_outputs(mine, force=True)
+    finally:
+        release_claims()
+    assert plan_outputs(out, force=True).claim() == out  # released: free again
+    release_claims()
+
+
+def test_a_folder_in_use_is_refused_even_with_force_and_freed_when_its_holder_dies(tmp_path):
+    out = tmp_path / "run"
+    holder = _hold(out)
+    try:
+        (out / "scenario.yaml").write_text("the running command's")
+        with pytest.raises(OutputError, match=re.escape(f"--out {out}: another capsule-sim "
+                                                        "command is writing into this folder")):
+            plan_outputs(out, force=True)
+        assert (out / "scenario.yaml").read_text() == "the running command's"
+    finally:
+        holder.kill()
+        holder.wait()
+    # A command killed outright leaves no claim behind: the folder is free for --force.
+    try:
+        assert plan_outputs(out, force=True).claim() == out
+        assert not (out / "scenario.yaml").exists()
+    finally:
+        release_claims()
+
+
+def test_the_cli_refuses_a_folder_another_run_writes_into(tmp_path, capsys):
+    out = tmp_path / "run"
+    holder = _hold(out)
+    try:
+        (out / "scenario.yaml").write_text("the running command's")
+        code = cli_main(["run", "--duration", "0.05", "--no-recording", "--quiet", "--out",
+                         str(out), "--force"])
+        line = _one_line(capsys.readouterr().err)
+        assert code == 2, line
+        assert "another capsule-sim command is writing into this folder" in line
+        assert (out / "scenario.yaml").read_text() == "the running command's"
+    finally:
+        holder.kill()
+        holder.wait()
+    # The claim is released when the command ends: the same process can claim it again.
+    assert cli_main(["run", "--duration", "0.05", "--no-recording", "--quiet", "--out",
+                     str(out), "--force"]) == 0
+    assert plan_outputs(out, force=True).claim() == out
+    release_claims()
+
+
+# --- Disks that fill: nothing left behind that blocks the retry ----------------------------
+
+# A process that writes nothing more than `limit` bytes long (a disk that fills, without
+# root or a mount: the write fails with EFBIG) and runs the room check in `folder`.
+_PROBE = """
+import resource, sys
+from pathlib import Path
+from capsule_drake.app.outputs import OutputError, check_room
+resource.setrlimit(resource.RLIMIT_FSIZE, (4, 4))
+try:
+    check_room(Path(sys.argv[1]), 1.0)
+except OutputError as e:
+    print(e)
+"""
+
+
+def test_a_probe_that_cannot_be_written_is_removed(tmp_path):
+    # The room check's probe is created, then its write fails: before, the probe stayed,
+    # and the retry was refused for the file it found in the folder.
+    done = subprocess.run([sys.executable, "-c", _PROBE, str(tmp_path)], capture_output=True,
+                          text=True, timeout=60)
+    assert "cannot write to the output folder (File too large)" in done.stdout, done
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_what_a_failed_write_leaves_does_not_block_the_retry(tmp_path):
+    # What a run killed (or out of room) while writing can leave: a probe, the temporary
+    # files of write_atomic. A folder holding only those is free (they are removed); with
+    # --force they go with the previous run's outputs; a user's own files stay.
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / ".write-check").write_bytes(b"")
+    (out / ".metrics.json.partial").write_text('{"half')
+    try:
+        assert claim_folder(out) == out
+        assert list(out.iterdir()) == []
+    finally:
+        release_claims()
+    (out / "metrics.json").write_text("{}")
+    (out / ".logs.npz.partial").write_bytes(b"PK")
+    (out / ".notes.txt.partial").write_text("mine")
+    with pytest.raises(OutputError, match="folder exists and holds"):
+        claim_folder(out)
+    try:
+        assert claim_folder(out, force=True) == out
+        assert sorted(p.name for p in out.iterdir()) == [".notes.txt.partial"]
+    finally:
+        release_claims()

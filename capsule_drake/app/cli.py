@@ -25,11 +25,11 @@ from capsule_drake.app.eval_lumen import EvaluationStopped, evaluate_paths
 from capsule_drake.app.mcap_log import add_mcap_logger, expected_mcap_bytes
 from capsule_drake.app.record import record, record_seeds, with_all_sensors
 from capsule_drake.app.outputs import (DATASET_OUTPUTS, RUN_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUTS,
-                                      OutputError, plan_outputs)
+                                      OutputError, plan_outputs, release_claims)
 from capsule_drake.app.run import Interrupted, StepBar, WriteError, chain_extends, simulate
-from capsule_drake.app.benchmark import (FAILED, TIERS, EngineError, NotedSignals, RowWriter,
-                                         Task, default_run_timeout, report, run_suite,
-                                         task_scenario)
+from capsule_drake.app.benchmark import (FAILED, NAVIGATORS, TIERS, EngineError, NotedSignals,
+                                         RowWriter, Task, default_run_timeout, report,
+                                         run_suite, task_scenario)
 from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, LIGHT_CONDITIONS, RENDERERS
 from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE
 from capsule_drake.perception.lumen import load_detector
@@ -39,6 +39,9 @@ from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, load_s
 
 # Servers (Meshcat, the UDP bridge) listen on this machine only unless --host says otherwise.
 LOOPBACK = "127.0.0.1"
+# The port of the live Meshcat page (run --meshcat, teleop --operator browser) and of the
+# UDP bridge (teleop --operator udp) unless --port says otherwise.
+DEFAULT_PORT = 7000
 # What a benchmark and an import write (a previous one's are replaced by --force).
 BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
                      "runs-as-finished.csv")
@@ -58,11 +61,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--meshcat", action="store_true",
                      help="serve a live Meshcat page, pace the run to real time, and keep "
                           "serving after the run until Ctrl-C")
-    run.add_argument("--port", type=_port, default=7000, help="Meshcat port with --meshcat")
+    run.add_argument("--port", type=_port,
+                     help=f"Meshcat port with --meshcat (default {DEFAULT_PORT})")
     _host_argument(run, "Meshcat")
-    _out_arguments(run, "runs/<scenario>-<date-time>")
+    _out_arguments(run, "runs/<scenario>-<date-time>", mcap=True)
     run.add_argument("--no-recording", action="store_true",
-                     help="skip the Meshcat recording (a little faster)")
+                     help="skip the Meshcat recording (a little faster; with --meshcat the "
+                          "page is drawn live only)")
     _mcap_argument(run)
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -103,10 +108,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="the pseudo-force on the operator's hand (default on)")
     tel.add_argument("--delay", type=float, metavar="S",
                      help="one-way delay of the channel, both ways (s)")
-    tel.add_argument("--port", type=_port, default=7000,
-                     help="Meshcat port (browser) or UDP port (udp; 0 = any free one)")
+    tel.add_argument("--port", type=_port,
+                     help="Meshcat port (browser) or UDP port (udp; 0 = any free one; default "
+                          f"{DEFAULT_PORT}); the simulated operator has none")
     _host_argument(tel, "Meshcat and the UDP bridge")
-    _out_arguments(tel, "runs/teleop-<operator>-<date-time>")
+    _out_arguments(tel, "runs/teleop-<operator>-<date-time>", mcap=True)
     _mcap_argument(tel)
     tel.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -164,23 +170,26 @@ def _parser() -> argparse.ArgumentParser:
                        help="comma-separated (default autonomy-truth,autonomy-detected)")
     bench.add_argument("--duration", type=float, default=600.0, metavar="S",
                        help="simulated seconds per run at most (default 600)")
-    bench.add_argument("--scenario", default="Navigation", metavar="NAME",
+    bench.add_argument("--scenario", metavar="NAME",
                        help="the scenario a user's navigator drives (default Navigation); "
-                            "the built-in navigators are named scenarios of their own")
+                            "the built-in navigators are named scenarios of their own, so "
+                            "it is refused without a user's navigator")
     bench.add_argument("--scenario-text", default="", metavar="YAML",
                        help="YAML layered on every run's scenario")
     bench.add_argument("--polyp-detector", default="", metavar="MODULE:FUNCTION",
                        help="a polyp detector (a function of the RGB frame returning points "
                             "(u, v) or boxes (x, y, w, h)) scored on every frame: per polyp "
                             "seen and false positives per minute")
-    bench.add_argument("--workers", type=int, default=2, help="parallel runs (default 2)")
+    bench.add_argument("--workers", type=int,
+                       help="parallel runs (default 2; not with --address, whose scheduler "
+                            "has workers of its own)")
     bench.add_argument("--run-timeout", type=float, metavar="S",
                        help="wall seconds a run may take before it is stopped and marked "
                             "failed (default 300 + 3 x --duration)")
     bench.add_argument("--engine", choices=("local", "dask"), default="local",
                        help="local process pool, or a Dask cluster (default local)")
     bench.add_argument("--address", metavar="HOST:PORT",
-                       help="an existing Dask scheduler (with --engine dask; default: a "
+                       help="an existing Dask scheduler (only with --engine dask; default: a "
                             "local cluster of --workers processes)")
     _out_arguments(bench, "runs/benchmark-<date-time>")
     bench.add_argument("--quiet", action="store_true",
@@ -298,7 +307,7 @@ def _finish(result, mcap_failure: str | None) -> int:
     return code
 
 
-def _out_arguments(parser, default: str, force: bool = True):
+def _out_arguments(parser, default: str, force: bool = True, mcap: bool = False):
     parser.add_argument("--out", type=_path, metavar="DIR",
                         help=f"output folder (default: {default}, a new folder each run); "
                              "an existing folder that holds files is refused"
@@ -306,7 +315,32 @@ def _out_arguments(parser, default: str, force: bool = True):
     if force:
         parser.add_argument("--force", action="store_true",
                             help="write into an existing --out folder, replacing a previous "
-                                 "run's outputs there")
+                                 "run's outputs there (refused without --out"
+                                 + (" or --mcap" if mcap else "") + ")")
+
+
+def _check_flag_combinations(args) -> None:
+    """Refuses (ScenarioError: one line, exit 2) a flag that would do nothing in the
+    combination given, before anything is loaded or written. What depends on the scenario
+    (teleop's --port with the simulated operator) and on other flags' values (benchmark's
+    --scenario, eval-lumen's light conditions) is checked where those are known."""
+    if getattr(args, "force", False) and args.out is None and args.verb != "import-colon":
+        has_mcap = hasattr(args, "mcap")
+        if getattr(args, "mcap", None) is None:
+            raise ScenarioError("--force: only with --out" + (" or --mcap" if has_mcap else "")
+                                + " (it replaces a previous run's outputs there); without "
+                                "--out, each run writes into a new folder")
+    if args.verb == "run":
+        if args.port is not None and not args.meshcat:
+            raise ScenarioError("--port: only with --meshcat (the port of the live page; the "
+                                "recording's own server takes any free port)")
+    if args.verb == "benchmark":
+        if args.address is not None and args.engine != "dask":
+            raise ScenarioError("--address: only with --engine dask (the Dask scheduler the "
+                                "benchmark runs on)")
+        if args.workers is not None and args.address is not None:
+            raise ScenarioError("--workers: not with --address (the scheduler's own workers "
+                                "run the benchmark)")
 
 
 def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: float = 0.0,
@@ -320,7 +354,8 @@ def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: floa
 
 
 def _claim(plan) -> Path:
-    """The planned folder, made (or a previous run's outputs removed from it, --force)."""
+    """The planned folder, made (or a previous run's outputs removed from it, --force), and
+    held by this command until it ends (another command naming it is refused)."""
     folder = plan.claim()
     if not plan.existed:
         _created_folders.append(folder)
@@ -339,6 +374,7 @@ _created_folders: list[Path] = []
 
 
 def _remove_unused_folders():
+    release_claims()
     for folder in _created_folders:
         with contextlib.suppress(OSError):
             folder.rmdir()  # only if empty
@@ -413,8 +449,10 @@ def _benchmark(args) -> int:
         raise ScenarioError("--navigators: none given")
     if not (np.isfinite(args.duration) and 0 < args.duration <= 1e5):
         raise ScenarioError(f"--duration must be > 0 and <= 1e5 s, got {args.duration}")
-    if not 1 <= args.workers <= 64:
-        raise ScenarioError(f"--workers must be 1-64, got {args.workers}")
+    workers = 2 if args.workers is None else args.workers
+    if not 1 <= workers <= 64:
+        raise ScenarioError(f"--workers must be 1-64, got {workers}")
+    scenario = "Navigation" if args.scenario is None else args.scenario
     run_timeout = (default_run_timeout(args.duration) if args.run_timeout is None
                    else args.run_timeout)
     if not (np.isfinite(run_timeout) and 0 < run_timeout <= 1e7):
@@ -424,20 +462,24 @@ def _benchmark(args) -> int:
             load_function("polyp detector", args.polyp_detector, "a function")
         except ValueError as e:
             raise ScenarioError(f"--polyp-detector: {e}") from None
-    tasks = [Task(n, seed, args.duration, args.scenario, args.scenario_text,
+    tasks = [Task(n, seed, args.duration, scenario, args.scenario_text,
                   tier_text=tier_text, polyp_detector=args.polyp_detector)
              for n in navigators for seed in seeds]
     # Fail on a bad navigator or scenario here, with one line, not in a worker.
     names = scenario_names(DEFAULT_SCENARIO_FILE)
-    if args.scenario not in names:
-        raise ScenarioError(f"--scenario {args.scenario!r}: no scenario of that name in "
+    if scenario not in names:
+        raise ScenarioError(f"--scenario {scenario!r}: no scenario of that name in "
                             f"{DEFAULT_SCENARIO_FILE.name} (it has: {', '.join(names)})")
     for navigator in navigators:
         try:
-            task_scenario(Task(navigator, seeds[0], args.duration, args.scenario,
+            task_scenario(Task(navigator, seeds[0], args.duration, scenario,
                                args.scenario_text, tier_text=tier_text))
         except ValueError as e:
             raise ScenarioError(str(e)) from None
+    if args.scenario is not None and all(n in NAVIGATORS for n in navigators):
+        raise ScenarioError("--scenario: only with a user's navigator (package.module:function); "
+                            f"the built-in ones ({', '.join(navigators)}) are named scenarios "
+                            "of their own")
     out_dir = _output_folder(args, "runs", "benchmark", outputs=BENCHMARK_OUTPUTS)
     # Rows as the runs finish, in the order they finish; runs.csv is written at the end.
     partial = RowWriter(out_dir / "runs-as-finished.csv")
@@ -448,7 +490,7 @@ def _benchmark(args) -> int:
         finished.append(result)
 
     try:
-        results = run_suite(tasks, workers=args.workers, engine=args.engine,
+        results = run_suite(tasks, workers=workers, engine=args.engine,
                             address=args.address, progress=not args.quiet, on_result=keep,
                             run_timeout=run_timeout)
     except EngineError as e:
@@ -566,7 +608,8 @@ def _teleop(args) -> int:
     # The verb makes the operator drive the EPM: `!Teleop` merges into the scenario's own
     # Teleop driver (or replaces another driver with the default one).
     # The UDP bridge's host: --host, else the scenario's (127.0.0.1 by default).
-    teleop = {"udp": {"port": args.port, **({"host": args.host} if args.host else {})}}
+    port = DEFAULT_PORT if args.port is None else args.port
+    teleop = {"udp": {"port": port, **({"host": args.host} if args.host else {})}}
     if args.operator is not None:
         teleop["operator"] = args.operator
     if args.delay is not None:
@@ -577,6 +620,9 @@ def _teleop(args) -> int:
         flags.append("{pseudo_force: null}")
     scenario = _load(args, *flags)
     teleop = scenario.epm.driver
+    if args.port is not None and teleop.operator == "simulated":
+        raise ScenarioError("--port: the simulated operator listens on no port (--port is the "
+                            "page's with --operator browser, the device's with udp)")
     live = teleop.operator in ("browser", "udp")
     if live and scenario.simulator.target_realtime_rate == 0.0:
         # A person at the device: paced to the wall clock.
@@ -584,7 +630,7 @@ def _teleop(args) -> int:
     plan = _plan(args, "runs", f"teleop-{teleop.operator}",
                  mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file])
     out_dir = _claim(plan)
-    meshcat = _meshcat(args.host or LOOPBACK, args.port if teleop.operator == "browser" else 0,
+    meshcat = _meshcat(args.host or LOOPBACK, port if teleop.operator == "browser" else 0,
                        announce=live)
 
     def announce(builder, station):
@@ -631,6 +677,10 @@ def _eval_lumen(args) -> int:
     if wanted is not None and (not wanted or any(c not in known for c in wanted)):
         raise ScenarioError(f"--conditions: expected 'all' or a comma-separated list of "
                             f"{', '.join(known)}; got {args.conditions!r}")
+    light = [c for c in wanted or () if c in LIGHT_CONDITIONS]
+    if light and args.renderer == "vtk":
+        raise ScenarioError(f"--conditions {','.join(light)}: the light conditions are only "
+                            "with the ray caster (--renderer raycast or both)")
     out_dir = _output_folder(args, "eval_lumen", "eval", outputs=EVAL_OUTPUTS)
     try:
         failing = evaluate_paths(detectors, renderers, lenses, wanted or known, out_dir,
@@ -655,12 +705,14 @@ def _run(args) -> int:
     out_dir = _claim(plan)
     meshcat = None
     if args.meshcat:
-        meshcat = _meshcat(args.host or LOOPBACK, args.port, announce=True)
+        meshcat = _meshcat(args.host or LOOPBACK,
+                           DEFAULT_PORT if args.port is None else args.port, announce=True)
     elif not args.no_recording:  # only for the recording
         meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       progress=not args.quiet, live_meshcat=args.meshcat,
-                      extend=_mcap_extend(plan.mcap, scenario))
+                      extend=_mcap_extend(plan.mcap, scenario),
+                      recording=not args.no_recording)
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
@@ -675,7 +727,7 @@ def _run(args) -> int:
     _report_epm_guard(m)
     mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
-          f"{', recording.html' if meshcat is not None else ''})")
+          f"{', recording.html' if not args.no_recording else ''})")
     code = _finish(result, mcap_failure)
     if args.meshcat:
         print("serving Meshcat; Ctrl-C to quit", file=sys.stderr)
@@ -785,6 +837,7 @@ def main(argv=None, noted=None) -> int:
             raise Interrupted(noted[0])
         args = _parser().parse_args(argv)
         _created_folders.clear()
+        _check_flag_combinations(args)
         if args.verb == "run":
             return _run(args)
         if args.verb == "record":
@@ -816,6 +869,8 @@ def main(argv=None, noted=None) -> int:
         return 1
     except Exception as e:  # a defect, not the user's mistake: one line, the details on disk
         return _internal_error(e)
+    finally:
+        release_claims()  # the output folders this command held (the system would, at exit)
     return 0
 
 

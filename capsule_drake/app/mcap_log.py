@@ -130,7 +130,8 @@ def check_mcap_path(path, replace: bool | None = False, expected_bytes: float = 
 
 class McapWriteError(OSError):
     """Writing the MCAP log failed (a full disk, an I/O error, a file size limit): one line
-    naming the file; the file is left as far as it was written."""
+    naming the file; the file is left as far as it was written, unless that is not even
+    its header (then it is removed: `Ros2McapFile._failed`)."""
 
 
 class Ros2McapFile:
@@ -142,7 +143,9 @@ class Ros2McapFile:
     The file is created at the first message; `close()` finishes it (idempotent). A write
     that fails (at a message, or when the file is finished, flushed and synced) raises
     McapWriteError once, naming the file, and leaves `error` set; the file is closed and
-    later messages are refused.
+    later messages are refused. A file that failed before its header was on disk is
+    removed: it holds nothing to read, and the retry's --force (which replaces only an MCAP
+    log of this simulator's) would refuse it.
     """
 
     def __init__(self, path, compression: str = "zstd", chunk_size: int = 1 << 20):
@@ -155,6 +158,7 @@ class Ros2McapFile:
         self._schemas = {}    # type name -> (schema id, encoder)
         self._channels = {}   # topic -> (channel id, encoder, type name)
         self.messages = 0
+        self.created = False  # whether this created (or emptied) the file at `path`
         self.closed = False
         self.error: str | None = None  # why writing failed (one line), or None
 
@@ -165,6 +169,7 @@ class Ros2McapFile:
         flags = (os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK
                  | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0))
         fd = os.open(self.path, flags, 0o666)
+        self.created = True
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             os.close(fd)
             raise OSError(errno.EINVAL, "not a regular file")
@@ -214,16 +219,22 @@ class Ros2McapFile:
         self.messages += 1
 
     def _failed(self, e: OSError) -> McapWriteError:
-        """Notes a failed write, closes the file (dropping what is unwritten) and returns
-        the error to raise."""
-        if self.error is None:
-            reason = e.strerror or str(e)
-            self.error = (f"{self.path}: could not write the MCAP log ({reason}) after "
-                          f"{self.messages} messages; the file is incomplete")
+        """Notes a failed write, closes the file (dropping what is unwritten; removing it
+        if not even its header is on disk) and returns the error to raise."""
         stream, self._writer, self._stream = self._stream, None, None
         if stream is not None:
             with contextlib.suppress(OSError):  # its flush fails again; the file is closed
                 stream.close()
+        if self.error is None:
+            kept = "the file is incomplete"
+            if (self.created and self.path.is_file() and not self.path.is_symlink()
+                    and not is_capsule_mcap(self.path)):
+                with contextlib.suppress(OSError):
+                    self.path.unlink()
+                    kept = "nothing of it could be kept (removed)"
+            reason = e.strerror or str(e)
+            self.error = (f"{self.path}: could not write the MCAP log ({reason}) after "
+                          f"{self.messages} messages; {kept}")
         return McapWriteError(self.error)
 
     def close(self):

@@ -4,9 +4,14 @@ the run goes, and complete on every way a run can end.
 - `new_run_folder` makes a folder no other run has (runs/Default-20261124-101530, then
   ...-2, ...-3 for runs started in the same second); `claim_folder` takes a folder the user
   named, refusing one that holds files unless told to replace a previous run's outputs.
+- A command holds the folder it writes into (`OutputPlan.claim`) until it ends: an
+  exclusive lock on the folder itself (flock), which the system releases when the process
+  ends, however it ends (kill -9 too), so a claim never outlives its command. A second
+  command that names the same folder, with --force or not, at the same moment or while the
+  first runs, is refused in one line. `release_claims` lets go of them before the end.
 - `check_room` writes a probe file and compares the free space with what the run will
   write, so a read-only or full disk is a one-line error before the simulation, not a
-  traceback after it.
+  traceback after it; the probe is removed even when writing it fails.
 - `LogSpool` appends the logged samples to logs.parts/ every few simulated seconds (and at
   least every few seconds of wall time), so a process that is killed outright (kill -9, a
   power cut) loses at most that much; at the end they become logs.npz. `load_logs` reads
@@ -18,15 +23,19 @@ the run goes, and complete on every way a run can end.
   names, and the input files the command reads. It refuses a path that is not a regular
   file or a folder (a device, a named pipe, a socket), a symbolic link where a file is to
   be written, a file that is not a previous output of this simulator (even with --force),
-  a folder that cannot be created or written, and any two outputs (or an output and an
-  input) that are the same file. Only then does `OutputPlan.claim` create the folder or
-  remove a previous run's outputs from it.
+  a folder that cannot be created or written, a folder another command is writing into,
+  and any two outputs (or an output and an input) that are the same file. Only then does
+  `OutputPlan.claim` create the folder (or take it), check it again under its lock, and
+  remove what an interrupted write left (the probe, write_atomic's temporary files) and,
+  with --force, a previous run's outputs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
+import fcntl
 import os
 import shutil
 import stat
@@ -63,6 +72,9 @@ RECORDING_BYTES = 20e6
 RECORDING_BYTES_PER_S = 0.05e6
 # Room kept free beyond the estimate (bytes).
 SPARE_BYTES = 20e6
+# The probe `check_room` writes; `write_atomic` writes `path` through ".<name>" + PARTIAL.
+PROBE_NAME = ".write-check"
+PARTIAL = ".partial"
 
 
 class OutputError(ValueError):
@@ -73,8 +85,75 @@ def _reason(e: OSError) -> str:
     return e.strerror or str(e)
 
 
+def _leftovers(outputs: tuple[str, ...]) -> set[str]:
+    """What an interrupted write of a command with these `outputs` can leave in its
+    folder: the probe, and the temporary file of each output (`write_atomic`)."""
+    return {PROBE_NAME} | {f".{name}{PARTIAL}" for name in outputs}
+
+
+# The folders this process holds (folder -> the descriptor holding its lock).
+_claims: dict[Path, int] = {}
+
+
+def _in_use_error(what: str, folder: Path) -> OutputError:
+    return OutputError(f"{what} {folder}: another capsule-sim command is writing into this "
+                       f"folder; wait until it ends, or choose another {what}")
+
+
+def _lock(folder: Path, what: str) -> None:
+    """Holds `folder` for this process (an exclusive flock on the folder, released by the
+    system when the process ends); OutputError if another command holds it. A file system
+    without locks (some network ones) is used without."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as e:
+        raise OutputError(f"{what} {folder}: cannot open the output folder "
+                          f"({_reason(e)})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise _in_use_error(what, folder) from None
+    except OSError:
+        pass  # no locks here: the folder is used as it was before claims existed
+    _claims[folder] = fd
+
+
+def _held_elsewhere(folder: Path) -> bool:
+    """Whether a command (another process, or an earlier claim of this one) holds `folder`;
+    nothing is held after the look."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)  # and with it the lock, if it was taken
+    return False
+
+
+def release(folder: Path) -> None:
+    """Lets go of this process's claim on `folder` (if it holds one)."""
+    fd = _claims.pop(Path(folder), None)
+    if fd is not None:
+        os.close(fd)
+
+
+def release_claims() -> None:
+    """Lets go of every folder this process holds (the command has ended); the system
+    does it anyway when the process ends."""
+    for folder in list(_claims):
+        release(folder)
+
+
 def new_run_folder(parent: Path | str, name: str) -> Path:
-    """A new, empty folder parent/<name>-<date-time>[-k] that no other run uses."""
+    """A new, empty folder parent/<name>-<date-time>[-k] that no other run uses (made with
+    mkdir, which fails for a folder that exists: two runs never get the same one)."""
     parent = Path(parent)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     try:
@@ -124,13 +203,30 @@ class OutputPlan:
     existed: bool = False
 
     def claim(self) -> Path:
-        """Creates the folder (or a new one), or with --force removes a previous run's
-        outputs from it; returns it. Raises OutputError."""
+        """Creates the folder (or a new one) and holds it until the command ends (`_lock`:
+        a folder another command holds is refused); then, checked again under the lock
+        (another command may have written into it since the plan), removes what an
+        interrupted write left there and, with --force, a previous run's outputs; returns
+        it. Raises OutputError."""
         if self.folder is None:
-            return new_run_folder(self.parent, self.name)
+            folder = new_run_folder(self.parent, self.name)
+            _lock(folder, self.what)
+            return folder
         folder = self.folder
-        if self.existed:
-            for name in self.outputs if self.force else ():
+        if not self.existed:
+            try:
+                folder.mkdir(parents=True)
+            except FileExistsError:  # made since the plan, by another command: the lock
+                self.existed = True  # and the checks under it decide
+            except OSError as e:
+                raise OutputError(f"{self.what} {folder}: cannot create the output folder "
+                                  f"({_reason(e)})") from None
+        _lock(folder, self.what)
+        try:
+            _check_folder(folder, self.force, self.what, self.outputs, held=True)
+            removed = sorted(_leftovers(self.outputs)) + list(
+                self.outputs if self.force else ())
+            for name in removed:
                 path = folder / name
                 try:
                     if name in OUTPUT_FOLDERS and path.is_dir() and not path.is_symlink():
@@ -140,12 +236,9 @@ class OutputPlan:
                 except OSError as e:
                     raise OutputError(f"{self.what} {folder}: cannot remove the previous "
                                       f"{name} ({_reason(e)})") from None
-            return folder
-        try:
-            folder.mkdir(parents=True)
-        except OSError as e:
-            raise OutputError(f"{self.what} {folder}: cannot create the output folder "
-                              f"({_reason(e)})") from None
+        except BaseException:
+            release(folder)
+            raise
         return folder
 
 
@@ -159,9 +252,10 @@ def plan_outputs(out: Path | str | None, force: bool | None = False, *,
     line naming the path) on the first problem:
 
     - the folder `out` (`what`, e.g. --out; None: a new folder parent/name-<date-time>) is
-      not a folder, holds files (unless `force`, and then only a previous run's `outputs`
-      are removed, each of the kind this simulator writes: a regular file, or one of
-      OUTPUT_FOLDERS), or cannot be created or written;
+      not a folder, is held by another command (`OutputPlan.claim`), holds files (unless
+      `force`, and then only a previous run's `outputs` are removed, each of the kind this
+      simulator writes: a regular file, or one of OUTPUT_FOLDERS; what an interrupted
+      write leaves, `_leftovers`, does not count), or cannot be created or written;
     - the `mcap` file (`check_file_output`) is not a regular file, is a symbolic link, is an
       existing file that is not an MCAP log of this simulator (even with `force`), or its
       folder is missing or cannot be written, or has no room for `mcap_bytes`;
@@ -214,7 +308,7 @@ def _planned(name: str, outputs, prefixes) -> bool:
     """Whether a folder's entry `name` is one a command writes there (its outputs, the
     temporary files of `write_atomic` and `check_room`)."""
     return (name in outputs or any(name.startswith(p) for p in prefixes)
-            or (name.startswith(".") and name.endswith((".partial", ".write-check"))))
+            or (name.startswith(".") and name.endswith((PARTIAL, PROBE_NAME))))
 
 
 def _resolved_file(path: Path) -> Path:
@@ -255,10 +349,11 @@ def _unwritable(folder: Path) -> str | None:
     return "Permission denied"
 
 
-def _check_folder(out, force: bool | None, what: str,
-                  outputs: tuple[str, ...]) -> tuple[Path, bool]:
+def _check_folder(out, force: bool | None, what: str, outputs: tuple[str, ...],
+                  held: bool = False) -> tuple[Path, bool]:
     """(the folder `out`, whether it exists), refused with OutputError as `plan_outputs`
-    says; nothing is changed on disk."""
+    says; nothing is changed on disk. `held`: this command holds the folder (the check
+    under its lock)."""
     if str(out) == "":
         raise OutputError(f"{what}: empty path (give a folder, e.g. {what} runs/mine)")
     folder = Path(out)
@@ -281,8 +376,11 @@ def _check_folder(out, force: bool | None, what: str,
             raise OutputError(f"{what} {folder}: cannot create the output folder ({reason}: "
                               f"{ancestor})")
         return folder, False
+    if not held and _held_elsewhere(folder):
+        raise _in_use_error(what, folder)
     try:
-        entries = sorted(p.name for p in folder.iterdir())
+        leftovers = _leftovers(outputs)
+        entries = sorted(p.name for p in folder.iterdir() if p.name not in leftovers)
     except OSError as e:
         raise OutputError(f"{what} {folder}: cannot read the folder ({_reason(e)})") from None
     if entries and not force:
@@ -399,11 +497,16 @@ def run_output_bytes(duration: float, log_period: float, recording: bool) -> flo
 
 def check_room(folder: Path, needed_bytes: float, free_bytes=None) -> None:
     """Raises OutputError unless `folder` can be written and has room for `needed_bytes`
-    (and SPARE_BYTES more). `free_bytes` overrides the measured free space (tests)."""
-    probe = folder / ".write-check"
+    (and SPARE_BYTES more). `free_bytes` overrides the measured free space (tests). The
+    probe it writes is removed, also when writing it fails (a full disk creates the file,
+    then refuses its bytes)."""
+    probe = Path(folder) / PROBE_NAME
     try:
-        probe.write_bytes(b"capsule-sim")
-        probe.unlink()
+        try:
+            probe.write_bytes(b"capsule-sim")
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                probe.unlink()
     except OSError as e:
         raise OutputError(f"{folder}: cannot write to the output folder ({_reason(e)})") from None
     free = shutil.disk_usage(folder).free if free_bytes is None else free_bytes
@@ -417,7 +520,7 @@ def write_atomic(path: Path, data: str | bytes | None = None, writer=None) -> No
     """Writes `data` (or calls `writer(temporary_path)`) to a temporary file beside `path`
     and renames it over `path`: a failure leaves no partial file. Raises OSError."""
     path = Path(path)
-    temporary = path.with_name(f".{path.name}.partial")
+    temporary = path.with_name(f".{path.name}{PARTIAL}")
     try:
         if writer is not None:
             writer(temporary)

@@ -447,7 +447,7 @@ class Run:
 
 def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = None,
              progress: bool = True, live_meshcat: bool = False, extend=None,
-             stop_when=None) -> RunResult:
+             stop_when=None, recording: bool = True) -> RunResult:
     """Builds the station for `scenario`, runs it for `scenario.duration` and scores it:
     `run`, `record`, `teleop` and the benchmark's runs, on the one run loop (`Run`).
 
@@ -470,6 +470,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
+        recording: with `meshcat`, record the run into recording.html (False: the page
+            is only drawn live).
         extend: see `Run`.
         stop_when: see `Run`; its text becomes the metrics' "stopped_at".
 
@@ -479,6 +481,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             the run went stays on disk).
     """
     out = Path(out_dir) if out_dir is not None else None
+    recorded = meshcat if recording else None  # the Meshcat the run is recorded in
     signals = DeferredSignals()
     ending, built = None, False
     try:
@@ -488,7 +491,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             try:
                 scenario = start_where_it_rests(scenario)   # what scenario.yaml says
                 if out is not None:  # before the build, which can take a while
-                    prepare_folder(out, scenario, meshcat is not None)
+                    prepare_folder(out, scenario, recorded is not None)
                 run = Run(scenario, meshcat=meshcat, extend=extend, stop_when=stop_when,
                           signals=signals)
             except BaseException as e:  # nothing was run: leave no outputs of it
@@ -497,7 +500,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                     (out / "scenario.yaml").unlink(missing_ok=True)
                 raise
             built = True
-            if meshcat is not None:
+            if recorded is not None:
                 meshcat.StartRecording(frames_per_second=1.0 / scenario.outputs.visual_period,
                                        set_visualizations_while_recording=live_meshcat)
             spool = LogSpool(out)
@@ -566,13 +569,13 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             result.metrics["signal"] = ending.signal
         if stopped_at:
             result.metrics["stopped_at"] = stopped_at
-        if meshcat is not None:
+        if recorded is not None:
             if run.station.HasSubsystemNamed(MARKER_SYSTEM):  # the trail up to the end
                 run.station.GetSubsystemByName(MARKER_SYSTEM).flush(run.time)
             meshcat.StopRecording()
             meshcat.PublishRecording()
         if out is not None:
-            _write_outputs(result, spool, meshcat, error, run.colon)
+            _write_outputs(result, spool, recorded, error, run.colon)
     return result
 
 
