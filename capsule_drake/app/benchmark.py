@@ -226,7 +226,9 @@ def run_task(task: Task, progress=None) -> dict:
     s = colon.centerline.closest(result.capsule_state[4:7].T)[0]
     step = max(1, int(round(1.0 / period)))
     curve = (result.times[::step].tolist(), s[::step].tolist())
-    if result.status == "error":  # an error ended it (a plug-in's, or the simulation's)
+    # An error ended it (a plug-in's, or the simulation's), or the EPM came inside its
+    # clearance (epm/clearance.py): the run did not do what it was asked.
+    if result.status in ("error", "epm_clearance"):
         failed = failed_result(task, result.metrics["stopped_early"],
                                result.metrics.get("wall_time_s", np.nan))
         failed["row"]["sim_time_s"] = round(float(result.context.get_time()), 3)
