@@ -17,25 +17,13 @@ from hypothesis import strategies as st
 
 from capsule_drake.scenario import (DEFAULT_SCENARIO_FILE, ScenarioError, dump_scenario,
                                     load_scenario, scenario_names)
-from test_scenario_bounds import BASES, LEAVES, _names_the_key, _yaml
+from test_scenario_bounds import LEAVES, _names_the_key, _yaml, base_files  # noqa: F401
 
 QUICK = settings(max_examples=40, deadline=None,
                  suppress_health_check=[HealthCheck.function_scoped_fixture,
                                         HealthCheck.too_slow])
 
 
-@pytest.fixture(scope="module")
-def bases(tmp_path_factory):
-    """Each base scenario of test_scenario_bounds alone in a file (its text cut from
-    default.yaml): a load parses a few lines, not the whole file."""
-    text = DEFAULT_SCENARIO_FILE.read_text()
-    folder = tmp_path_factory.mktemp("property_bases")
-    files = {}
-    for _, name in BASES:
-        block = re.search(rf"^{name}:.*?(?=^\S|\Z)", text, re.S | re.M).group(0)
-        files[name] = folder / f"{name}.yaml"
-        files[name].write_text(block)
-    return files
 
 
 def _outcome(path, text):
@@ -80,8 +68,8 @@ PIECES = st.one_of(
 @example("{duration: \udcff}")   # an argument that is not UTF-8 (Python's surrogateescape)
 @example("\x85")                 # a YAML 1.1 line break: an empty document
 @example("# nothing but a comment")
-def test_any_override_text_loads_or_is_one_line(bases, text):
-    outcome = _outcome(bases["WithSensors"], text)
+def test_any_override_text_loads_or_is_one_line(base_files, text):
+    outcome = _outcome(base_files["WithSensors"], text)
     if not isinstance(outcome, str):
         assert math.isfinite(outcome.duration)
 
@@ -115,8 +103,8 @@ RAW = st.sampled_from(["0x10", "010", "0b1", "1:30", "1_0", "yes", "On", "'5'", 
 
 @QUICK
 @given(st.sampled_from(LEAVES), PLAIN | RAW)
-def test_any_value_in_any_field_loads_or_is_one_line_naming_it(bases, leaf, value):
-    outcome = _outcome(bases[leaf.base()], leaf.override(value))
+def test_any_value_in_any_field_loads_or_is_one_line_naming_it(base_files, leaf, value):
+    outcome = _outcome(base_files[leaf.base()], leaf.override(value))
     if isinstance(outcome, str):
         if "alias" not in outcome:  # *nothing: an alias of no anchor, a syntax error
             assert _names_the_key(outcome, leaf), (leaf.key, value, outcome)
@@ -182,11 +170,11 @@ def _nested(leaf, twice: int, block: bool) -> tuple[str, int]:
 
 @QUICK
 @given(st.sampled_from(LEAVES), st.data(), st.booleans())
-def test_a_key_given_twice_at_any_depth_is_refused_naming_it(bases, leaf, data, block):
+def test_a_key_given_twice_at_any_depth_is_refused_naming_it(base_files, leaf, data, block):
     twice = data.draw(st.integers(0, len(leaf.steps) - 1), label="depth")
     text, line = _nested(leaf, twice, block)
     where = ".".join(name for name, _ in leaf.steps[:twice + 1])
-    outcome = _outcome(bases[leaf.base()], text)
+    outcome = _outcome(base_files[leaf.base()], text)
     assert isinstance(outcome, str), text
     assert outcome.startswith(f"override:{line}: {where}: given twice"), (text, outcome)
 
@@ -195,9 +183,9 @@ def test_a_key_given_twice_at_any_depth_is_refused_naming_it(bases, leaf, data, 
 
 @QUICK
 @given(st.sampled_from(LEAVES), st.sampled_from([math.nan, math.inf, -math.inf]))
-def test_a_number_that_is_not_finite_is_refused_naming_its_field(bases, leaf, value):
+def test_a_number_that_is_not_finite_is_refused_naming_its_field(base_files, leaf, value):
     value = value if leaf.kind is float else {math.inf: 2 ** 64}.get(value, -2 ** 64)
-    outcome = _outcome(bases[leaf.base()], leaf.override(value))
+    outcome = _outcome(base_files[leaf.base()], leaf.override(value))
     assert isinstance(outcome, str), (leaf.key, value)
     assert _names_the_key(outcome, leaf), (leaf.key, outcome)
 
@@ -217,10 +205,10 @@ OUT_OF_RANGE = {  # field: values outside its stated range
 @QUICK
 @given(st.sampled_from(sorted(OUT_OF_RANGE)).flatmap(
     lambda key: st.tuples(st.just(key), OUT_OF_RANGE[key])))
-def test_a_number_out_of_its_range_is_refused_naming_its_field(bases, key_value):
+def test_a_number_out_of_its_range_is_refused_naming_its_field(base_files, key_value):
     key, value = key_value
     leaf = next(leaf for leaf in LEAVES if leaf.key == key)
-    outcome = _outcome(bases[leaf.base()], leaf.override(value))
+    outcome = _outcome(base_files[leaf.base()], leaf.override(value))
     assert isinstance(outcome, str), (key, value)
     assert key in outcome, outcome
 
@@ -235,14 +223,14 @@ FORMS = {"hexadecimal": hex, "octal": lambda n: "0" + format(n, "o"),
 @QUICK
 @given(st.sampled_from([leaf for leaf in LEAVES if leaf.kind is int]),
        st.integers(1000, 10 ** 6), st.sampled_from(sorted(FORMS)))
-def test_an_integer_is_read_in_decimal_and_refused_in_yaml_11s_other_forms(bases, leaf, n,
+def test_an_integer_is_read_in_decimal_and_refused_in_yaml_11s_other_forms(base_files, leaf, n,
                                                                           form):
     written = FORMS[form](n)
-    outcome = _outcome(bases[leaf.base()], leaf.override(written))
+    outcome = _outcome(base_files[leaf.base()], leaf.override(written))
     assert isinstance(outcome, str), (leaf.key, written)
     assert re.search(rf"{re.escape(leaf.key.rsplit('.', 1)[-1])}: {re.escape(written)} reads "
                      rf"as .*{n}", outcome), outcome
-    plain = _outcome(bases[leaf.base()], leaf.override(str(n)))
+    plain = _outcome(base_files[leaf.base()], leaf.override(str(n)))
     if not isinstance(plain, str):  # in its range: read as written
         assert _field(plain, leaf) == n
     else:
@@ -252,7 +240,7 @@ def test_an_integer_is_read_in_decimal_and_refused_in_yaml_11s_other_forms(bases
 @QUICK
 @given(st.characters(categories=["Nd"]).filter(lambda c: not "0" <= c <= "9"),
        st.sampled_from([leaf for leaf in LEAVES if leaf.kind is float]))
-def test_digits_other_than_0_to_9_are_refused_naming_the_field(bases, digit, leaf):
-    outcome = _outcome(bases[leaf.base()], leaf.override(f"{digit}.{digit}"))
+def test_digits_other_than_0_to_9_are_refused_naming_the_field(base_files, digit, leaf):
+    outcome = _outcome(base_files[leaf.base()], leaf.override(f"{digit}.{digit}"))
     assert isinstance(outcome, str) and "digits 0-9" in outcome, (leaf.key, digit, outcome)
     assert _names_the_key(outcome, leaf), outcome
