@@ -12,6 +12,7 @@ normals pointing into the tissue instead of toward the lumen.
 from __future__ import annotations
 
 import dataclasses
+import io
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,54 @@ MAX_HOLE_PERIMETER = 0.03
 
 class MeshImportError(ValueError):
     """A mesh that cannot become a colon; the message is one line naming file and problem."""
+
+
+# What a file given for a mesh holds, by its first bytes (offset, bytes, kind): a picture, a
+# scan or a document is named for what it is, whatever its file name says.
+_NOT_MESHES = (
+    (0, b"\x89PNG\r\n\x1a\n", "a PNG image"), (0, b"\xff\xd8\xff", "a JPEG image"),
+    (0, b"GIF87a", "a GIF image"), (0, b"GIF89a", "a GIF image"),
+    (0, b"II*\x00", "a TIFF image"), (0, b"MM\x00*", "a TIFF image"),
+    (0, b"%PDF-", "a PDF document"), (0, b"PK\x03\x04", "a ZIP archive"),
+    (0, b"\x1f\x8b", "a gzip archive"), (128, b"DICM", "a DICOM image"),
+    (344, b"n+1\x00", "a NIfTI volume"))
+_VOLUMES = ("a DICOM image", "a NIfTI volume")
+
+
+def _not_a_mesh(path: Path) -> str | None:
+    """Why the file at `path` cannot be a mesh by its bytes (one line), or None."""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if path.suffix.lower() == ".stl" and len(head) >= 84:
+        # A binary STL's 80-byte header may hold anything; its triangle count and the file's
+        # size agree.
+        count = int.from_bytes(head[80:84], "little")
+        if path.stat().st_size == 84 + 50 * count:
+            return None
+    for offset, magic, kind in _NOT_MESHES:
+        if head[offset:offset + len(magic)] == magic:
+            what = ("segment the colon and export its surface" if kind in _VOLUMES
+                    else "give the colon's surface")
+            return (f"{kind}, not a mesh (by its bytes, whatever its name); {what} as "
+                    "OBJ, STL, PLY or GLB")
+    if path.suffix.lower() == ".obj" and b"\0" in head:
+        return "not text (an OBJ file is text; this one holds binary bytes)"
+    return None
+
+
+def _read(path: Path):
+    """trimesh.load of `path`; an OBJ that is not UTF-8 (a Latin-1 comment or name) is
+    decoded as Latin-1 here (trimesh would need an optional package to guess its encoding),
+    its material and texture files still found beside it."""
+    if path.suffix.lower() == ".obj":
+        data = path.read_bytes()
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1").encode("utf-8")
+            return trimesh.load(io.BytesIO(text), file_type="obj",
+                                resolver=trimesh.resolvers.FilePathResolver(str(path)))
+    return trimesh.load(str(path))
 
 
 @dataclasses.dataclass
@@ -80,7 +129,19 @@ def load_colon_mesh(path) -> trimesh.Trimesh:
         raise MeshImportError(f"{path}: unsupported format {path.suffix or '(none)'!r}; "
                               f"expected one of {', '.join(FORMATS)}")
     try:
-        loaded = trimesh.load(str(path))
+        reason = _not_a_mesh(path)
+    except OSError as e:
+        raise MeshImportError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if reason is not None:
+        raise MeshImportError(f"{path}: {reason}")
+    try:
+        loaded = _read(path)
+    except ImportError as e:  # an optional package trimesh wants for this file
+        raise MeshImportError(
+            f"{path}: not a readable mesh (neither a binary {path.suffix.lstrip('.').upper()}"
+            " file nor UTF-8 text)" if e.name == "charset_normalizer" else
+            f"{path}: reading it needs the Python package {e.name!r}, which is not "
+            "installed") from None
     except Exception as e:  # trimesh raises many types for unreadable files
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise MeshImportError(f"{path}: not a readable mesh ({first})") from None
