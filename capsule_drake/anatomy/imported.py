@@ -24,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -37,12 +39,12 @@ from .centerline_extraction import MeshSections, extract_centerline, section_loo
 from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
-from .importer import (RepairReport, _boundary_loops, _perimeter, _texture_of,
+from .importer import (MeshImportError, RepairReport, _boundary_loops, _perimeter, _texture_of,
                        check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
 from .params import ExVivo, Imported, MucosaParams
 from .texture import mucosa_texture
-from .tube_check import NotATubeError, check_open_ends, check_tube
+from .tube_check import NotATubeError, check_one_piece, check_open_ends, check_tube
 
 TABLE_STEP = 0.002
 """Arc-length step [m] of the wall-radius table."""
@@ -50,6 +52,10 @@ TABLE_AROUND = 64
 """Angles around the centreline in the wall-radius table."""
 DEFAULT_MAX_FACES = 150_000
 """Triangle budget of an imported wall: a software camera render costs per triangle."""
+NOTE_FACES = 100_000
+"""A mesh imported on first use in a run (no progress bar there) with more triangles than
+this says each stage of its import on stderr as it starts: such an import takes from half a
+minute (100,000 triangles) to minutes (millions) on a 2-core machine."""
 
 
 class FlatSkin:
@@ -95,19 +101,29 @@ class ImportedWall:
 
 
 def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_MAX_FACES,
-                      reverse: bool = False, progress=None) -> ImportedWall:
+                      reverse: bool = False, progress=None,
+                      notes_over: int | None = None) -> ImportedWall:
     """Load, check, repair and measure a user's colon mesh. Raises MeshImportError (one line)
-    for a file that cannot become a colon, NotATubeError (a MeshImportError) for a mesh that
-    is not one tube (anatomy/tube_check.py: more than two open ends, an open sheet, a closed
-    blob, a branch). `progress(text)`, if given, hears each stage."""
+    for a file that cannot become a colon (more than importer.MAX_IMPORT_FACES triangles
+    among them), NotATubeError (a MeshImportError) for a mesh that is not one tube
+    (anatomy/tube_check.py: in pieces, a triangle soup, more than two open ends, an open
+    sheet, a closed blob, a branch). `progress(text)`, if given, hears each stage; with
+    `notes_over`, a mesh of more triangles than that also says each stage on stderr."""
     say = progress or (lambda text: None)
     say("reading")
     mesh = load_colon_mesh(path)
+    if notes_over is not None and len(mesh.faces) > notes_over:
+        say = _noting(say, f"importing {path} ({len(mesh.faces):,} triangles; cached after "
+                           "this first use)")
     if scale != 1.0:
         mesh.apply_scale(scale)
     check_colon_mesh(mesh, str(path))
+    try:
+        check_one_piece(mesh.vertices, mesh.faces)
+    except NotATubeError as e:
+        raise NotATubeError(f"{path}: {e}") from None
     say("repairing")
-    mesh, report = repair_colon_mesh(mesh, max_faces=max_faces)
+    mesh, report = repair_colon_mesh(mesh, max_faces=max_faces, progress=say)
     geometry = geometry_of(mesh)
     try:
         check_open_ends([_perimeter(geometry.vertices, loop)
@@ -132,6 +148,17 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     say("wall table")
     table_s, theta, table = wall_radius_table(geometry, centerline)
     return ImportedWall(mesh, report, centerline, table_s, theta, table, str(path), scale)
+
+
+def _noting(say, head: str):
+    """`say`, each text also a line on stderr after `head` with the seconds since."""
+    start = time.perf_counter()
+
+    def noted(text):
+        print(f"{head}: {text} ({time.perf_counter() - start:.0f} s)", file=sys.stderr,
+              flush=True)
+        say(text)
+    return noted
 
 
 def _centerline(s, points, radius) -> Centerline:
@@ -362,7 +389,11 @@ def imported_colon_assets(params, cache_dir=None):
         files = []
     else:
         files = _source_files(Path(params.source.path))
-    final = root / _digest(params, files)
+    try:
+        final = root / _digest(params, files)
+    except OSError as e:  # a file the user may not read: theirs to fix, in one line
+        raise MeshImportError(f"{e.filename or params.source.path}: cannot be read "
+                              f"({e.strerror or e})") from None
     build_once(final, lambda tmp: _build_imported(params, tmp))
     chunks = len(sorted(final.glob("colon_collision_*.obj")))
     return _load_imported(params, final), asset_paths(final, chunks)
@@ -394,8 +425,8 @@ def _build_imported(params, directory: Path) -> None:
         else:
             mesh_path = Path(source.path)
         scale = source.scale if isinstance(source, Imported) else 1.0
-        write_import(import_colon_mesh(mesh_path, scale, source.max_faces, source.reverse),
-                     folder)
+        write_import(import_colon_mesh(mesh_path, scale, source.max_faces, source.reverse,
+                                       notes_over=NOTE_FACES), folder)
     colon = _load_imported(params, directory)
     image = colon.texture_image()
 

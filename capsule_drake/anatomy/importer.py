@@ -34,6 +34,14 @@ class MeshImportError(ValueError):
     """A mesh that cannot become a colon; the message is one line naming file and problem."""
 
 
+# The most triangles an import takes (provisional: measured up to 2.4 M so far). Measured
+# with the import on this project's 2-core machine (benchmarks/bench_import.py --sizes), a
+# bent open tube of 1.2 M triangles took 154 s and 1.35 GB, of 2.4 M 155-200 s and 2.3 GB;
+# time and memory grow in proportion. A mesh that large is a scan at a resolution the
+# simulation does not use (the wall is decimated to --max-faces, 150,000 by default).
+MAX_IMPORT_FACES = 4_000_000
+
+
 # What a file given for a mesh holds, by its first bytes (offset, bytes, kind): a picture, a
 # scan or a document is named for what it is, whatever its file name says.
 _NOT_MESHES = (
@@ -64,6 +72,44 @@ def _not_a_mesh(path: Path) -> str | None:
                     "OBJ, STL, PLY or GLB")
     if path.suffix.lower() == ".obj" and b"\0" in head:
         return "not text (an OBJ file is text; this one holds binary bytes)"
+    return None
+
+
+def _too_many(path: Path, faces: int) -> MeshImportError:
+    return MeshImportError(
+        f"{path}: {faces:,} triangles, more than the {MAX_IMPORT_FACES:,} the import handles "
+        "(minutes and gigabytes of memory at that size); simplify the mesh first, e.g. "
+        "quadric decimation in MeshLab or Blender to under a million triangles (the import "
+        "then decimates it to --max-faces)")
+
+
+_COUNT_CHUNK = 1 << 24  # bytes read at a time when counting an OBJ's faces
+
+
+def count_faces(path: Path) -> int | None:
+    """The triangles in the file at `path` as its format states them without reading the
+    mesh (at least that many: an OBJ's polygons count once), or None where it does not
+    (GLB, glTF, an unreadable header)."""
+    suffix = path.suffix.lower()
+    with open(path, "rb") as f:
+        if suffix == ".obj":
+            count, previous = 0, b"\n"
+            while chunk := f.read(_COUNT_CHUNK):
+                text = previous + chunk
+                count += text.count(b"\nf ") + text.count(b"\nf\t")
+                previous = text[-2:]  # a line start cut by the chunk's end
+            return count
+        head = f.read(1 << 12)
+    if suffix == ".stl":
+        if len(head) >= 84 and path.stat().st_size == 84 + 50 * int.from_bytes(
+                head[80:84], "little"):
+            return int.from_bytes(head[80:84], "little")
+        return None  # ASCII: counted once read
+    if suffix == ".ply" and head.startswith(b"ply"):
+        for line in head.split(b"end_header")[0].splitlines():
+            words = line.split()
+            if len(words) == 3 and words[0] == b"element" and words[1] == b"face":
+                return int(words[2]) if words[2].isdigit() else None
     return None
 
 
@@ -134,6 +180,9 @@ def load_colon_mesh(path) -> trimesh.Trimesh:
         raise MeshImportError(f"{path}: cannot be read ({e.strerror or e})") from None
     if reason is not None:
         raise MeshImportError(f"{path}: {reason}")
+    stated = count_faces(path)
+    if stated is not None and stated > MAX_IMPORT_FACES:
+        raise _too_many(path, stated)
     try:
         loaded = _read(path)
     except ImportError as e:  # an optional package trimesh wants for this file
@@ -159,6 +208,8 @@ def load_colon_mesh(path) -> trimesh.Trimesh:
                               " mesh it first (e.g. Poisson)")
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshImportError(f"{path}: not a triangle mesh ({type(loaded).__name__})")
+    if len(loaded.faces) > MAX_IMPORT_FACES:
+        raise _too_many(path, len(loaded.faces))
     if len(loaded.faces) == 0:
         if len(loaded.vertices):
             raise MeshImportError(f"{path}: a point cloud ({len(loaded.vertices)} points, "
@@ -201,7 +252,7 @@ def _unit_guess(extent: float):
 
 def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
                       max_hole_perimeter: float = MAX_HOLE_PERIMETER,
-                      max_faces: int | None = None):
+                      max_faces: int | None = None, progress=None):
     """Repairs a copy of `mesh`: duplicate and degenerate faces removed, winding made
     consistent, holes of up to `max_hole_edges` boundary edges and `max_hole_perimeter`
     (m) around filled (a tube's open ends, 6 cm and more around, stay open), normals turned toward the lumen (the wall is seen and touched
@@ -211,7 +262,9 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     split vertices, which would look like open edges). A texture, if the mesh has one, is
     kept: every surviving face keeps its texture coordinates; a filled hole's faces take
     those of a vertex at the same place; after decimation each new vertex takes those of
-    the nearest original vertex. Returns (mesh, RepairReport)."""
+    the nearest original vertex. `progress(text)`, if given, hears each step. Returns
+    (mesh, RepairReport)."""
+    say = progress or (lambda text: None)
     report = RepairReport()
     texture = _texture_of(mesh)
     vertices = np.asarray(mesh.vertices, dtype=float)
@@ -225,6 +278,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     keep &= nondegenerate
     kept = np.flatnonzero(keep)
     geometry.update_faces(keep)
+    say("repairing: winding, holes")
     if not geometry.is_winding_consistent:
         trimesh.repair.fix_winding(geometry)
         report.fixed_winding = True
@@ -239,6 +293,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     report.open_ends = len(_boundary_loops(geometry))
     _, uses = np.unique(geometry.edges_sorted, axis=0, return_counts=True)
     report.non_manifold_edges = int(np.sum(uses > 2))
+    say("repairing: normals")
     faces = np.asarray(geometry.faces)
     if _normals_point_outward(geometry):
         faces = faces[:, ::-1]
@@ -256,6 +311,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     out.remove_unreferenced_vertices()
     if max_faces is not None and len(out.faces) > max_faces:
         report.decimated_from = len(out.faces)
+        say(f"repairing: decimating {len(out.faces):,} to {max_faces:,} faces")
         out = _decimate(out, max_faces, texture)
         report.decimated_to = len(out.faces)
     return out, report
