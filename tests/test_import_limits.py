@@ -205,7 +205,7 @@ def test_a_large_import_in_a_run_says_what_it_is_doing(tmp_path, monkeypatch, ca
     stages = [line.split("first use): ", 1)[-1] for line in lines]
     assert all(line.startswith(f"importing {path} (3,776 triangles; cached after this "
                                "first use): ") for line in lines), lines
-    for stage in ("repairing", "centreline", "wall table"):
+    for stage in ("reading", "repairing", "centreline", "wall table"):
         assert any(text.startswith(stage) for text in stages), stages
     # A small one says nothing.
     monkeypatch.setattr(imported, "NOTE_FACES", 10_000)

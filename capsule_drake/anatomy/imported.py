@@ -39,6 +39,7 @@ from .centerline_extraction import MeshSections, extract_centerline, section_loo
 from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
+from . import importer
 from .importer import (MeshImportError, RepairReport, _boundary_loops, _perimeter, _texture_of,
                        check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
@@ -110,11 +111,15 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     sheet, a closed blob, a branch). `progress(text)`, if given, hears each stage; with
     `notes_over`, a mesh of more triangles than that also says each stage on stderr."""
     say = progress or (lambda text: None)
+    noted = False
+    if notes_over is not None:  # the triangles the file states, if it does: before reading
+        stated = _stated_faces(path)
+        if stated is not None and notes_over < stated <= importer.MAX_IMPORT_FACES:
+            say, noted = _noting(say, path, stated), True
     say("reading")
     mesh = load_colon_mesh(path)
-    if notes_over is not None and len(mesh.faces) > notes_over:
-        say = _noting(say, f"importing {path} ({len(mesh.faces):,} triangles; cached after "
-                           "this first use)")
+    if notes_over is not None and not noted and len(mesh.faces) > notes_over:
+        say = _noting(say, path, len(mesh.faces))
     if scale != 1.0:
         mesh.apply_scale(scale)
     check_colon_mesh(mesh, str(path))
@@ -150,9 +155,17 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     return ImportedWall(mesh, report, centerline, table_s, theta, table, str(path), scale)
 
 
-def _noting(say, head: str):
-    """`say`, each text also a line on stderr after `head` with the seconds since."""
+def _stated_faces(path) -> int | None:
+    try:
+        return importer.count_faces(Path(path)) if Path(path).is_file() else None
+    except OSError:
+        return None  # said by the read
+
+
+def _noting(say, path, faces: int):
+    """`say`, each text also a line on stderr naming the import, with the seconds since."""
     start = time.perf_counter()
+    head = f"importing {path} ({faces:,} triangles; cached after this first use)"
 
     def noted(text):
         print(f"{head}: {text} ({time.perf_counter() - start:.0f} s)", file=sys.stderr,
