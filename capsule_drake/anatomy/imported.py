@@ -163,13 +163,18 @@ def _stated_faces(path) -> int | None:
 
 
 def _noting(say, path, faces: int):
-    """`say`, each text also a line on stderr naming the import, with the seconds since."""
+    """`say`, its texts also lines on stderr naming the import, with the seconds since: each
+    new stage (the text's words before a comma), and a stage's steps 10 s apart."""
     start = time.perf_counter()
     head = f"importing {path} ({faces:,} triangles; cached after this first use)"
+    last = {"stage": None, "time": -np.inf}
 
     def noted(text):
-        print(f"{head}: {text} ({time.perf_counter() - start:.0f} s)", file=sys.stderr,
-              flush=True)
+        now = time.perf_counter()
+        stage = text.split(",")[0]
+        if stage != last["stage"] or now - last["time"] >= 10.0:
+            print(f"{head}: {text} ({now - start:.0f} s)", file=sys.stderr, flush=True)
+            last.update(stage=stage, time=now)
         say(text)
     return noted
 
