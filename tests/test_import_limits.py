@@ -98,7 +98,7 @@ def _stages(path, **options):
 
 def test_a_triangle_soup_is_refused_before_the_repairs(tmp_path):
     """100,000 separate triangles: the import went through the repairs (17 s, 0.6 GB) to
-    say '11 open ends'; a million took 208 s and 2.9 GB. It is refused once read, in one
+    say '11 open ends'; a million took 117 s and 2.9 GB. It is refused once read, in one
     line saying what it is."""
     path = tmp_path / "soup.obj"
     _soup(100_000).export(path)

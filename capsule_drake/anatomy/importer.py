@@ -34,13 +34,14 @@ class MeshImportError(ValueError):
     """A mesh that cannot become a colon; the message is one line naming file and problem."""
 
 
-# The most triangles an import takes. Measured on a 2-core machine shared
-# with other work (benchmarks/bench_import.py --sizes: a bent open tube, imported in a
-# process of its own): 0.3 M triangles 66 s and 0.7 GB at its peak, 1.2 M 154 s and 1.35
-# GB, 2.4 M 163 s and 2.2 GB, 4.8 M 288 s and 4.1 GB (the repairs and the decimation grow
-# with the triangles; the centreline is found on the decimated wall). At 4 M an import
-# takes about four minutes and 3.5 GB. A mesh that large is a scan at a resolution the
-# simulation does not use (the wall is decimated to --max-faces, 150,000 by default).
+# The most triangles an import takes. Measured on a 2-core machine (benchmarks/
+# bench_import.py --sizes: a bent open tube, imported in a process of its own), quiet: 0.3 M
+# triangles 20 s and 0.7 GB at its peak, 1.2 M 44 s and 1.35 GB, 2.4 M 76 s and 2.2 GB,
+# 4.8 M 179 s and 4.1 GB; shared with other work, 66, 154, 163 and 288 s. The repairs and
+# the decimation grow with the triangles (the centreline is found on the decimated wall),
+# the memory by 0.8 GB a million. At 4 M an import takes 2-4 minutes and 3.5 GB. A mesh that
+# large is a scan at a resolution the simulation does not use (the wall is decimated to
+# --max-faces, 150,000 by default).
 MAX_IMPORT_FACES = 4_000_000
 
 
