@@ -19,7 +19,13 @@ set's features drawn together, deep folds, flares, oblique cuts and sharp bends 
 same end included; draws that bend tighter than their radius allows are skipped) and the
 distribution of the largest distance, with each tube over 2 mm named.
 
+With --sizes N,N,..., instead: for each size, a bent open tube of about N triangles (a
+uniform grid of rings, 4 cm wide, 48 cm long) and a soup of N separate triangles, each
+imported in a process of its own with the import's size limit lifted, and its wall time,
+its peak memory and its outcome printed: what importer.MAX_IMPORT_FACES is set from.
+
 Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10] [--tubes] [--sweep N]
+     [--sizes 300000,1200000,4800000]
 """
 
 import argparse
@@ -114,6 +120,73 @@ def tube_table() -> None:
                   f"{len(tube.mesh.faces):>8}{seconds:>12.1f}{1000 * error:>12.2f}")
 
 
+def sized_mesh(kind: str, triangles: int, path: Path) -> int:
+    """Writes a bent open tube ('tube') of about `triangles` faces, or a soup ('soup') of that
+    many separate 2 mm triangles in a 30 x 30 x 9 cm box, as an OBJ; returns its faces."""
+    rng = np.random.default_rng(0)
+    if kind == "tube":
+        around = max(32, 2 * int(np.sqrt(triangles / 20)))
+        rings = triangles // (2 * around) + 1
+        a = np.linspace(-0.8, 0.8, rings)  # an arc of 0.3 m radius, 4 cm wide
+        centre = np.column_stack([0.3 * np.sin(a), np.zeros_like(a), 0.3 * (1 - np.cos(a))])
+        normal = np.column_stack([-np.sin(a), np.zeros_like(a), np.cos(a)])
+        theta = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+        vertices = (centre[:, None] + 0.02 * (np.cos(theta)[None, :, None] * normal[:, None]
+                                              + np.sin(theta)[None, :, None] * [0, 1, 0])
+                    ).reshape(-1, 3)
+        i, j = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
+        k, n = i * around + j, i * around + (j + 1) % around
+        faces = np.concatenate([np.stack([k, n, k + around], -1).reshape(-1, 3),
+                                np.stack([n, n + around, k + around], -1).reshape(-1, 3)])
+    else:
+        centres = rng.uniform(0.0, 0.3, (triangles, 1, 3)) * [1.0, 1.0, 0.3]
+        vertices = (centres + rng.normal(0.0, 0.002, (triangles, 3, 3))).reshape(-1, 3)
+        faces = np.arange(3 * triangles).reshape(-1, 3)
+    with open(path, "w") as f:
+        np.savetxt(f, vertices, fmt="v %.7f %.7f %.7f")
+        np.savetxt(f, faces + 1, fmt="f %d %d %d")
+    return len(faces)
+
+
+def import_one(path: str) -> None:
+    """(In a process of its own) imports `path` with the size limit lifted and prints its
+    seconds, peak memory [GB] and outcome, tab-separated."""
+    import resource
+
+    from capsule_drake.anatomy import importer
+
+    importer.MAX_IMPORT_FACES = 10**9
+    start = time.perf_counter()
+    try:
+        wall = import_colon_mesh(path)
+        outcome = f"imported ({len(wall.mesh.faces)} faces)"
+    except ValueError as e:
+        outcome = "refused: " + str(e).split(": ", 1)[1][:70]
+    seconds = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    print(f"{seconds:.1f}\t{peak:.2f}\t{outcome}")
+
+
+def size_table(sizes: list[int]) -> None:
+    import subprocess
+
+    print(f"{'mesh':<6}{'triangles':>11}{'import [s]':>12}{'peak [GB]':>11}  outcome")
+    with tempfile.TemporaryDirectory() as folder:
+        for size in sizes:
+            for kind in ("tube", "soup"):
+                path = Path(folder) / f"{kind}_{size}.obj"
+                faces = sized_mesh(kind, size, path)
+                done = subprocess.run([sys.executable, __file__, "--one", str(path)],
+                                      capture_output=True, text=True)
+                path.unlink()
+                if done.returncode != 0:
+                    print(f"{kind:<6}{faces:>11,}  failed: {done.stderr.strip()[-200:]}")
+                    continue
+                seconds, peak, outcome = done.stdout.strip().splitlines()[-1].split("\t")
+                print(f"{kind:<6}{faces:>11,}{float(seconds):>12.1f}{float(peak):>11.2f}  "
+                      f"{outcome}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
@@ -122,7 +195,17 @@ def main() -> None:
                         help="time and check the import of the test tubes instead")
     parser.add_argument("--sweep", type=int, default=0, metavar="N",
                         help="import N tubes of random shape and print the errors instead")
+    parser.add_argument("--sizes", metavar="N,N,...",
+                        help="import tubes and triangle soups of these sizes instead, each "
+                             "in a process of its own: seconds and peak memory")
+    parser.add_argument("--one", metavar="MESH", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.one:
+        import_one(args.one)
+        return
+    if args.sizes:
+        size_table([int(float(n)) for n in args.sizes.split(",")])
+        return
     if args.sweep:
         sweep(args.sweep)
         return

@@ -18,11 +18,13 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
 from mcap.writer import Writer as McapWriter
 
+from capsule_drake.anatomy import importer
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app import outputs
@@ -89,6 +91,11 @@ SCENARIO_VALUES = [
     ("tracker without camera", _text("{capsule: {lumen_tracker: {}}}"),
      r"needs capsule\.camera"),
     ("colon source missing", _text("{colon: {source: !Imported {path: /no/such/colon}}}"), r"/no/such/colon"),
+    ("colon source a picture", _text("{colon: {source: !Imported {path: '{tmp}/photo.obj'}}}"),
+     r"photo\.obj: a PNG image, not a mesh(?!.*module)"),
+    ("colon source a triangle soup",
+     _text("{colon: {source: !Imported {path: '{tmp}/soup.obj'}}}"),
+     r"soup\.obj: not a tube: its 20,000 triangles fall apart .*\(a triangle soup\)"),
     ("unresolvable UDP host", _text("{epm: {driver: !Teleop {operator: udp, udp: "
                                     "{host: no.such.host.invalid}}}}"),
      r"no\.such\.host\.invalid"),
@@ -301,6 +308,23 @@ IMPORT = [
     ("mesh in millimetres", ["import-colon", "{tmp}/tube_mm.obj", "--out", "{tmp}/m8", "--quiet"],
      r"tube_mm\.obj: 300 units across.*scale it by 0\.001"),
     ("empty mesh", ["import-colon", "{tmp}/empty.obj", "--out", "{tmp}/m9", "--quiet"], r"empty\.obj"),
+    # A picture given for a mesh: its kind named, not what trimesh's text decoder lacked.
+    ("PNG named .obj", ["import-colon", "{tmp}/photo.obj", "--out", "{tmp}/m10", "--quiet"],
+     r"photo\.obj: a PNG image, not a mesh(?!.*module)"),
+    ("JPEG named .obj", ["import-colon", "{tmp}/snapshot.obj", "--out", "{tmp}/m11",
+                         "--quiet"], r"snapshot\.obj: a JPEG image, not a mesh(?!.*module)"),
+    ("PNG named .stl", ["import-colon", "{tmp}/photo.stl", "--out", "{tmp}/m12", "--quiet"],
+     r"photo\.stl: a PNG image, not a mesh(?!.*module)"),
+    ("JPEG named .ply", ["import-colon", "{tmp}/snapshot.ply", "--out", "{tmp}/m13",
+                         "--quiet"], r"snapshot\.ply: a JPEG image, not a mesh"),
+    ("triangle soup", ["import-colon", "{tmp}/soup.obj", "--out", "{tmp}/m15", "--quiet"],
+     r"soup\.obj: not a tube: its 20,000 triangles fall apart into 20,000 separate pieces"),
+    ("mesh over the import's limit", ["import-colon", "{tmp}/huge.obj", "--out", "{tmp}/m16",
+                                      "--quiet"],
+     r"huge\.obj: [\d,]+ triangles, more than the [\d,]+ the import handles.*simplify"),
+    ("binary bytes named .obj", ["import-colon", "{tmp}/noise.obj", "--out", "{tmp}/m14",
+                                 "--quiet"],
+     r"noise\.obj: not text \(an OBJ file is text(?!.*module)"),
     ("import into a used folder", ["import-colon", "{tmp}/tube.obj", "--out",
                                    "{tmp}/previous_run", "--quiet"], r"folder exists and holds"),
 ]
@@ -359,6 +383,18 @@ def bad_files(tmp_path_factory):
     trimesh.PointCloud(rng.normal(size=(100, 3))).export(tmp / "cloud.ply")
     _tube().apply_scale(1000.0).export(tmp / "tube_mm.obj")
     (tmp / "empty.obj").write_text("")
+    picture = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    for name, ext in (("photo", ".png"), ("snapshot", ".jpg")):
+        ok, encoded = cv2.imencode(ext, picture)
+        for suffix in (".obj", ".stl", ".ply"):
+            (tmp / f"{name}{suffix}").write_bytes(encoded.tobytes())
+    (tmp / "noise.obj").write_bytes(bytes(rng.integers(0, 256, 4096, dtype=np.uint8)))
+    corners = rng.uniform(0.0, 0.3, (20_000, 1, 3)) + rng.normal(0.0, 0.002, (20_000, 3, 3))
+    trimesh.Trimesh(corners.reshape(-1, 3), np.arange(60_000).reshape(-1, 3),
+                    process=False).export(tmp / "soup.obj")
+    with open(tmp / "huge.obj", "wb") as f:  # one face more than the import takes
+        f.write(b"v 0 0 0\nv 0.1 0 0\nv 0 0.1 0.05\n")
+        f.write(b"f 1 2 3\n" * (importer.MAX_IMPORT_FACES + 1))
     # Output paths: empty folders, an MCAP of this simulator's and one of another program's,
     # links, a folder with a folder where a run's file goes, inputs inside an --out folder.
     (tmp / "empty_folder").mkdir()

@@ -24,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -37,12 +39,13 @@ from .centerline_extraction import MeshSections, extract_centerline, section_loo
 from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root, source_digest, write_asset_files
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
-from .importer import (RepairReport, _boundary_loops, _perimeter, _texture_of,
+from . import importer
+from .importer import (MeshImportError, RepairReport, _boundary_loops, _perimeter, _texture_of,
                        check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
 from .params import ExVivo, Imported, MucosaParams
 from .texture import mucosa_texture
-from .tube_check import NotATubeError, check_open_ends, check_tube
+from .tube_check import NotATubeError, check_one_piece, check_open_ends, check_tube
 
 TABLE_STEP = 0.002
 """Arc-length step [m] of the wall-radius table."""
@@ -50,6 +53,10 @@ TABLE_AROUND = 64
 """Angles around the centreline in the wall-radius table."""
 DEFAULT_MAX_FACES = 150_000
 """Triangle budget of an imported wall: a software camera render costs per triangle."""
+NOTE_FACES = 100_000
+"""A mesh imported on first use in a run (no progress bar there) with more triangles than
+this says each stage of its import on stderr as it starts: such an import takes from half a
+minute (100,000 triangles) to minutes (millions) on a 2-core machine."""
 
 
 class FlatSkin:
@@ -95,19 +102,33 @@ class ImportedWall:
 
 
 def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_MAX_FACES,
-                      reverse: bool = False, progress=None) -> ImportedWall:
+                      reverse: bool = False, progress=None,
+                      notes_over: int | None = None) -> ImportedWall:
     """Load, check, repair and measure a user's colon mesh. Raises MeshImportError (one line)
-    for a file that cannot become a colon, NotATubeError (a MeshImportError) for a mesh that
-    is not one tube (anatomy/tube_check.py: more than two open ends, an open sheet, a closed
-    blob, a branch). `progress(text)`, if given, hears each stage."""
+    for a file that cannot become a colon (more than importer.MAX_IMPORT_FACES triangles
+    among them), NotATubeError (a MeshImportError) for a mesh that is not one tube
+    (anatomy/tube_check.py: in pieces, a triangle soup, more than two open ends, an open
+    sheet, a closed blob, a branch). `progress(text)`, if given, hears each stage; with
+    `notes_over`, a mesh of more triangles than that also says each stage on stderr."""
     say = progress or (lambda text: None)
+    noted = False
+    if notes_over is not None:  # the triangles the file states, if it does: before reading
+        stated = _stated_faces(path)
+        if stated is not None and notes_over < stated <= importer.MAX_IMPORT_FACES:
+            say, noted = _noting(say, path, stated), True
     say("reading")
     mesh = load_colon_mesh(path)
+    if notes_over is not None and not noted and len(mesh.faces) > notes_over:
+        say = _noting(say, path, len(mesh.faces))
     if scale != 1.0:
         mesh.apply_scale(scale)
     check_colon_mesh(mesh, str(path))
+    try:
+        check_one_piece(mesh.vertices, mesh.faces)
+    except NotATubeError as e:
+        raise NotATubeError(f"{path}: {e}") from None
     say("repairing")
-    mesh, report = repair_colon_mesh(mesh, max_faces=max_faces)
+    mesh, report = repair_colon_mesh(mesh, max_faces=max_faces, progress=say)
     geometry = geometry_of(mesh)
     try:
         check_open_ends([_perimeter(geometry.vertices, loop)
@@ -132,6 +153,30 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     say("wall table")
     table_s, theta, table = wall_radius_table(geometry, centerline)
     return ImportedWall(mesh, report, centerline, table_s, theta, table, str(path), scale)
+
+
+def _stated_faces(path) -> int | None:
+    try:
+        return importer.count_faces(Path(path)) if Path(path).is_file() else None
+    except OSError:
+        return None  # said by the read
+
+
+def _noting(say, path, faces: int):
+    """`say`, its texts also lines on stderr naming the import, with the seconds since: each
+    new stage (the text's words before a comma), and a stage's steps 10 s apart."""
+    start = time.perf_counter()
+    head = f"importing {path} ({faces:,} triangles; cached after this first use)"
+    last = {"stage": None, "time": -np.inf}
+
+    def noted(text):
+        now = time.perf_counter()
+        stage = text.split(",")[0]
+        if stage != last["stage"] or now - last["time"] >= 10.0:
+            print(f"{head}: {text} ({now - start:.0f} s)", file=sys.stderr, flush=True)
+            last.update(stage=stage, time=now)
+        say(text)
+    return noted
 
 
 def _centerline(s, points, radius) -> Centerline:
@@ -362,7 +407,11 @@ def imported_colon_assets(params, cache_dir=None):
         files = []
     else:
         files = _source_files(Path(params.source.path))
-    final = root / _digest(params, files)
+    try:
+        final = root / _digest(params, files)
+    except OSError as e:  # a file the user may not read: theirs to fix, in one line
+        raise MeshImportError(f"{e.filename or params.source.path}: cannot be read "
+                              f"({e.strerror or e})") from None
     build_once(final, lambda tmp: _build_imported(params, tmp))
     chunks = len(sorted(final.glob("colon_collision_*.obj")))
     return _load_imported(params, final), asset_paths(final, chunks)
@@ -394,8 +443,8 @@ def _build_imported(params, directory: Path) -> None:
         else:
             mesh_path = Path(source.path)
         scale = source.scale if isinstance(source, Imported) else 1.0
-        write_import(import_colon_mesh(mesh_path, scale, source.max_faces, source.reverse),
-                     folder)
+        write_import(import_colon_mesh(mesh_path, scale, source.max_faces, source.reverse,
+                                       notes_over=NOTE_FACES), folder)
     colon = _load_imported(params, directory)
     image = colon.texture_image()
 

@@ -12,6 +12,7 @@ normals pointing into the tissue instead of toward the lumen.
 from __future__ import annotations
 
 import dataclasses
+import io
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,103 @@ MAX_HOLE_PERIMETER = 0.03
 
 class MeshImportError(ValueError):
     """A mesh that cannot become a colon; the message is one line naming file and problem."""
+
+
+# The most triangles an import takes. Measured on a 2-core machine (benchmarks/
+# bench_import.py --sizes: a bent open tube, imported in a process of its own), quiet: 0.3 M
+# triangles 20 s and 0.7 GB at its peak, 1.2 M 44 s and 1.35 GB, 2.4 M 76 s and 2.2 GB,
+# 4.8 M 179 s and 4.1 GB; shared with other work, 66, 154, 163 and 288 s. The repairs and
+# the decimation grow with the triangles (the centreline is found on the decimated wall),
+# the memory by 0.8 GB a million. At 4 M an import takes 2-4 minutes and 3.5 GB. A mesh that
+# large is a scan at a resolution the simulation does not use (the wall is decimated to
+# --max-faces, 150,000 by default).
+MAX_IMPORT_FACES = 4_000_000
+
+
+# What a file given for a mesh holds, by its first bytes (offset, bytes, kind): a picture, a
+# scan or a document is named for what it is, whatever its file name says.
+_NOT_MESHES = (
+    (0, b"\x89PNG\r\n\x1a\n", "a PNG image"), (0, b"\xff\xd8\xff", "a JPEG image"),
+    (0, b"GIF87a", "a GIF image"), (0, b"GIF89a", "a GIF image"),
+    (0, b"II*\x00", "a TIFF image"), (0, b"MM\x00*", "a TIFF image"),
+    (0, b"%PDF-", "a PDF document"), (0, b"PK\x03\x04", "a ZIP archive"),
+    (0, b"\x1f\x8b", "a gzip archive"), (128, b"DICM", "a DICOM image"),
+    (344, b"n+1\x00", "a NIfTI volume"))
+_VOLUMES = ("a DICOM image", "a NIfTI volume")
+
+
+def _not_a_mesh(path: Path) -> str | None:
+    """Why the file at `path` cannot be a mesh by its bytes (one line), or None."""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if path.suffix.lower() == ".stl" and len(head) >= 84:
+        # A binary STL's 80-byte header may hold anything; its triangle count and the file's
+        # size agree.
+        count = int.from_bytes(head[80:84], "little")
+        if path.stat().st_size == 84 + 50 * count:
+            return None
+    for offset, magic, kind in _NOT_MESHES:
+        if head[offset:offset + len(magic)] == magic:
+            what = ("segment the colon and export its surface" if kind in _VOLUMES
+                    else "give the colon's surface")
+            return (f"{kind}, not a mesh (by its bytes, whatever its name); {what} as "
+                    "OBJ, STL, PLY or GLB")
+    if path.suffix.lower() == ".obj" and b"\0" in head:
+        return "not text (an OBJ file is text; this one holds binary bytes)"
+    return None
+
+
+def _too_many(path: Path, faces: int) -> MeshImportError:
+    return MeshImportError(
+        f"{path}: {faces:,} triangles, more than the {MAX_IMPORT_FACES:,} the import handles "
+        "(minutes and gigabytes of memory at that size); simplify the mesh first, e.g. "
+        "quadric decimation in MeshLab or Blender to under a million triangles (the import "
+        "then decimates it to --max-faces)")
+
+
+_COUNT_CHUNK = 1 << 24  # bytes read at a time when counting an OBJ's faces
+
+
+def count_faces(path: Path) -> int | None:
+    """The triangles in the file at `path` as its format states them without reading the
+    mesh (at least that many: an OBJ's polygons count once), or None where it does not
+    (GLB, glTF, an unreadable header)."""
+    suffix = path.suffix.lower()
+    with open(path, "rb") as f:
+        if suffix == ".obj":
+            count, previous = 0, b"\n"
+            while chunk := f.read(_COUNT_CHUNK):
+                text = previous + chunk
+                count += text.count(b"\nf ") + text.count(b"\nf\t")
+                previous = text[-2:]  # a line start cut by the chunk's end
+            return count
+        head = f.read(1 << 12)
+    if suffix == ".stl":
+        if len(head) >= 84 and path.stat().st_size == 84 + 50 * int.from_bytes(
+                head[80:84], "little"):
+            return int.from_bytes(head[80:84], "little")
+        return None  # ASCII: counted once read
+    if suffix == ".ply" and head.startswith(b"ply"):
+        for line in head.split(b"end_header")[0].splitlines():
+            words = line.split()
+            if len(words) == 3 and words[0] == b"element" and words[1] == b"face":
+                return int(words[2]) if words[2].isdigit() else None
+    return None
+
+
+def _read(path: Path):
+    """trimesh.load of `path`; an OBJ that is not UTF-8 (a Latin-1 comment or name) is
+    decoded as Latin-1 here (trimesh would need an optional package to guess its encoding),
+    its material and texture files still found beside it."""
+    if path.suffix.lower() == ".obj":
+        data = path.read_bytes()
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1").encode("utf-8")
+            return trimesh.load(io.BytesIO(text), file_type="obj",
+                                resolver=trimesh.resolvers.FilePathResolver(str(path)))
+    return trimesh.load(str(path))
 
 
 @dataclasses.dataclass
@@ -80,7 +178,22 @@ def load_colon_mesh(path) -> trimesh.Trimesh:
         raise MeshImportError(f"{path}: unsupported format {path.suffix or '(none)'!r}; "
                               f"expected one of {', '.join(FORMATS)}")
     try:
-        loaded = trimesh.load(str(path))
+        reason = _not_a_mesh(path)
+    except OSError as e:
+        raise MeshImportError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if reason is not None:
+        raise MeshImportError(f"{path}: {reason}")
+    stated = count_faces(path)
+    if stated is not None and stated > MAX_IMPORT_FACES:
+        raise _too_many(path, stated)
+    try:
+        loaded = _read(path)
+    except ImportError as e:  # an optional package trimesh wants for this file
+        raise MeshImportError(
+            f"{path}: not a readable mesh (neither a binary {path.suffix.lstrip('.').upper()}"
+            " file nor UTF-8 text)" if e.name == "charset_normalizer" else
+            f"{path}: reading it needs the Python package {e.name!r}, which is not "
+            "installed") from None
     except Exception as e:  # trimesh raises many types for unreadable files
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise MeshImportError(f"{path}: not a readable mesh ({first})") from None
@@ -98,6 +211,8 @@ def load_colon_mesh(path) -> trimesh.Trimesh:
                               " mesh it first (e.g. Poisson)")
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshImportError(f"{path}: not a triangle mesh ({type(loaded).__name__})")
+    if len(loaded.faces) > MAX_IMPORT_FACES:
+        raise _too_many(path, len(loaded.faces))
     if len(loaded.faces) == 0:
         if len(loaded.vertices):
             raise MeshImportError(f"{path}: a point cloud ({len(loaded.vertices)} points, "
@@ -140,7 +255,7 @@ def _unit_guess(extent: float):
 
 def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
                       max_hole_perimeter: float = MAX_HOLE_PERIMETER,
-                      max_faces: int | None = None):
+                      max_faces: int | None = None, progress=None):
     """Repairs a copy of `mesh`: duplicate and degenerate faces removed, winding made
     consistent, holes of up to `max_hole_edges` boundary edges and `max_hole_perimeter`
     (m) around filled (a tube's open ends, 6 cm and more around, stay open), normals turned toward the lumen (the wall is seen and touched
@@ -150,7 +265,9 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     split vertices, which would look like open edges). A texture, if the mesh has one, is
     kept: every surviving face keeps its texture coordinates; a filled hole's faces take
     those of a vertex at the same place; after decimation each new vertex takes those of
-    the nearest original vertex. Returns (mesh, RepairReport)."""
+    the nearest original vertex. `progress(text)`, if given, hears each step. Returns
+    (mesh, RepairReport)."""
+    say = progress or (lambda text: None)
     report = RepairReport()
     texture = _texture_of(mesh)
     vertices = np.asarray(mesh.vertices, dtype=float)
@@ -164,6 +281,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     keep &= nondegenerate
     kept = np.flatnonzero(keep)
     geometry.update_faces(keep)
+    say("repairing: winding, holes")
     if not geometry.is_winding_consistent:
         trimesh.repair.fix_winding(geometry)
         report.fixed_winding = True
@@ -178,6 +296,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     report.open_ends = len(_boundary_loops(geometry))
     _, uses = np.unique(geometry.edges_sorted, axis=0, return_counts=True)
     report.non_manifold_edges = int(np.sum(uses > 2))
+    say("repairing: normals")
     faces = np.asarray(geometry.faces)
     if _normals_point_outward(geometry):
         faces = faces[:, ::-1]
@@ -195,6 +314,7 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     out.remove_unreferenced_vertices()
     if max_faces is not None and len(out.faces) > max_faces:
         report.decimated_from = len(out.faces)
+        say(f"repairing: decimating {len(out.faces):,} to {max_faces:,} faces")
         out = _decimate(out, max_faces, texture)
         report.decimated_to = len(out.faces)
     return out, report

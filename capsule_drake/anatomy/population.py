@@ -37,7 +37,7 @@ from scipy.optimize import fsolve
 from scipy.stats import norm, truncnorm
 
 from .abdomen import Abdomen
-from .cache import default_cache_root, params_hash, write_atomic
+from .cache import CacheError, default_cache_root, params_hash, write_atomic
 from .course import nominal_radius, solve_course
 from .morphology import acute_flexures
 from .params import (DIAMETER_RANGE, SEGMENT_NAMES, ColonParams, Population,
@@ -330,8 +330,8 @@ def _write_course(path: Path, attempt: int, course: tuple, flexures: int) -> Non
                      target_lengths=np.array([targets[n] for n in names]))
     try:
         write_atomic(path, write)
-    except OSError:
-        pass   # a read-only cache: the course is solved again next time
+    except (OSError, CacheError):
+        pass   # a read-only or full cache: the course is solved again next time
 
 
 BEND_ATTEMPTS = 4

@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 from pydrake.common.yaml import yaml_dump_typed
 
-from .cache import ColonAssets, write_atomic
+from .cache import CacheError, ColonAssets, write_atomic
 from .colon import COURSE_FILE, build_colon, procedural_colon_assets
 from .fluid import fluid_pools, surface_mesh
 from .imported import imported_colon_assets
@@ -60,6 +60,8 @@ def load_colon(params: ColonParams, cache_dir=None) -> tuple:
         else:
             try:
                 _LOADED[key] = imported_colon_assets(params, cache_dir)
+            except CacheError:  # the cache's, not the source's: said as it is
+                raise
             except (ValueError, FileNotFoundError) as e:  # MeshImportError is a ValueError
                 text = str(e).strip()
                 first = text.splitlines()[0] if text else type(e).__name__

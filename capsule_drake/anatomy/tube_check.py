@@ -5,6 +5,12 @@ A colon (or a length of one) is one tube: a wall around a lumen, open or closed 
 its two ends, much longer than it is wide, without branches. Checked in the import
 (anatomy/imported.py), after the mesh is repaired:
 
+0. In pieces (`check_one_piece`, before the repairs, whose cost grows with the pieces):
+   faces join through vertices at the same place (a texture's seams split vertices, not
+   the wall). At least `MIN_WALL_SHARE` of the area lies in pieces that each hold
+   `MIN_PIECE_SHARE` of it or more: a wall, or the inner and outer surfaces of a closed
+   thick one, with stray fragments beside it (a segmentation's noise). A triangle soup
+   (every triangle its own three vertices), or a wall shredded into strips, is refused.
 1. Open ends (`check_open_ends`): the boundary loops left after small holes are filled
    (anatomy/importer.py fills those up to 3 cm around) are a tube's open ends: at most
    two. Three or more is a branching mesh (a Y has three ends) or a wall with a large tear.
@@ -28,10 +34,14 @@ its two ends, much longer than it is wide, without branches. Checked in the impo
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .importer import MeshImportError
 
+MIN_PIECE_SHARE = 0.05
+MIN_WALL_SHARE = 0.5
 MIN_CLOSED_SHARE = 0.8
 MIN_LENGTH_RADII = 7.0
 BRANCH_RADII = 2.0
@@ -40,6 +50,44 @@ MAX_OFF_AREA = 0.02
 
 class NotATubeError(MeshImportError):
     """The mesh is not one tube; the message is one line saying why."""
+
+
+def check_one_piece(vertices, faces) -> None:
+    """The wall is not in crumbs: at least MIN_WALL_SHARE of its area lies in pieces (faces
+    sharing a vertex, vertices at the same place merged) of MIN_PIECE_SHARE of the area or
+    more. `vertices` (V, 3), `faces` (F, 3): the mesh as read, before any repair."""
+    vertices = np.round(np.asarray(vertices, dtype=float), 9)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) < 2:
+        return
+    order = np.lexsort(vertices.T[::-1])
+    ranked = vertices[order]
+    first = np.r_[True, np.any(ranked[1:] != ranked[:-1], axis=1)]
+    merged = np.empty(len(vertices), dtype=np.int64)
+    merged[order] = np.cumsum(first) - 1
+    f = merged[faces]
+    count = int(first.sum())
+    graph = coo_matrix((np.ones(2 * len(f), dtype=np.int8),
+                        (np.r_[f[:, 0], f[:, 1]], np.r_[f[:, 1], f[:, 2]])),
+                       shape=(count, count))
+    pieces, label = connected_components(graph, directed=False)
+    if pieces == 1:
+        return
+    corners = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
+                                         corners[:, 2] - corners[:, 0]), axis=1)
+    by_piece = np.bincount(label[f[:, 0]], weights=area, minlength=pieces)
+    total = float(by_piece.sum())
+    if total <= 0.0:
+        return
+    share = float(by_piece[by_piece >= MIN_PIECE_SHARE * total].sum()) / total
+    if share < MIN_WALL_SHARE:
+        soup = " (a triangle soup)" if pieces >= 0.5 * len(f) else ""
+        raise NotATubeError(
+            f"not a tube: its {len(f):,} triangles fall apart into {pieces:,} separate "
+            f"pieces{soup}, {1.0 - share:.0%} of the area in pieces of less than "
+            f"{MIN_PIECE_SHARE:.0%} of it each; a colon's wall is one connected surface: "
+            "weld its vertices, or mesh the scan into one surface first")
 
 
 def check_open_ends(loop_perimeters) -> None:

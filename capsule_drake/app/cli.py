@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
+from capsule_drake.anatomy.cache import CacheError, cache_base
 from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.app.eval_lumen import OUTPUTS as EVAL_OUTPUTS
 from capsule_drake.app.eval_lumen import EvaluationStopped, evaluate_paths
@@ -46,6 +47,8 @@ DEFAULT_PORT = 7000
 BENCHMARK_OUTPUTS = ("runs.csv", "summary.csv", "progress.png", "segments.png", "results.json",
                      "runs-as-finished.csv")
 IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json")
+# The commands that build colons, in the cache (anatomy/cache.py).
+COLON_VERBS = ("run", "record", "teleop", "benchmark", "eval-lumen")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -838,6 +841,8 @@ def main(argv=None, noted=None) -> int:
         args = _parser().parse_args(argv)
         _created_folders.clear()
         _check_flag_combinations(args)
+        if args.verb in COLON_VERBS:
+            cache_base()  # a cache variable naming a file: one line, before anything is made
         if args.verb == "run":
             return _run(args)
         if args.verb == "record":
@@ -852,7 +857,7 @@ def main(argv=None, noted=None) -> int:
             return _import_colon(args)
         if args.verb == "notebooks":
             return _notebooks(args)
-    except (ScenarioError, WriteError) as e:  # WriteError: after the run, outputs on disk
+    except (ScenarioError, WriteError, CacheError) as e:  # WriteError: after the run
         _remove_unused_folders()
         print(f"capsule-sim: error: {e}", file=sys.stderr)
         return 1 if isinstance(e, WriteError) else 2
