@@ -13,7 +13,7 @@ the analytic wall and how far it moved along the centreline.
 
 The wall and the capsule's contact properties are registered exactly as the station does
 (`capsule_drake.scene_geometry.add_colon_wall` and `set_capsule_contact`), from a
-ContactConfig whose `model` is "hydroelastic" or "convex_pieces".
+RigidWall (physics/contact/rigid.py) whose `model` is "hydroelastic" or "convex_pieces".
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ from capsule_drake.anatomy import ColonParams, colon_wall_pieces, load_colon
 from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model, start_pose
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import ContactConfig
-from capsule_drake.scene_geometry import add_colon_wall, set_capsule_contact
+from capsule_drake.physics.contact import RigidWall
+from capsule_drake.physics.contact.rigid import add_rigid_contact
 
 START_S = 0.75            # middle of the default colon's transverse segment [m]
 PRESS_N = 1.0             # external load toward the wall [N]
@@ -61,7 +61,7 @@ def load_W(colon, s: float) -> np.ndarray:
 
 def build(model: str, colon, axial_length: float, chord_depth: float):
     """Diagram, capsule state logger and wall geometry count; times the two build stages."""
-    contact = ContactConfig(model="convex_pieces" if model == "pieces" else "hydroelastic",
+    contact = RigidWall(model="convex_pieces" if model == "pieces" else "hydroelastic",
                             piece_axial_length=axial_length, piece_max_chord_depth=chord_depth)
     start = time.perf_counter()
     if model == "pieces":  # generated once per process: timed on its own
@@ -77,8 +77,7 @@ def build(model: str, colon, axial_length: float, chord_depth: float):
     capsule_instance, = configure_parser(Parser(plant)).AddModels(
         url=model_url("capsule.sdf"))
     body = plant.GetBodyByName(CAPSULE_BODY)
-    count = add_colon_wall(plant, contact, colon.params, colon)
-    set_capsule_contact(plant, scene_graph, contact)
+    count = add_rigid_contact(plant, scene_graph, colon.params, colon, contact)
     plant.Finalize()
     plant.SetDefaultFloatingBaseBodyPose(body, start_pose(colon, START_S))
 

@@ -104,7 +104,7 @@ def measure(name, override, sim_seconds, repeats, breakdown):
 
     factors, simulator = real_time_factors(diagram, sim_seconds, repeats)
     step = scenario.plant.time_step
-    figures = {"scenario": name, "contact": scenario.contact.model, "time_step_ms": 1e3 * step,
+    figures = {"scenario": name, "contact": scenario.contact.label(), "time_step_ms": 1e3 * step,
                "colon_s": colon_seconds, "build_s": build_seconds, "factors": factors,
                "step_ms": 1000.0 * step / statistics.median(factors),
                # Before the breakdown's extra stations: the build and the simulations.
@@ -116,7 +116,7 @@ def measure(name, override, sim_seconds, repeats, breakdown):
         query = scene_graph.get_query_output_port().Eval(
             scene_graph.GetMyContextFromRoot(context))
         n = 300
-        if scenario.contact.model == "hydroelastic":
+        if scenario.contact.pressure_field:
             def contact_query():
                 for _ in range(n):
                     query.ComputeContactSurfaces(HydroelasticContactRepresentation.kPolygon)

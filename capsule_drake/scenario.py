@@ -59,7 +59,7 @@ from capsule_drake.navigation.autonomy import LumenFollower
 from capsule_drake.navigation.localization import LocalizerConfig
 from capsule_drake.navigation.plugin import Plugin
 from capsule_drake.perception.lumen_tracker import LumenTrackerConfig
-from capsule_drake.physics.contact import ContactConfig
+from capsule_drake.physics.contact import CompliantWall, RigidWall
 from capsule_drake.physics.magnet_force import MagnetForceConfig
 from capsule_drake.physics.magnetics import MagnetGeometry
 from capsule_drake.physics.step_bound import time_step_bound
@@ -76,7 +76,7 @@ STATION_BLOCKS = (
     "epm.mount",              # the EPM's carrier: !Stage or !Arm (epm/mount.py)
     "colon",                  # the table, the colon's wall and visuals (scene.py)
     "capsule.camera_walls",   # the camera's own walls, after every other model (camera_walls.py)
-    "contact",                # the capsule's contact and drag (scene.py)
+    "contact",                # the wall's and capsule's contact, by model (physics/contact/)
     "magnet_force",           # physics/magnet_force.py
     "colon.fluid",            # buoyancy and drag in residual fluid (scene.py)
     "applied_forces",         # the forces above into the plant (scene.py)
@@ -215,8 +215,10 @@ class Scenario:
     colon: ColonParams = field(default_factory=ColonParams)
     # The capsule, its internal magnet and its sensors.
     capsule: CapsuleConfig = field(default_factory=CapsuleConfig)
-    # Contact between capsule and colon wall.
-    contact: ContactConfig = field(default_factory=ContactConfig)
+    # Contact between capsule and colon wall, one model of physics/contact/: !RigidWall (the
+    # stand-in: a wall that does not yield) or !CompliantWall (the wall of measured
+    # thickness and moduli on an elastic support).
+    contact: RigidWall | CompliantWall = field(default_factory=RigidWall)
     # The force and torque between the two magnets.
     magnet_force: MagnetForceConfig = field(default_factory=MagnetForceConfig)
     # The pseudo-force for the operator's haptic hand (lumen attraction from the lumen

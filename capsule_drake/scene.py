@@ -35,11 +35,9 @@ from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.blocks import block, checked, need
 from capsule_drake.capsule.model import CAPSULE_BODY, CapsuleModel, capsule_model, start_pose
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.physics.contact import ContactConfig, check_contact_config
 from capsule_drake.physics.fluid_force import FluidForce
 from capsule_drake.physics.magnetics import check_magnet_geometry
-from capsule_drake.scene_geometry import (add_capsule_drag, add_colon_visuals, add_colon_wall,
-                                          set_capsule_contact)
+from capsule_drake.scene_geometry import add_colon_visuals
 from capsule_drake.schema import ScenarioError, need_range
 
 
@@ -204,7 +202,7 @@ def add_scene(builder, parts: StationParts, scenario):
     exports capsule.state and the plant's and scene graph's body_poses, contact_results
     and query_object."""
     plant = parts.plant
-    if plant.HasJointNamed("capsule_floating"):  # declared with damping (add_capsule_drag)
+    if plant.HasJointNamed("capsule_floating"):  # declared with damping (contact's drag)
         plant.GetJointByName("capsule_floating").SetDefaultPose(parts.X_WB0)
     else:
         plant.SetDefaultFloatingBaseBodyPose(parts.capsule_body, parts.X_WB0)
@@ -214,7 +212,7 @@ def add_scene(builder, parts: StationParts, scenario):
     parts.export(parts.scene_graph.get_query_output_port(), "query_object")
 
 
-# --- colon: its wall and visuals; contact -------------------------------------------------
+# --- colon: its visuals (its wall is the contact model's) -----------------------------------
 
 # The fields the procedural colon's course depends on (anatomy/course.py: `solve_course`),
 # besides the segments' lengths and diameters.
@@ -262,33 +260,15 @@ def check_colon(params: ColonParams, scenario) -> None:
 
 
 def add_colon_models(parts: StationParts, params: ColonParams):
-    """The table, the colon's wall (by contact.model) and visuals. Without a capsule camera
-    every renderer sees the mucosa; a capsule camera sees walls of its own
-    (capsule/camera.py, `add_camera_walls`)."""
+    """The table and the colon's visuals (its collision geometry is the contact model's,
+    physics/contact/). Without a capsule camera every renderer sees the mucosa; a capsule
+    camera sees walls of its own (capsule/camera.py, `add_camera_walls`)."""
     parts.parser.AddModels(url=model_url("table.sdf"))
-    add_colon_wall(parts.plant, parts.scenario.contact, params, parts.colon)
     add_colon_visuals(parts.plant, params, parts.colon,
                       perception=parts.scenario.capsule.camera is None)
 
 
 block("colon", ColonParams, check=check_colon, models=add_colon_models, where="")(None)
-
-
-def check_contact(config: ContactConfig, scenario) -> None:
-    check_contact_config(config)
-    need(config.model != "convex_pieces" or scenario.colon.procedural,
-         "contact.model convex_pieces needs a procedural colon (its pieces are cut from "
-         f"the analytic wall), not colon.source {scenario.colon.source_name()}")
-
-
-def add_capsule_contact(parts: StationParts, config: ContactConfig):
-    """Before Finalize, after every model: the capsule's contact properties and drag."""
-    set_capsule_contact(parts.plant, parts.scene_graph, config)
-    add_capsule_drag(parts.plant, config)
-
-
-block("contact", ContactConfig, check=check_contact, models=add_capsule_contact,
-      where="")(None)
 
 
 # --- forces on the capsule other than contact ---------------------------------------------

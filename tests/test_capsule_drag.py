@@ -10,7 +10,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.capsule.model import CAPSULE_BODY
 from capsule_drake.models import configure_parser, model_url
-from capsule_drake.scene_geometry import add_capsule_drag
+from capsule_drake.physics.contact.common import add_capsule_drag
 from capsule_drake.scenario import ScenarioError, load_scenario
 
 
@@ -20,7 +20,8 @@ def _free_capsule(override):
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
     configure_parser(Parser(plant)).AddModels(url=model_url("capsule.sdf"))
-    add_capsule_drag(plant, scenario.contact)
+    add_capsule_drag(plant, scenario.contact.drag_translational,
+                     scenario.contact.drag_rotational)
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
     plant.Finalize()
     diagram = builder.Build()

@@ -636,8 +636,9 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
         raise ScenarioError(f"scenario: {e}") from None
     monitor = builder.AddNamedSystem(CONTACT_MONITOR, ContactMonitor())
     builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
-    guard = builder.AddNamedSystem("run_guard", RunGuard(colon, model.radius, model.length,
-                                                         scenario.guard))
+    guard = builder.AddNamedSystem("run_guard", RunGuard(
+        colon, model.radius, model.length, scenario.guard,
+        wall_allowance=scenario.contact.wall_allowance(model.radius)))
     builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     return station, colon, monitor
 

@@ -16,8 +16,10 @@ when, at the first of:
   1.3 m/s; 2 m/s leaves room for the magnet's pull. A diverging integration passes it
   within a few steps (a 0.1 s step: tens of m/s);
 - any point of the capsule's surface farther than `max_wall_excursion` beyond the colon
-  wall (5 mm by default: the contact lets the capsule into the wall by well under 1 mm,
-  and a fold is a few millimetres thick, so 5 mm means the capsule has gone through it);
+  wall (5 mm by default: the rigid wall lets the capsule into it by well under 1 mm, and a
+  fold is a few millimetres thick, so 5 mm means the capsule has gone through it), plus what
+  the contact model's wall gives (physics/contact/: `wall_allowance`, the compliant wall's
+  layer depth);
 - the capsule's centre past one of the colon's ends (it has left the colon).
 
 The cheap checks (finite, speed) run every `period` (10 ms); the wall check, which
@@ -105,9 +107,11 @@ def check_capsule_state(state: np.ndarray, max_speed: float) -> tuple[str, str] 
 
 
 def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
-                           max_excursion: float) -> tuple[str, str] | None:
+                           max_excursion: float,
+                           wall_allowance: float = 0.0) -> tuple[str, str] | None:
     """(kind, text) if the capsule's centre is past one of the colon's ends, or a point of
-    its surface is farther than `max_excursion` beyond the wall."""
+    its surface is farther than `max_excursion` beyond the wall, and the `wall_allowance`
+    a yielding wall gives (the contact model's, physics/contact/)."""
     p_WC = np.asarray(state[4:7], dtype=float)
     centerline = colon.centerline
     s, _, _ = centerline.closest(p_WC)
@@ -122,15 +126,17 @@ def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
     points_W = points_C @ R_WC.T + p_WC
     excursion = colon.excursion(points_W)
     worst = int(np.argmax(excursion))
-    if excursion[worst] > max_excursion:
+    if excursion[worst] > max_excursion + wall_allowance:
         s_worst = float(centerline.closest(points_W[worst])[0])
         if s_worst in (0.0, centerline.length):
             return "left_colon", (f"the capsule sticks out {excursion[worst] * 1000:.1f} mm "
                                   f"past the colon's {'start (s = 0)' if s_worst == 0 else 'end'}")
+        given = (f" beyond the {wall_allowance * 1000:.3g} mm the wall gives"
+                 if wall_allowance > 0.0 else "")
         return "wall", (f"the capsule is {excursion[worst] * 1000:.1f} mm beyond the colon "
                         f"wall at s = {s * 100:.1f} cm, more than the "
-                        f"{max_excursion * 1000:g} mm guard.max_wall_excursion: it went "
-                        "through the wall")
+                        f"{max_excursion * 1000:g} mm guard.max_wall_excursion{given}: it "
+                        "went through the wall")
     return None
 
 
@@ -152,10 +158,11 @@ class RunGuard(LeafSystem):
     """
 
     def __init__(self, colon, capsule_radius: float, capsule_length: float,
-                 config: GuardConfig | None = None):
+                 config: GuardConfig | None = None, wall_allowance: float = 0.0):
         super().__init__()
         self._colon = colon
         self._config = config or GuardConfig()
+        self._wall_allowance = float(wall_allowance)
         self._points_C = capsule_surface_points_C(capsule_radius, capsule_length)
         self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
         self.DeclarePeriodicPublishEvent(self._config.period, 0.0, self._check_state)
@@ -177,4 +184,5 @@ class RunGuard(LeafSystem):
         if check_capsule_state(state, self._config.max_speed) is not None:
             return EventStatus.Succeeded()  # the state check reports it
         return self._stop(context, check_capsule_in_colon(
-            self._colon, state, self._points_C, self._config.max_wall_excursion))
+            self._colon, state, self._points_C, self._config.max_wall_excursion,
+            self._wall_allowance))

@@ -1,0 +1,207 @@
+"""The compliant wall: a colon wall of the thickness and moduli that were measured, lying on
+what holds it from outside (`contact: !CompliantWall {}`).
+
+The mechanics, and why. Under the capsule the wall is pushed outward by w over a patch a few
+millimetres wide. Three things resist, the first two in parallel, the third in series:
+
+- the wall's hoop stretch: a tube of radius R pushed out by w stretches round by w / R, so a
+  wall of thickness h and circumferential modulus E_theta pulls back with a pressure
+  E_theta h w / R^2 (a thin-walled tube in hoop tension: the elastic foundation a cylindrical
+  shell's hoop stiffness gives, exact for a uniform radial displacement);
+- what lies outside the wall (mesentery, fat, the neighbouring bowel, the abdominal wall),
+  an elastic foundation of modulus k_support (Pa/m). No source read here gives it: it is an
+  assumption (U), swept;
+- the wall's own thickness, compressed by E_through / h: 250 times stiffer than the other
+  two at the nominal figures, so it barely counts.
+
+So the wall is a Winkler foundation of modulus k = 1 / (1 / (E_theta h / R^2 + k_support) +
+h / E_through) (Pa/m) to the capsule (`foundation_modulus`). Drake realises it as a compliant
+hydroelastic layer on the capsule against the rigid wall mesh (the same mesh as the rigid
+wall's: the camera's walls, the lumen truth and coverage are unchanged): the capsule's
+pressure field is E_h (r - d) / r at distance d from its axis, so E_h = k r gives the
+pressure k times the depth to which the wall's surface cuts into the capsule, measured along
+the capsule's normal (`capsule_modulus`). Its force against indentation has a closed form
+(`indentation_force`), which the simulated force matches within 5 % from 0.5 mm on at the
+1 mm mesh of the capsule's field (tests/test_compliant_wall.py). The layer is r deep: past
+5.8 mm of indentation the wall has given way, which the run guard takes as going through it
+(`wall_allowance`).
+
+What it leaves out, and says so: one modulus for the whole colon (R is the colon's median
+lumen radius; the hoop term differs by segment as 1 / R^2); under a local load the wall also
+bends and ovalises, which the hoop term (exact for a uniform expansion) does not see; the
+rate dependence of the moduli (the nominal ones are Massalou's at 1 cm/s, a dragged capsule's
+speed; at 10 cm/s the circumferential modulus is 3.4 times higher) and the tissue's
+relaxation. Sources and status of every figure: docs/sources.md section 3.5.
+"""
+
+
+import dataclasses
+import math
+
+import numpy as np
+
+from capsule_drake.blocks import block
+from capsule_drake.physics.contact.capsule_field import capsule_field_mesh
+from capsule_drake.physics.contact.common import (add_capsule_drag, add_rigid_hydroelastic_wall,
+                                                  contact_properties, set_capsule_field_mesh)
+from capsule_drake.schema import need_range
+
+
+@dataclasses.dataclass
+class CompliantWall:
+    """The colon wall yields: a wall of measured thickness and moduli on an elastic support
+    (module docstring), with the colon's measured friction. Every figure's source and
+    status: docs/sources.md section 3.5."""
+
+    # Thickness of the wall (m): 2.61 mm (SD 1.29), healthy controls, 20 MHz endoscopic
+    # mini-probe ultrasound in vivo (Surg Laparosc Endosc Percutan Tech 25:205, 2015).
+    thickness: float = 2.61e-3
+    # Tensile modulus around the colon (Pa): 0.63 MPa (SD 1.25) circumferential, human
+    # colon, uniaxial at 1 cm/s (Massalou et al., J Biomech 91:102, 2019).
+    circumferential_modulus: float = 0.63e6
+    # Modulus through the wall's thickness, in compression (Pa): no compression data were
+    # read; taken as the longitudinal tensile modulus, 1.76 MPa at 1 cm/s (Massalou 2019).
+    # Assumption (U); it barely counts (in series with a far softer foundation).
+    through_thickness_modulus: float = 1.76e6
+    # What holds the wall from outside, as an elastic foundation (Pa/m). No source: an
+    # assumption (U), swept in benchmarks/bench_tissue.py. 3e5 Pa/m is soft tissue of a
+    # few kPa loaded over a centimetre.
+    support_stiffness: float = 3.0e5
+    # Radius of the lumen in the hoop term (m); 0: the colon's median lumen radius.
+    lumen_radius: float = 0.0
+    # Coulomb friction between capsule and mucosa (dynamic = static): 0.09, a colonoscope
+    # shaft on human colonic mucosa at the best lubricant (Watanabe et al., Commun Eng 2024;
+    # the lowest reached). On small-bowel mucosa 0.0004-0.054 (Lyle et al. 2013).
+    friction: float = 0.09
+    # Hunt-Crossley dissipation of the contact (s/m): the tissue's viscous loss. No source
+    # read gives it for colon (U).
+    hunt_crossley_dissipation: float = 5.0
+    # Edge length of the capsule's tetrahedral pressure mesh (m): 1 mm keeps the force within
+    # 5 % of the closed form from 0.5 mm of indentation on (4 mm: 40 % low at 0.5 mm).
+    capsule_resolution_hint: float = 0.001
+    # A linear damping of the capsule's velocity on its floating joint (N s/m, N m s/rad);
+    # 0: none (no measurement supports one for the colon).
+    drag_translational: float = 0.0
+    drag_rotational: float = 0.0
+
+    def label(self) -> str:
+        """How a printed contact figure names the model it comes from."""
+        return "compliant wall"
+
+    @property
+    def pressure_field(self) -> bool:
+        """Whether the contact has a pressure field: always (hydroelastic)."""
+        return True
+
+    def wall_allowance(self, capsule_radius: float) -> float:
+        """How far (m) the capsule may be inside the wall's undeformed surface because the
+        wall gave: its layer's depth, the capsule's radius. The run guard adds it to its
+        `max_wall_excursion`."""
+        return capsule_radius
+
+
+def hoop_modulus(config: CompliantWall, radius: float) -> float:
+    """The wall's hoop stretch as a foundation (Pa/m): E_theta h / R^2."""
+    return config.circumferential_modulus * config.thickness / radius**2
+
+
+def foundation_modulus(config: CompliantWall, radius: float) -> float:
+    """The Winkler modulus the wall presents to the capsule (Pa/m): the hoop stretch and the
+    support in parallel, in series with the wall's thickness compressed."""
+    outward = hoop_modulus(config, radius) + config.support_stiffness
+    through = config.through_thickness_modulus / config.thickness
+    return 1.0 / (1.0 / outward + 1.0 / through)
+
+
+def capsule_modulus(k: float, capsule_radius: float) -> float:
+    """The hydroelastic modulus (Pa) of the capsule's layer that makes its pressure k times
+    the depth to which the wall cuts into it (Drake's capsule field: E (r - d) / r)."""
+    return k * capsule_radius
+
+
+def indentation_force(k: float, depth, radius: float, length: float):
+    """Force (N) with which a Winkler wall of modulus k (Pa/m), flat, pushes back on a
+    capsule (radius, cylinder length; m) lying along it and pressed `depth` (m) into it, the
+    pressure k times the depth measured along the capsule's normal:
+        cylinder: k L (a r - c^2 asinh(a / c)),
+        caps (one sphere between them): 2 pi k (r a^2 / 2 - ((a^2 + c^2)^(3/2) - c^3) / 3),
+    with c = r - depth the axis's height over the wall and a = sqrt(r^2 - c^2) the half
+    width of the contact. From integrating k (r - dist to the axis) over the contact patch;
+    the capsule's axis at most r into the wall (its layer's depth)."""
+    depth = np.clip(np.asarray(depth, dtype=float), 0.0, radius)
+    c = radius - depth
+    a = np.sqrt(np.maximum(radius**2 - c**2, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        asinh = np.where(c > 0.0, np.arcsinh(np.where(c > 0.0, a / np.maximum(c, 1e-300), 0.0)),
+                         0.0)
+    cylinder = length * (a * radius - c**2 * asinh)
+    caps = 2.0 * math.pi * (radius * a**2 / 2.0 - ((a**2 + c**2) ** 1.5 - c**3) / 3.0)
+    return k * (cylinder + caps)
+
+
+def median_lumen_radius(colon) -> float:
+    """The colon's median lumen radius (m): the median over its centreline of the mean wall
+    radius around it."""
+    s = np.linspace(0.0, float(colon.centerline.length), 400)
+    theta = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    radii = colon.wall_radius(s[:, None], theta[None, :])
+    return float(np.median(np.mean(radii, axis=1)))
+
+
+# Bounds of the settings (check_compliant_wall).
+def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
+    """Raises ValueError naming the first impossible field."""
+    need_range(config.thickness, "contact.thickness", "[2e-4, 0.03]", "m",
+               "a colon's wall is 1-6 mm thick, 23 mm at most in diverticular disease")
+    need_range(config.circumferential_modulus, "contact.circumferential_modulus",
+               "[1e3, 1e9]", "Pa", "soft tissue: kPa to tens of MPa")
+    need_range(config.through_thickness_modulus, "contact.through_thickness_modulus",
+               "[1e3, 1e9]", "Pa")
+    need_range(config.support_stiffness, "contact.support_stiffness", "[0, 1e10]", "Pa/m")
+    if config.lumen_radius != 0.0:
+        need_range(config.lumen_radius, "contact.lumen_radius", "[0.005, 0.1]", "m",
+                   "or 0: the colon's median radius")
+    need_range(config.friction, "contact.friction", "[0, 2]", "",
+               "measured on mucosa: 0.0004-0.09")
+    need_range(config.hunt_crossley_dissipation, "contact.hunt_crossley_dissipation", ">= 0",
+               "s/m")
+    need_range(config.capsule_resolution_hint, "contact.capsule_resolution_hint",
+               "[5e-4, 0.02]", "m", "the capsule is 11.6 mm wide")
+    need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
+    need_range(config.drag_rotational, "contact.drag_rotational", ">= 0", "N m s/rad")
+    if config.lumen_radius == 0.0 and config.support_stiffness == 0.0:
+        return
+    k = foundation_modulus(config, config.lumen_radius or 0.025)
+    need_range(k, "contact: the wall's foundation modulus", "[1e3, 1e11]", "Pa/m",
+               "from its thickness, moduli and support")
+
+
+def add_compliant_contact(plant, scene_graph, colon_params, colon, config: CompliantWall,
+                          capsule_radius: float, capsule_length: float) -> float:
+    """Before Finalize, after every other model: the wall's rigid mesh (polyps' hulls,
+    chunks, the boxes around it), the capsule's compliant layer of modulus k r (k the wall's
+    foundation modulus at the colon's lumen radius, r the capsule's), and the drag. Returns
+    k (Pa/m)."""
+
+    def properties():
+        return contact_properties(config.friction, config.hunt_crossley_dissipation)
+
+    add_rigid_hydroelastic_wall(plant, colon_params, colon, properties)
+    k = foundation_modulus(config, config.lumen_radius or median_lumen_radius(colon))
+    set_capsule_field_mesh(plant, scene_graph, properties,
+                           capsule_field_mesh(capsule_radius, capsule_length),
+                           capsule_modulus(k, capsule_radius))
+    add_capsule_drag(plant, config.drag_translational, config.drag_rotational)
+    return k
+
+
+def add_compliant_wall(parts, config: CompliantWall) -> None:
+    """The "contact" block's models: `add_compliant_contact` in the station; shares the
+    wall's foundation modulus as contact.foundation_modulus."""
+    parts.share("contact.foundation_modulus", add_compliant_contact(
+        parts.plant, parts.scene_graph, parts.colon_params, parts.colon, config,
+        parts.capsule.radius, parts.capsule.length))
+
+
+block("contact", CompliantWall, check=check_compliant_wall, models=add_compliant_wall,
+      where="")(None)
