@@ -12,8 +12,8 @@ peak memory, real-time factor (median of the repeats), the capsule's largest exc
 the analytic wall and how far it moved along the centreline.
 
 The wall and the capsule's contact properties are registered exactly as the station does
-(`capsule_drake.scene_geometry.add_colon_wall` and `set_capsule_contact`), from a
-RigidWall (physics/contact/rigid.py) whose `model` is "hydroelastic" or "convex_pieces".
+(`capsule_drake.physics.contact.rigid.add_rigid_contact`), from a RigidWall
+(physics/contact/rigid.py) whose `model` is "hydroelastic" or "convex_pieces".
 """
 
 from __future__ import annotations

@@ -182,7 +182,7 @@ TESTS_DIR = Path(__file__).resolve().parent
 ELSEWHERE = {
     "colon.source[Procedural]": (  # the default source: every scenario that leaves it out
         "Default", "test_station.py::test_named_scenarios_simulate"),
-    "contact.model": (  # convex_pieces: its build (~15 s, ~2 GB) is that test's
+    "contact[RigidWall].model": (  # convex_pieces: its build (~15 s, ~2 GB) is that test's
         "FastContact",
         "test_station.py::test_fast_contact_model_drags_the_capsule_inside_the_wall"),
     "epm.driver[HoldAbove]": (
@@ -324,7 +324,8 @@ def test_the_reflection_finds_every_selector():
                 "epm.driver[Teleop].channel.forward.seed"} & set(selectors)
     # A default scenario sets nothing; it holds the unions' default members.
     assert _set_paths(Scenario(), Scenario()) == {"epm.mount[Stage]", "epm.driver[AlongColon]",
-                                                  "colon.source[Procedural]"}
+                                                  "colon.source[Procedural]",
+                                                  "contact[RigidWall]"}
     # A selector added to the scenario and set by neither scenario fails the rule; a
     # number does not.
     extended = dataclasses.make_dataclass("Extended", [

@@ -21,8 +21,9 @@ wall's: the camera's walls, the lumen truth and coverage are unchanged): the cap
 pressure field is E_h (r - d) / r at distance d from its axis, so E_h = k r gives the
 pressure k times the depth to which the wall's surface cuts into the capsule, measured along
 the capsule's normal (`capsule_modulus`). Its force against indentation has a closed form
-(`indentation_force`), which the simulated force matches within 5 % from 0.5 mm on at the
-1 mm mesh of the capsule's field (tests/test_compliant_wall.py). The layer is r deep: past
+(`indentation_force`), which the simulated force matches within 5 % from 0.3 to 4 mm of
+indentation on the mesh of the capsule's field (capsule_field.py; tests/test_contact_models.py).
+The layer is r deep: past
 5.8 mm of indentation the wall has given way, which the run guard takes as going through it
 (`wall_allowance`).
 
@@ -64,7 +65,7 @@ class CompliantWall:
     # Assumption (U); it barely counts (in series with a far softer foundation).
     through_thickness_modulus: float = 1.76e6
     # What holds the wall from outside, as an elastic foundation (Pa/m). No source: an
-    # assumption (U), swept in benchmarks/bench_tissue.py. 3e5 Pa/m is soft tissue of a
+    # assumption (U), to be swept. 3e5 Pa/m is soft tissue of a
     # few kPa loaded over a centimetre.
     support_stiffness: float = 3.0e5
     # Radius of the lumen in the hoop term (m); 0: the colon's median lumen radius.
@@ -76,9 +77,6 @@ class CompliantWall:
     # Hunt-Crossley dissipation of the contact (s/m): the tissue's viscous loss. No source
     # read gives it for colon (U).
     hunt_crossley_dissipation: float = 5.0
-    # Edge length of the capsule's tetrahedral pressure mesh (m): 1 mm keeps the force within
-    # 5 % of the closed form from 0.5 mm of indentation on (4 mm: 40 % low at 0.5 mm).
-    capsule_resolution_hint: float = 0.001
     # A linear damping of the capsule's velocity on its floating joint (N s/m, N m s/rad);
     # 0: none (no measurement supports one for the colon).
     drag_translational: float = 0.0
@@ -165,8 +163,6 @@ def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
                "measured on mucosa: 0.0004-0.09")
     need_range(config.hunt_crossley_dissipation, "contact.hunt_crossley_dissipation", ">= 0",
                "s/m")
-    need_range(config.capsule_resolution_hint, "contact.capsule_resolution_hint",
-               "[5e-4, 0.02]", "m", "the capsule is 11.6 mm wide")
     need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
     need_range(config.drag_rotational, "contact.drag_rotational", ">= 0", "N m s/rad")
     if config.lumen_radius == 0.0 and config.support_stiffness == 0.0:
