@@ -48,7 +48,7 @@ import numpy as np
 # What a run writes into its folder (a previous run's are removed by --force); error.txt
 # only after an error inside the simulation.
 RUN_OUTPUTS = ("metrics.json", "scenario.yaml", "logs.npz", "recording.html", "logs.parts",
-               "error.txt")
+               "error.txt", "wall_pressure.npz", "wall_pressure.png")
 # Of those, the folders (the others are files).
 OUTPUT_FOLDERS = ("logs.parts", "Frames")
 # What `capsule-sim record` writes into a dataset folder (app/dataset.py), besides a run's.
