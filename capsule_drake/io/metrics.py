@@ -96,7 +96,8 @@ def site_pressure_metrics(wall, centerline) -> dict:
       patch spent above the threshold without a break; for ischaemia, where that patch is
       (site_longest_above_ischaemia_at_s_m, _segment; null if none went above);
     - sites_above_<name>: how many patches went above the threshold;
-    - wall_patch_length_m, wall_patch_angle_deg, wall_pressure_period_s: the patches and
+    - wall_pressure_field: whether the contact has a pressure field (false: point contact);
+      wall_patch_length_m, wall_patch_angle_deg, wall_pressure_period_s: the patches and
       how often they were sampled.
 
     All null without a map (None) or without pressures in it (point contact has no
@@ -104,7 +105,8 @@ def site_pressure_metrics(wall, centerline) -> dict:
     figures = {key: None for key in SITE_OUTCOMES}
     if wall is None:
         return figures
-    figures.update(wall_patch_length_m=wall.grid.length,
+    figures.update(wall_pressure_field=wall.pressure_field,
+                   wall_patch_length_m=wall.grid.length,
                    wall_patch_angle_deg=360.0 / wall.grid.n_around,
                    wall_pressure_period_s=wall.period)
     if not wall.has_pressure:

@@ -304,6 +304,49 @@ class WallPressure:
                    float(arrays["first_time_s"]), float(arrays["last_time_s"]))
 
 
+@dataclasses.dataclass(frozen=True)
+class MapLayout:
+    """How `WallPressureMap` lays its map out in its state vector: [peak (P) | start (T x P)
+    | longest (T x P) | samples, point-contact samples, first sample's time, last sample's
+    time], P patches of `grid`, T `thresholds` (name -> Pa). `map_of` reads such a vector
+    (the system's `map` output, e.g. in an MCAP logger) without the system."""
+
+    grid: PatchGrid
+    thresholds: tuple  # ((name, Pa), ...)
+    pressure_field: bool = True
+    period: float = SAMPLE_PERIOD
+
+    @property
+    def size(self) -> int:
+        return self.grid.size * (1 + 2 * len(self.thresholds)) + 4
+
+    def initial(self) -> np.ndarray:
+        """No sample yet: peaks and spells 0, no spell going (NaN starts), no times."""
+        P, T = self.grid.size, len(self.thresholds)
+        x = np.zeros(self.size)
+        x[P:P + T * P] = np.nan
+        x[-2:] = np.nan
+        return x
+
+    def split(self, x):
+        """(peak (P,), start (T, P), longest (T, P), [samples, point samples, first, last])
+        of a state vector (views)."""
+        P, T = self.grid.size, len(self.thresholds)
+        return (x[:P], x[P:P + T * P].reshape(T, P), x[P + T * P:P + 2 * T * P].reshape(T, P),
+                x[-4:])
+
+    def map_of(self, x) -> WallPressure:
+        """The WallPressure a state vector holds."""
+        peak, _, longest, counts = self.split(np.asarray(x, dtype=float))
+        shape = self.grid.shape
+        return WallPressure(self.grid, peak.reshape(shape).copy(),
+                            {name: longest[k].reshape(shape).copy()
+                             for k, (name, _) in enumerate(self.thresholds)},
+                            dict(self.thresholds), int(counts[0]), int(counts[1]),
+                            self.pressure_field, self.period, float(counts[2]),
+                            float(counts[3]))
+
+
 class WallPressureMap(LeafSystem):
     """Samples the plant's contact every `period` s (a periodic discrete update from t = 0)
     and keeps, per patch of the wall (`PatchGrid` of the colon), its peak pressure and, per
@@ -320,74 +363,52 @@ class WallPressureMap(LeafSystem):
         output_ports:
         - map
 
-    map: the state vector (`wall_pressure(context)` reads it).
+    map: the state vector (`layout` reads it; `wall_pressure(context)` gives the map).
 
     Args:
-        centerline: the colon's Centerline (closest: s and theta of a point).
+        centerline: the colon's Centerline (its samples and frames: `WallLocator`).
         pressure_field: whether the contact has a pressure field (false: point contact;
             nothing is sampled and the map says it has no pressure).
         period: s between samples.
         grid: the patches (default: PATCH_LENGTH by PATCHES_AROUND over the centreline).
-        thresholds: name -> Pa.
+        thresholds: name -> Pa (default physics/tissue.py PRESSURE_THRESHOLDS).
     """
 
     def __init__(self, centerline, pressure_field: bool = True, period: float = SAMPLE_PERIOD,
                  grid: PatchGrid | None = None, thresholds=None):
         super().__init__()
         self._locator = WallLocator(centerline)
-        self._grid = grid or PatchGrid(float(centerline.length))
-        self._thresholds = dict(thresholds or PRESSURE_THRESHOLDS)
-        self._levels = np.array(list(self._thresholds.values()), dtype=float)
-        self._pressure_field, self._period = bool(pressure_field), float(period)
-        P, T = self._grid.size, len(self._thresholds)
-        # [peak (P) | start (T x P) | longest (T x P) | samples, point samples, first, last]
-        self._sizes = (P, T)
-        initial = np.zeros(P * (1 + 2 * T) + 4)
-        initial[P:P + T * P] = np.nan
-        initial[-2:] = np.nan
-        self._state = self.DeclareDiscreteState(BasicVector(initial))
+        self.layout = MapLayout(grid or PatchGrid(float(centerline.length)),
+                                tuple(dict(thresholds or PRESSURE_THRESHOLDS).items()),
+                                bool(pressure_field), float(period))
+        self._levels = np.array([value for _, value in self.layout.thresholds], dtype=float)
+        self._state = self.DeclareDiscreteState(BasicVector(self.layout.initial()))
         self._results = self.DeclareAbstractInputPort("contact_results",
                                                       AbstractValue.Make(ContactResults()))
         self.DeclareStateOutputPort("map", self._state)
-        if self._pressure_field:
-            self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._sample)
+        if self.layout.pressure_field:
+            self.DeclarePeriodicDiscreteUpdateEvent(self.layout.period, 0.0, self._sample)
 
     @property
     def grid(self) -> PatchGrid:
-        return self._grid
-
-    def _split(self, x):
-        P, T = self._sizes
-        return (x[:P], x[P:P + T * P].reshape(T, P), x[P + T * P:P + 2 * T * P].reshape(T, P),
-                x[-4:])
+        return self.layout.grid
 
     def _sample(self, context, discrete_state):
         x = np.array(context.get_discrete_state(self._state).get_value())
-        peak, start, longest, counts = self._split(x)
+        peak, start, longest, counts = self.layout.split(x)
         points, pressures, point_contacts = contact_faces(self._results.Eval(context))
         t = context.get_time()
-        sample = np.zeros(len(peak))
-        if len(points):
-            s, theta = self._locator.locate(points)
-            sample = patch_peaks(patch_index(s, theta, self._grid), pressures, len(peak))
         if len(points) or np.any(~np.isnan(start)):
+            sample = np.zeros(len(peak))
+            if len(points):
+                s, theta = self._locator.locate(points)
+                sample = patch_peaks(patch_index(s, theta, self.grid), pressures, len(peak))
             peak, start, longest = accumulate(peak, start, longest, sample, t, self._levels)
-        samples, point_samples, first = counts[0] + 1, counts[1] + (point_contacts > 0), \
-            (counts[2] if counts[0] > 0 else t)
+        first = counts[2] if counts[0] > 0 else t
         discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate(
-            [peak, start.ravel(), longest.ravel(), [samples, point_samples, first, t]]))
+            [peak, start.ravel(), longest.ravel(),
+             [counts[0] + 1, counts[1] + (point_contacts > 0), first, t]]))
         return EventStatus.Succeeded()
-
-    def map_of(self, x) -> WallPressure:
-        """The WallPressure of a state vector (the `map` output's value)."""
-        peak, _, longest, counts = self._split(np.asarray(x, dtype=float))
-        shape = self._grid.shape
-        return WallPressure(self._grid, peak.reshape(shape).copy(),
-                            {name: longest[k].reshape(shape).copy()
-                             for k, name in enumerate(self._thresholds)},
-                            dict(self._thresholds), int(counts[0]), int(counts[1]),
-                            self._pressure_field, self._period, float(counts[2]),
-                            float(counts[3]))
 
     def wall_pressure(self, context) -> WallPressure:
         """The map in this system's `context` (its own, or the root's)."""
@@ -395,4 +416,4 @@ class WallPressureMap(LeafSystem):
             self.ValidateContext(context)
         except RuntimeError:  # a root context
             context = self.GetMyContextFromRoot(context)
-        return self.map_of(context.get_discrete_state(self._state).get_value())
+        return self.layout.map_of(context.get_discrete_state(self._state).get_value())
