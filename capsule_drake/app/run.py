@@ -35,9 +35,9 @@ from capsule_drake.io.metrics import run_metrics
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, save_npz, write_atomic)
-from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
+from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots, wall_map_panel
 from capsule_drake.io.visualization import MARKER_SYSTEM
-from capsule_drake.io.wall_map import write_wall_map
+from capsule_drake.io.wall_map import wall_map_png, write_wall_map
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,
                                                  WallPressureMap, capsule_has_pressure_field)
@@ -746,4 +746,22 @@ def replay_html(result: RunResult, meshcat, colon) -> str:
     frames = (station.GetSubsystemByName(STREAM_SYSTEM).frames()
               if station is not None and station.HasSubsystemNamed(STREAM_SYSTEM) else [])
     plots = run_plots(colon, result.times, result.capsule_state, result.contact_load)
-    return replay_page(meshcat.StaticHtml(), frames, plots)
+    return replay_page(meshcat.StaticHtml(), frames, plots,
+                       replay_wall_map(result.wall_pressure, colon, plots))
+
+
+def replay_wall_map(wall, colon, plots) -> dict | None:
+    """The replay's section of the wall's pressure map (io/replay.py `wall_map_panel`: the
+    compact picture of io/wall_map.py, the capsule's track from the plot of its place along
+    the colon), or None for a map without pressures."""
+    if wall is None or not wall.has_pressure:
+        return None
+    png, boxes = wall_map_png(wall, colon.centerline, width=3.2, height=2.7, dpi=100,
+                              compact=True)
+    track = next((p for p in plots if p["unit"] == "cm"), {"t": [], "y": []})
+    longest = wall.longest_above.get("ischaemia")
+    title = (f"wall pressure per patch: peak {wall.peak.max() / 1000:.0f} kPa"
+             + (f"; longest above {wall.thresholds['ischaemia'] / 1000:.1f} kPa "
+                f"{longest.max():.1f} s" if longest is not None else ""))
+    return wall_map_panel(png, boxes, (0.0, 100.0 * wall.grid.s_edges[-1]), track["t"],
+                          track["y"], title)
