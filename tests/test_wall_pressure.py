@@ -274,8 +274,7 @@ def test_the_system_maps_a_capsule_pressed_lifted_and_pressed_again():
     for k, delta in enumerate([0.0005] * 4 + [-0.001] * 2 + [0.001] * 2):
         plant.SetFreeBodyPose(context, body, RigidTransform([0.05, 0.0, RADIUS - delta]))
         root.SetTime(0.1 * k)
-        update = system.EvalUniquePeriodicDiscreteUpdate(mine)
-        mine.SetDiscreteState(0, update.get_vector(0).CopyToVector())
+        mine.SetDiscreteState(0, system.sampled(mine))
     wall = system.wall_pressure(root)
     assert wall.has_pressure and wall.samples == 8
     assert (wall.first_time, wall.last_time) == (0.0, pytest.approx(0.7))
@@ -437,6 +436,11 @@ def test_a_default_run_puts_the_faces_it_sampled_on_the_wall(tmp_path, monkeypat
     assert wall.has_pressure and wall.samples == len(sampled) == 300
     pressures = np.concatenate([p for _, p, _ in sampled])
     assert m["site_peak_pressure_kPa"] == pytest.approx(pressures.max() / 1000.0, rel=1e-12)
+    # They are the samples logs.npz has of the contact's peak pressure (ContactMonitor, at
+    # every vertex): the same states at the same times, all but the last (at the run's end).
+    np.testing.assert_array_equal(
+        [p.max() if len(p) else 0.0 for _, p, _ in sampled], result.contact_pressure[:-1])
+    assert result.times[-2] == pytest.approx(wall.last_time)
     # The peak's patch is where Centerline.closest (not the map's locator) puts that face.
     centroids = np.concatenate([c for c, _, _ in sampled])
     colon, _ = load_colon(load_scenario(name="Default").colon)

@@ -473,7 +473,8 @@ class _WallPressureStream(_Stream):
     i: along, from the anus; row j: around, frame `colon_wall_map`), 32FC1: each patch's
     peak pressure so far (kPa) and its longest spell above each threshold so far (s; 0
     where it never went above, or was never touched). Every WALL_MAP_PERIOD from 1 s on,
-    stamped with the state its last sample saw; none before the first sample."""
+    stamped with the state its last sample saw (held up to that sample's time, as /tf's);
+    none before the first sample."""
 
     def __init__(self, layout, period: float = WALL_MAP_PERIOD,
                  timing: PlantTiming = PlantTiming()):
@@ -493,7 +494,7 @@ class _WallPressureStream(_Stream):
         wall = self._layout.map_of(values[f"{WALL_PRESSURE_SYSTEM}.map"])
         if wall.samples == 0:
             return
-        stamp, now = _ns(self.timing.sampled(wall.last_time)), _ns(t)
+        stamp, now = _ns(self.timing.held(wall.last_time)), _ns(t)
         self._image(log, "/capsule/contact/wall_pressure/peak", stamp, wall.peak.T / 1000.0,
                     now)
         for name, longest in wall.longest_above.items():

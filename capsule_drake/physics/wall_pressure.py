@@ -17,10 +17,10 @@ the binormal), and each patch keeps its own figures.
   peaks and spells above the thresholds.
 - `contact_faces`: a plant's ContactResults as those faces (Drake's ContactSurface API);
   the only part that touches Drake's types.
-- `WallPressureMap`: the LeafSystem that samples the contact every SAMPLE_PERIOD as a
-  discrete update (its map is state in the context: a run is deterministic and reads only
-  the contact results, changing nothing of the simulation); `wall_pressure(context)` gives
-  the map as a `WallPressure`.
+- `WallPressureMap`: the LeafSystem that samples the contact every SAMPLE_PERIOD in a
+  periodic update of its own state (its map is state in the context: a run is
+  deterministic; it reads only the contact results, changing nothing of the simulation);
+  `wall_pressure(context)` gives the map as a `WallPressure`.
 
 Point contact (the convex-pieces wall) has no pressure field: the map is then empty and
 says so (`WallPressure.has_pressure` False), never a made-up figure.
@@ -29,6 +29,7 @@ says so (`WallPressure.has_pressure` False), never a made-up figure.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -49,10 +50,11 @@ a patch along it)."""
 SAMPLE_PERIOD = 0.01
 """s between samples of the contact. The thresholds are for presses of seconds (injury) and
 minutes (ischaemia); a capsule dragged at ~1 cm/s crosses a 1 cm patch in about a second,
-so 10 ms times a spell to about 1 %. It is the runs' default log period: the map samples the
-contact as often as logs.npz does (a discrete update at t sees the plant one step further
-on than the loggers' publish at t, so the two series are not the same samples). Cost per
-sample: benchmarks/bench_wall_pressure.py (README, "Tissue safety")."""
+so 10 ms times a spell to about 1 %. It is the runs' default log period, and the map reads
+the state the loggers read at the same times: its samples are logs.npz's contact_pressure
+samples (but the last, at the run's end), so its peak is their largest
+(tests/test_wall_pressure.py). Cost per sample: benchmarks/bench_wall_pressure.py (README,
+"Tissue safety")."""
 
 WALL_PRESSURE_SYSTEM = "wall_pressure"
 """The run's wall-pressure map beside the station (app/run.py)."""
@@ -64,17 +66,17 @@ def face_peaks(face_data, vertex_pressures) -> np.ndarray:
     """The largest vertex pressure of each face of a polygon mesh given as Drake's flat
     `face_data` ([n0, v0_0 .. v0_n0-1, n1, v1_0 ...]: each face's vertex count, then its
     vertex indices). Returns (F,)."""
-    face_data = np.asarray(face_data, dtype=np.int64)
+    data = face_data.tolist() if isinstance(face_data, np.ndarray) else list(face_data)
     values = np.asarray(vertex_pressures, dtype=float)
     indices, starts, k = [], [], 0
-    while k < len(face_data):
-        n = int(face_data[k])
+    while k < len(data):
+        n = data[k]
         starts.append(len(indices))
-        indices.extend(face_data[k + 1:k + 1 + n])
+        indices += data[k + 1:k + 1 + n]
         k += n + 1
     if not starts:
         return np.zeros(0)
-    return np.maximum.reduceat(values[np.asarray(indices, dtype=np.int64)], starts)
+    return np.maximum.reduceat(values[indices], starts)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,11 +89,11 @@ class PatchGrid:
     length: float = PATCH_LENGTH
     n_around: int = PATCHES_AROUND
 
-    @property
+    @functools.cached_property
     def n_along(self) -> int:
         return max(1, int(np.ceil(self.colon_length / self.length - 1e-9)))
 
-    @property
+    @functools.cached_property
     def size(self) -> int:
         return self.n_along * self.n_around
 
@@ -114,9 +116,11 @@ def patch_index(s, theta, grid: PatchGrid) -> np.ndarray:
     """Flat patch index of wall points at arc length s (m; clipped to the colon) and angle
     theta (rad, any turn)."""
     s, theta = np.asarray(s, dtype=float), np.asarray(theta, dtype=float)
-    i = np.clip(np.floor(s / grid.length).astype(np.int64), 0, grid.n_along - 1)
-    j = np.floor(np.mod(theta, 2.0 * np.pi) / (2.0 * np.pi / grid.n_around)).astype(np.int64)
-    return i * grid.n_around + np.clip(j, 0, grid.n_around - 1)
+    # (np.minimum and np.maximum: np.clip costs several times as much on a few dozen.)
+    i = np.minimum(np.maximum(np.floor(s / grid.length), 0), grid.n_along - 1).astype(np.int64)
+    j = np.minimum(np.floor(np.mod(theta, 2.0 * np.pi) * (grid.n_around / (2.0 * np.pi))),
+                   grid.n_around - 1).astype(np.int64)
+    return i * grid.n_around + j
 
 
 def patch_peaks(index, pressure, size: int) -> np.ndarray:
@@ -183,13 +187,15 @@ class WallLocator:
         _, k = self._tree.query(p)
         d = p - self.points[k]
         t, n, b = self.tangents[k], self.normals[k], self.binormals[k]
-        along = np.sum(d * t, axis=1)
+        along = np.einsum("ij,ij->i", d, t)
         # Newton on f(u) = (x(s_k + u) - p) . x'(s_k + u) = 0 from u = 0.
-        slope = 1.0 - np.sum(d * self.curvature[k], axis=1)
+        slope = 1.0 - np.einsum("ij,ij->i", d, self.curvature[k])
         u = along / np.where(slope > 0.2, slope, 1.0)
-        s = np.clip(self.s[k] + u, self.s[0], self.s[-1])
-        radial = d - np.outer(along, np.ones(3)) * t
-        return s, np.arctan2(np.sum(radial * b, axis=1), np.sum(radial * n, axis=1))
+        s = np.minimum(np.maximum(self.s[k] + u, self.s[0]), self.s[-1])
+        radial = d - along[:, None] * t
+        return s, np.arctan2(np.einsum("ij,ij->i", radial, b),
+                             np.einsum("ij,ij->i", radial, n))
+
 
 # --- Drake's contact, as faces ---------------------------------------------------------------
 
@@ -349,7 +355,7 @@ class MapLayout:
 
 
 class WallPressureMap(LeafSystem):
-    """Samples the plant's contact every `period` s (a periodic discrete update from t = 0)
+    """Samples the plant's contact every `period` s (a periodic update from t = 0)
     and keeps, per patch of the wall (`PatchGrid` of the colon), its peak pressure and, per
     threshold (physics/tissue.py: injury 330 kPa, ischaemia 4.0 kPa), when its current
     spell above began and its longest spell so far (`accumulate`); the module docstring
@@ -388,27 +394,38 @@ class WallPressureMap(LeafSystem):
                                                       AbstractValue.Make(ContactResults()))
         self.DeclareStateOutputPort("map", self._state)
         if self.layout.pressure_field:
-            self.DeclarePeriodicDiscreteUpdateEvent(self.layout.period, 0.0, self._sample)
+            # An unrestricted update: with the plant's own step (itself one, with sampled
+            # output ports), it reads the state held up to t, as the loggers' publish at t
+            # does, so the map samples what logs.npz samples.
+            self.DeclarePeriodicUnrestrictedUpdateEvent(self.layout.period, 0.0,
+                                                        self._sample)
 
     @property
     def grid(self) -> PatchGrid:
         return self.layout.grid
 
-    def _sample(self, context, discrete_state):
+    def sampled(self, context) -> np.ndarray:
+        """The state vector after a sample of the contact results at the context's time
+        (what the periodic update stores; `layout` reads it). Only the patches pressed now
+        or in a spell are updated: the capsule touches a few at a time."""
         x = np.array(context.get_discrete_state(self._state).get_value())
-        peak, start, longest, counts = self.layout.split(x)
+        peak, start, longest, counts = self.layout.split(x)   # views into x
         points, pressures, point_contacts = contact_faces(self._results.Eval(context))
         t = context.get_time()
-        if len(points) or np.any(~np.isnan(start)):
-            sample = np.zeros(len(peak))
-            if len(points):
-                s, theta = self._locator.locate(points)
-                sample = patch_peaks(patch_index(s, theta, self.grid), pressures, len(peak))
-            peak, start, longest = accumulate(peak, start, longest, sample, t, self._levels)
-        first = counts[2] if counts[0] > 0 else t
-        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate(
-            [peak, start.ravel(), longest.ravel(),
-             [counts[0] + 1, counts[1] + (point_contacts > 0), first, t]]))
+        pressed = (patch_index(*self._locator.locate(points), self.grid) if len(points)
+                   else np.zeros(0, dtype=np.int64))
+        active = np.union1d(np.flatnonzero(~np.isnan(start).all(axis=0)), pressed)
+        if active.size:
+            sample = patch_peaks(np.searchsorted(active, pressed), pressures, active.size)
+            peak[active], start[:, active], longest[:, active] = accumulate(
+                peak[active], start[:, active], longest[:, active], sample, t, self._levels)
+        counts[:] = [counts[0] + 1, counts[1] + (point_contacts > 0),
+                     counts[2] if counts[0] > 0 else t, t]
+        return x
+
+    def _sample(self, context, state):
+        state.get_mutable_discrete_state().get_mutable_vector(self._state).SetFromVector(
+            self.sampled(context))
         return EventStatus.Succeeded()
 
     def wall_pressure(self, context) -> WallPressure:
