@@ -537,7 +537,8 @@ def test_no_recording_with_a_live_page_writes_no_recording(tmp_path):
         process.kill()
     assert "outputs in " in stdout and "recording.html" not in stdout, stdout
     assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
-                                                     "scenario.yaml"]
+                                                     "scenario.yaml", "wall_pressure.npz",
+                                                     "wall_pressure.png"]
 
 
 def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
@@ -684,7 +685,8 @@ def test_a_full_disk_leaves_nothing_that_blocks_the_retry(tmp_path, capsys):
         filler.unlink()
         assert cli_main(args) == 0, capsys.readouterr().err
         assert sorted(p.name for p in (disk / "run").iterdir()) == [
-            "logs.npz", "metrics.json", "scenario.yaml"]
+            "logs.npz", "metrics.json", "scenario.yaml", "wall_pressure.npz",
+            "wall_pressure.png"]
 
 
 def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, capsys,
@@ -737,7 +739,8 @@ def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkey
         assert code == 1
         names = sorted(p.name for p in (small / "run").iterdir())
         # Everything before the recording is whole; no partial file is left.
-        assert names == ["logs.npz", "metrics.json", "scenario.yaml"], names
+        assert names == ["logs.npz", "metrics.json", "scenario.yaml", "wall_pressure.npz",
+                         "wall_pressure.png"], names
         assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
 
 
@@ -921,4 +924,5 @@ def test_a_second_run_into_the_folder_of_a_running_one_is_refused(tmp_path, caps
     assert json.loads((out / "metrics.json").read_text())["status"] == "interrupted"
     assert "duration: 60.0" in (out / "scenario.yaml").read_text()
     assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
-                                                     "scenario.yaml"]
+                                                     "scenario.yaml", "wall_pressure.npz",
+                                                     "wall_pressure.png"]
