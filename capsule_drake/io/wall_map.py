@@ -81,7 +81,7 @@ def wall_map_figure(wall, centerline, width: float = 12.0, height: float = 5.6,
         if norm is not None:  # the thresholds on the pressure's scale
             for level in wall.thresholds.values():
                 if PEAK_FLOOR_KPA <= level / 1000.0 <= top:
-                    bar.ax.axhline(level / 1000.0, color="cyan", lw=1.2)
+                    bar.ax.axhline(level / 1000.0, color="cyan", lw=2.0)
         for segment, (start, _) in ranges.items():
             if start > 0.0:
                 ax.axvline(start * 100.0, color="0.3", lw=0.8, ls="--")
@@ -120,9 +120,16 @@ def wall_map_figure(wall, centerline, width: float = 12.0, height: float = 5.6,
 def wall_map_png(wall, centerline, **kwargs) -> tuple[bytes, list[list[float]]]:
     """`wall_map_figure` as PNG bytes, with each map's axes box in the image as fractions
     [left, top, right, bottom] from its top left corner (for a cursor drawn over it)."""
+    from PIL import Image
+
     fig, axes = wall_map_figure(wall, centerline, **kwargs)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
+    # A palette of 256 colours: a third of the size (the maps' colour scales and the
+    # text's grey levels fit in it).
+    image = Image.open(io.BytesIO(buffer.getvalue())).convert("RGB").quantize(colors=256)
+    buffer = io.BytesIO()
+    image.save(buffer, format="png", optimize=True)
     boxes = []
     for ax in axes:
         box = ax.get_position()
