@@ -5,7 +5,9 @@ a plain loop over the samples, the locator against the centreline's own `closest
 contact's faces against the hydroelastic closed form E depth / R, and a run's map against
 the faces it sampled."""
 
+import gc
 import json
+import weakref
 
 import cv2
 import numpy as np
@@ -457,3 +459,17 @@ def test_a_default_run_puts_the_faces_it_sampled_on_the_wall(tmp_path, monkeypat
         again = WallPressure.from_arrays({key: data[key] for key in data.files})
     np.testing.assert_array_equal(again.peak, wall.peak)
     assert (tmp_path / "wall_pressure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_a_runs_diagram_with_its_map_is_freed_when_dropped():
+    # The map holds numbers and the centreline's arrays, nothing of another system
+    # (capsule_drake/lifetime.py): a run's diagram goes with its result.
+    result = simulate(load_scenario(name="Default", override="duration: 0.05"),
+                      progress=False)
+    assert result.wall_pressure.samples == 5   # at 0, 0.01, ..., 0.04
+    refs = [weakref.ref(result.diagram),
+            weakref.ref(result.diagram.GetSubsystemByName("wall_pressure"))]
+    del result
+    gc.collect()
+    assert all(ref() is None for ref in refs)
