@@ -76,10 +76,11 @@ def pressure_metrics(times, contact_pressure) -> dict:
     """The contact's peak pressure (kPa) over a run's samples and the seconds spent above
     each threshold of physics/tissue.py (`time_above_<name>_pressure_s`: injury 330 kPa,
     ischaemia 4.0 kPa). None where nothing was measured: no samples, or point contact (NaN
-    samples: it has no pressure field)."""
+    samples: it has no pressure field; one is enough, the samples before the capsule
+    touched the wall being 0)."""
     names = [f"time_above_{name}_pressure_s" for name in PRESSURE_THRESHOLDS]
     pressure = np.asarray(contact_pressure, dtype=float) if contact_pressure is not None else None
-    if pressure is None or pressure.size == 0 or not np.any(np.isfinite(pressure)):
+    if pressure is None or pressure.size == 0 or np.any(np.isnan(pressure)):
         return {"peak_contact_pressure_kPa": None, **{name: None for name in names}}
     return {"peak_contact_pressure_kPa": float(np.nanmax(pressure)) / 1000.0,
             **{name: time_above(times, pressure, threshold)
