@@ -111,7 +111,7 @@ def wall_map_figure(wall, centerline, width: float = 12.0, height: float = 5.6,
                  "boundaries;\nblue dotted: the anterior wall (toward the EPM); cyan on the "
                  "scale: the thresholds",
                  fontsize=small - 1)
-    fig.subplots_adjust(left=0.07 if not compact else 0.15, right=0.98 if not compact else 0.9,
+    fig.subplots_adjust(left=0.07 if not compact else 0.15, right=0.98 if not compact else 0.86,
                         top=0.9 if not compact else 0.97,
                         bottom=0.14 if not compact else 0.16, hspace=0.12)
     return fig, list(axes)

@@ -174,11 +174,12 @@ class WallLocator:
     def __init__(self, centerline):
         self.s = np.asarray(centerline.s, dtype=float)
         self.points = np.asarray(centerline.points, dtype=float)
-        self.tangents = np.asarray(centerline.tangents, dtype=float)
-        self.normals = np.asarray(centerline.normals, dtype=float)
-        self.binormals = np.asarray(centerline.binormals, dtype=float)
+        tangents = np.asarray(centerline.tangents, dtype=float)
         # x''(s) at the samples, from the tangents' change (the curve is in arc length).
-        self.curvature = np.gradient(self.tangents, self.s, axis=0)
+        curvature = np.gradient(tangents, self.s, axis=0)
+        # Per sample, the directions a point's offset is projected on: (N, 3, 4).
+        self._basis = np.stack([tangents, curvature, np.asarray(centerline.normals, float),
+                                np.asarray(centerline.binormals, float)], axis=2)
         self._tree = cKDTree(self.points)
 
     def locate(self, points) -> tuple[np.ndarray, np.ndarray]:
@@ -186,15 +187,13 @@ class WallLocator:
         p = np.atleast_2d(np.asarray(points, dtype=float))
         _, k = self._tree.query(p)
         d = p - self.points[k]
-        t, n, b = self.tangents[k], self.normals[k], self.binormals[k]
-        along = np.einsum("ij,ij->i", d, t)
+        # d . t, d . x'', d . n, d . b (n and b are normal to t: d's radial part's too).
+        along, bent, dn, db = np.einsum("ij,ijk->ki", d, self._basis[k])
         # Newton on f(u) = (x(s_k + u) - p) . x'(s_k + u) = 0 from u = 0.
-        slope = 1.0 - np.einsum("ij,ij->i", d, self.curvature[k])
+        slope = 1.0 - bent
         u = along / np.where(slope > 0.2, slope, 1.0)
         s = np.minimum(np.maximum(self.s[k] + u, self.s[0]), self.s[-1])
-        radial = d - along[:, None] * t
-        return s, np.arctan2(np.einsum("ij,ij->i", radial, b),
-                             np.einsum("ij,ij->i", radial, n))
+        return s, np.arctan2(db, dn)
 
 
 # --- Drake's contact, as faces ---------------------------------------------------------------
@@ -218,7 +217,7 @@ def contact_faces(results) -> tuple[np.ndarray, np.ndarray, int]:
         values = [field.EvaluateAtVertex(v) for v in range(mesh.num_vertices())]
         peak = face_peaks(face_data, values)
         pressed = np.flatnonzero(peak > 0.0)
-        centroids += [mesh.element_centroid(int(f)) for f in pressed]
+        centroids += [mesh.element_centroid(f) for f in pressed.tolist()]
         peaks.append(peak[pressed])
     points = np.array(centroids, dtype=float).reshape(-1, 3)
     return points, (np.concatenate(peaks) if peaks else np.zeros(0)), \
