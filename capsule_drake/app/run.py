@@ -483,9 +483,11 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         meshcat: a pydrake Meshcat to draw into and record, or None.
         out_dir: if given, a folder (created if need be) that is checked for room, then
             gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
-            see app/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
-            recording.html (the replay page: `replay_html`) and (after an error) error.txt
-            with the traceback.
+            see app/outputs.py), and at the end metrics.json, logs.npz,
+            wall_pressure.npz and (when the contact has a pressure field)
+            wall_pressure.png (the map of the wall's pressure: `add_wall_pressure`), (with
+            meshcat) recording.html (the replay page: `replay_html`) and (after an error)
+            error.txt with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         recording: with `meshcat`, record the run into recording.html (False: the page
