@@ -41,7 +41,7 @@ from capsule_drake.physics.tissue import PRESSURE_THRESHOLDS
 
 PATCH_LENGTH = 0.01
 """m of arc length along the centreline per patch: a capsule's contact (a few mm long) sits
-in one or two; the capsule (26 mm) spans three."""
+in one or two; the capsule (31.5 mm long with its domes) spans three or four."""
 
 PATCHES_AROUND = 12
 """Patches around the wall (30 degrees each: 10-15 mm of a 20-30 mm lumen radius, the size of
@@ -52,7 +52,7 @@ SAMPLE_PERIOD = 0.01
 minutes (ischaemia); a capsule dragged at ~1 cm/s crosses a 1 cm patch in about a second,
 so 10 ms times a spell to about 1 %. It is the runs' default log period, and the map reads
 the state the loggers read at the same times: its samples are logs.npz's contact_pressure
-samples (but the last, at the run's end), so its peak is their largest
+samples (all but the last, at the run's end), so its peak is their largest
 (tests/test_wall_pressure.py). Cost per sample: benchmarks/bench_wall_pressure.py (README,
 "Tissue safety")."""
 
