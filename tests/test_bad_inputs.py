@@ -537,7 +537,8 @@ def test_no_recording_with_a_live_page_writes_no_recording(tmp_path):
         process.kill()
     assert "outputs in " in stdout and "recording.html" not in stdout, stdout
     assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
-                                                     "scenario.yaml"]
+                                                     "scenario.yaml", "wall_pressure.npz",
+                                                     "wall_pressure.png"]
 
 
 def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
@@ -684,7 +685,8 @@ def test_a_full_disk_leaves_nothing_that_blocks_the_retry(tmp_path, capsys):
         filler.unlink()
         assert cli_main(args) == 0, capsys.readouterr().err
         assert sorted(p.name for p in (disk / "run").iterdir()) == [
-            "logs.npz", "metrics.json", "scenario.yaml"]
+            "logs.npz", "metrics.json", "scenario.yaml", "wall_pressure.npz",
+            "wall_pressure.png"]
 
 
 def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, capsys,
@@ -737,7 +739,8 @@ def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkey
         assert code == 1
         names = sorted(p.name for p in (small / "run").iterdir())
         # Everything before the recording is whole; no partial file is left.
-        assert names == ["logs.npz", "metrics.json", "scenario.yaml"], names
+        assert names == ["logs.npz", "metrics.json", "scenario.yaml", "wall_pressure.npz",
+                         "wall_pressure.png"], names
         assert load_logs(small / "run")["times"][-1] == pytest.approx(0.5)
 
 
@@ -749,22 +752,23 @@ def _file_size_limit(size):
 
 
 def test_an_mcap_log_that_cannot_be_written_is_reported_as_failed(tmp_path):
-    # The run's own files (logs.npz ~12 kB for 1 s) fit under 20 kB; the MCAP log with the
-    # IMU's messages (~35 kB) does not: finishing it fails. It must not be reported as
-    # written: one line naming it, exit 1, the run's outputs on disk.
+    # The run's own files (for 3 s: logs.npz ~44 kB, wall_pressure.png ~31 kB) fit under
+    # 60 kB; the MCAP log with the IMU's messages (~96 kB) does not: writing it fails. It
+    # must not be reported as written: one line naming it, exit 1, the run's outputs on
+    # disk.
     out, mcap = tmp_path / "run", tmp_path / "run.mcap"
-    done = subprocess.run(CLI + ["run", "--duration", "1", "--no-recording", "--quiet",
+    done = subprocess.run(CLI + ["run", "--duration", "3", "--no-recording", "--quiet",
                                  "--scenario-text", "{capsule: {imu: {}}}", "--out", str(out),
                                  "--mcap", str(mcap)],
                           cwd=REPO, capture_output=True, text=True, timeout=300,
-                          preexec_fn=_file_size_limit(20_000))
+                          preexec_fn=_file_size_limit(60_000))
     _assert_one_line(done.returncode, done.stderr, re.escape(f"--mcap {mcap}: could not write "
                                                              "the MCAP log (File too large)"))
     assert done.returncode == 1
     assert "MCAP log:" not in done.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "error" and "MCAP" in metrics["stopped_early"]
-    assert load_logs(out)["times"][-1] == pytest.approx(1.0)
+    assert load_logs(out)["times"][-1] == pytest.approx(3.0)
 
 
 def test_force_replaces_a_previous_mcap_log_only(tmp_path, capsys):
@@ -921,4 +925,5 @@ def test_a_second_run_into_the_folder_of_a_running_one_is_refused(tmp_path, caps
     assert json.loads((out / "metrics.json").read_text())["status"] == "interrupted"
     assert "duration: 60.0" in (out / "scenario.yaml").read_text()
     assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "metrics.json",
-                                                     "scenario.yaml"]
+                                                     "scenario.yaml", "wall_pressure.npz",
+                                                     "wall_pressure.png"]

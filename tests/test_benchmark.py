@@ -108,6 +108,11 @@ def test_a_user_navigator_runs_on_two_colons_and_gets_the_table(local_results, t
         # Still moving when the 3 s ran out: the time limit ended it, not a stall.
         assert re.fullmatch(r"time limit \(rectum, at \d+ cm\)", row["stuck_in"])
         assert np.isfinite(row["centring_error_deg"])
+        # Per patch of the wall (physics/wall_pressure.py): the highest pressure one felt,
+        # and the longest one spent above 330 kPa, within that above 4 kPa, within the run.
+        assert row["site_peak_pressure_kPa"] > 4.0
+        assert 0.0 <= row["site_injury_s"] <= row["site_ischaemia_s"] <= 3.0
+    assert np.isfinite(summary(local_results)[0]["site_ischaemia_s"])
     paths = write_outputs(local_results, tmp_path)
     with open(paths["runs"]) as f:
         written = list(csv.DictReader(f))

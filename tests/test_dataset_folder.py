@@ -75,7 +75,8 @@ def test_the_folder_has_what_its_readme_lists(folder):
     readme = (folder / "README.md").read_text()
     for name in ("mask.png", "frames.csv", "SavedPosition.txt", "SavedRotationQuaternion.txt",
                  "lumen_truth.csv", "imu.csv", "ahrs.csv", "magnetometer.csv",
-                 "ground_truth.csv", "camera.yaml", "sensors.yaml"):
+                 "ground_truth.csv", "camera.yaml", "sensors.yaml", "wall_pressure.npz",
+                 "wall_pressure.png"):
         assert (folder / name).exists() and f"`{name}`" in readme, name
     lumen = np.loadtxt(folder / "lumen_truth.csv", delimiter=",", skiprows=1)
     assert lumen.shape == (6, 12) and lumen[:, 4].all()

@@ -523,3 +523,39 @@ def test_the_file_is_closed_on_every_path(tmp_path):
     assert summary.statistics.message_count == 1 and messages["/tf"][0][0] == 5
     with pytest.raises(RuntimeError, match="closed"):
         log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 6)
+
+
+@pytest.mark.slow
+def test_the_wall_pressure_maps_are_images_of_the_runs_map(tmp_path):
+    # `run --mcap` for 2 s of Default: the map of the wall's pressure every second, three
+    # 32FC1 images of the colon unrolled (a pixel a patch: rows around, columns along) that
+    # an independent CDR implementation decodes and encodes again byte for byte; the last
+    # ones are the run's wall_pressure.npz (the run ends at that second), stamped with the
+    # state of its last sample: one the capsule's /tf has.
+    path, out = tmp_path / "run.mcap", tmp_path / "run"
+    code = cli_main(["run", "--duration", "2.0", "--quiet", "--no-recording", "--out",
+                     str(out), "--mcap", str(path)])
+    assert code == 0
+    _, summary, messages = read_mcap(path)
+    tf_stamps = transforms(messages, "capsule")
+    with np.load(out / "wall_pressure.npz") as data:
+        saved = {key: data[key] for key in data.files}
+    shape = (len(saved["theta_edges_deg"]) - 1, len(saved["s_edges_m"]) - 1)
+    for topic, key in (("/capsule/contact/wall_pressure/peak", "peak_pressure_kPa"),
+                       ("/capsule/contact/wall_pressure/above_injury", "longest_above_injury_s"),
+                       ("/capsule/contact/wall_pressure/above_ischaemia",
+                        "longest_above_ischaemia_s")):
+        items = messages[topic]
+        assert [t for t, _, _, _ in items] == [1_000_000_000, 2_000_000_000], topic
+        _, image, raw, name = items[-1]
+        assert name == "sensor_msgs/msg/Image" and image.encoding == "32FC1"
+        assert image.header.frame_id == "colon_wall_map"
+        assert (image.height, image.width, image.step) == (*shape, 4 * shape[1])
+        values = np.frombuffer(bytes(image.data), dtype="<f4").reshape(shape)
+        np.testing.assert_allclose(values.T, saved[key], rtol=1e-6, atol=1e-9)
+        assert round(seconds(image.header.stamp), 6) in tf_stamps
+        assert seconds(image.header.stamp) == pytest.approx(float(saved["last_time_s"]),
+                                                            abs=0.0021)
+        again = HUMBLE.serialize_cdr(HUMBLE.deserialize_cdr(raw, name), name)
+        assert bytes(again) == raw
+    assert saved["peak_pressure_kPa"].max() > 4.0   # the capsule rests on the wall

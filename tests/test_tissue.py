@@ -76,6 +76,9 @@ def test_point_contact_has_no_pressure():
         "peak_contact_pressure_kPa": None, "time_above_injury_pressure_s": None,
         "time_above_ischaemia_pressure_s": None}
     assert pressure_metrics(times, None)["peak_contact_pressure_kPa"] is None
+    # A run's samples before the capsule touched the wall are 0: not a pressure either.
+    assert pressure_metrics(times, [0.0, 0.0, np.nan, np.nan, np.nan])[
+        "peak_contact_pressure_kPa"] is None
 
 
 def test_time_above_a_threshold_is_the_measure_of_the_samples_above_it():

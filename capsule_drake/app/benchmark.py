@@ -48,7 +48,7 @@ from pydrake.systems.primitives import LogVectorOutput
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.population import patient_label
 from capsule_drake.app.run import simulate
-from capsule_drake.io.metrics import pressure_metrics
+from capsule_drake.io.metrics import pressure_metrics, site_pressure_metrics
 from capsule_drake.anatomy.lesions import SIZE_CLASSES
 from capsule_drake.anatomy.source import lesion_scene
 from capsule_drake.capsule.camera_walls import lesion_labels
@@ -74,7 +74,8 @@ PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
 COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
-           "peak_contact_pressure_kPa", "injury_pressure_s", "centring_error_deg",
+           "peak_contact_pressure_kPa", "injury_pressure_s", "site_peak_pressure_kPa",
+           "site_injury_s", "site_ischaemia_s", "centring_error_deg",
            "detection_error_pct", "detection_rate", "detection_fp_rate",
            "loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg",
            "epm_path_m", "coverage", "polyps_diminutive", "seen_diminutive", "polyps_small",
@@ -282,6 +283,7 @@ def _rounded(value, digits: int) -> float:
 # The columns of a run the guard found diverged: not reported.
 DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
                 "peak_contact_force_N", "peak_contact_pressure_kPa", "injury_pressure_s",
+                "site_peak_pressure_kPa", "site_injury_s", "site_ischaemia_s",
                 "centring_error_deg", "detection_error_pct",
                 "detection_rate", "detection_fp_rate", "loc_pos_err_median_mm", "loc_pos_err_p95_mm",
                 "loc_rot_err_median_deg", "coverage")
@@ -297,6 +299,7 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     furthest = float(s.max()) if len(s) else 0.0
     load = result.contact_load
     pressure = pressure_metrics(times, result.contact_pressure)
+    sites = site_pressure_metrics(result.wall_pressure, colon.centerline)
     dt = np.diff(times, append=times[-1]) if len(times) else np.zeros(0)
     epm = result.epm_pose[:3]
     centring = np.nan
@@ -329,6 +332,12 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
         # (physics/tissue.py); NaN for point contact, which has no pressure.
         "peak_contact_pressure_kPa": _rounded(pressure["peak_contact_pressure_kPa"], 1),
         "injury_pressure_s": _rounded(pressure["time_above_injury_pressure_s"], 2),
+        # Per patch of the wall (physics/wall_pressure.py): the highest pressure one felt
+        # and the longest time ONE patch spent above 330 kPa and above 4.0 kPa; NaN without
+        # a pressure field.
+        "site_peak_pressure_kPa": _rounded(sites.get("site_peak_pressure_kPa"), 1),
+        "site_injury_s": _rounded(sites.get("site_longest_above_injury_s"), 2),
+        "site_ischaemia_s": _rounded(sites.get("site_longest_above_ischaemia_s"), 2),
         "centring_error_deg": round(centring, 1) if np.isfinite(centring) else np.nan,
         "detection_error_pct": (round(detection_error, 2) if np.isfinite(detection_error)
                                 else np.nan),
@@ -1002,6 +1011,9 @@ def summary(results: list[dict]) -> list[dict]:
                     "peak_contact_force_N": mean("peak_contact_force_N"),
                     "peak_contact_pressure_kPa": mean("peak_contact_pressure_kPa"),
                     "injury_pressure_s": mean("injury_pressure_s"),
+                    "site_peak_pressure_kPa": mean("site_peak_pressure_kPa"),
+                    "site_injury_s": mean("site_injury_s"),
+                    "site_ischaemia_s": mean("site_ischaemia_s"),
                     "centring_error_deg": mean("centring_error_deg"),
                     "detection_error_pct": mean("detection_error_pct"),
                     "detection_rate": mean("detection_rate"),

@@ -730,6 +730,7 @@ def _run(args) -> int:
     _report_epm_guard(m)
     mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
+          f"{', wall_pressure.png' if (out_dir / 'wall_pressure.png').is_file() else ''}"
           f"{', recording.html' if not args.no_recording else ''})")
     code = _finish(result, mcap_failure)
     if args.meshcat:
@@ -742,15 +743,38 @@ def _run(args) -> int:
     return code
 
 
+def pressure_summary(m: dict) -> str | None:
+    """The run's pressure on the colon wall as one line, from its metrics' per-patch figures
+    (io/metrics.py `site_pressure_metrics`): the highest pressure any patch of the wall felt
+    and where, and the longest time ONE patch spent above each threshold (physics/tissue.py:
+    330 kPa, mucosal injury; 4.0 kPa, blood flow falls) and where. "none" when the contact
+    has no pressure field; None (nothing to say) for a run without the map or whose figures
+    are null (it diverged, or ended before a sample)."""
+    if "wall_pressure_field" not in m:
+        return None
+    patch = f"{m['wall_patch_length_m'] * 100:.0f} cm x {m['wall_patch_angle_deg']:.0f} deg"
+    if not m["wall_pressure_field"]:
+        return f"wall pressure per {patch} patch: none (the contact has no pressure field)"
+    if m.get("site_peak_pressure_kPa") is None:
+        return None
+
+    def where(prefix):
+        s = m.get(f"{prefix}_at_s_m")
+        return f" ({m[f'{prefix}_segment']}, {s * 100:.1f} cm)" if s is not None else ""
+
+    return (f"wall pressure per {patch} patch: peak {m['site_peak_pressure_kPa']:.0f} kPa"
+            f"{where('site_peak')}; longest on one patch above {INJURY_PRESSURE / 1000:.0f} "
+            f"kPa (mucosal injury) {m['site_longest_above_injury_s']:.2f} s, above "
+            f"{ISCHAEMIA_PRESSURE / 1000:.1f} kPa (blood flow falls) "
+            f"{m['site_longest_above_ischaemia_s']:.2f} s"
+            f"{where('site_longest_above_ischaemia')}")
+
+
 def _report_pressure(m: dict) -> None:
-    """One line on the contact's peak pressure and the time above the injury threshold
-    (physics/tissue.py), when the contact model gives a pressure."""
-    if m.get("peak_contact_pressure_kPa") is None:
-        return
-    print(f"peak contact pressure {m['peak_contact_pressure_kPa']:.0f} kPa; above "
-          f"{INJURY_PRESSURE / 1000:.0f} kPa (mucosal injury) for "
-          f"{m['time_above_injury_pressure_s']:.2f} s, above {ISCHAEMIA_PRESSURE / 1000:.1f} "
-          f"kPa (blood flow falls) for {m['time_above_ischaemia_pressure_s']:.1f} s")
+    """Prints `pressure_summary`'s line, if it has one."""
+    line = pressure_summary(m)
+    if line is not None:
+        print(line)
 
 
 def _report_epm_guard(metrics) -> None:

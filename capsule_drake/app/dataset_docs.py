@@ -341,6 +341,9 @@ def dataset_readme(d: DatasetDescription, frames_note: str = "") -> str:
         "noise |",
         "| `metrics.json`, `scenario.yaml`, `logs.npz` | (one) | the run's metrics, its full "
         "scenario (to record it again) and its logs |",
+        "| `wall_pressure.npz`, `wall_pressure.png` | (one) | the contact's pressure on the "
+        "colon wall per patch (1 cm along by 30 degrees around): each patch's peak and longest "
+        "time above 330 kPa and 4.0 kPa, and its picture (none without a pressure field) |",
         "",
         "### Depth (`Frames/Depth_XXXX.png`)",
         "",

@@ -8,6 +8,11 @@ writes, for whatever the scenario has (a topic whose source is switched off is a
     /tf_static                         tf2_msgs TFMessage           once; capsule -> camera, sensors
     /capsule/contact/wrench            geometry_msgs WrenchStamped  log_period; capsule
     /capsule/contact/peak_pressure     sensor_msgs FluidPressure Pa log_period; capsule
+    /capsule/contact/wall_pressure/peak            sensor_msgs Image, 32FC1 kPa  every 1 s
+    /capsule/contact/wall_pressure/above_injury    sensor_msgs Image, 32FC1 s    every 1 s
+    /capsule/contact/wall_pressure/above_ischaemia sensor_msgs Image, 32FC1 s    every 1 s
+                                       (the wall's patches unrolled, physics/wall_pressure.py:
+                                       frame colon_wall_map; with a pressure field)
     /capsule/camera/image_raw          sensor_msgs Image, rgb8      each frame; camera optical
     /capsule/camera/camera_info        sensor_msgs CameraInfo       each frame
     /capsule/camera/depth/image_raw    sensor_msgs Image, 32FC1 m   each frame (render_depth)
@@ -35,7 +40,11 @@ frame B (origin at the centre, +z along the axis toward the camera dome: the cap
 model); `capsule_camera_optical_frame` the camera C (REP 103's optical convention: +z along
 the optical axis, +x right, +y down); `capsule_imu`, `capsule_magnetometer`, `capsule_hall_<i>`
 the sensor frames S of their configs; `epm` the external magnet E (centre, +z its moment);
-`capsule_camera_image` (not a tf frame) the image's pixel coordinates, for the lumen's pixels.
+`capsule_camera_image` (not a tf frame) the image's pixel coordinates, for the lumen's pixels;
+`colon_wall_map` (not a tf frame either) the unrolled wall's patches: column i the arc
+length from i to i + 1 patch lengths from the anus, row j the angle around the centreline
+from j to j + 1 patch angles (from the frame's normal toward its binormal, as the colon's
+wall_radius(s, theta)).
 
 Times: header.stamp is simulated time from 0 (so the file starts at 1970-01-01 in a viewer):
 the time of the plant state the value describes, the time the dataset's files give the same
@@ -90,6 +99,7 @@ from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_pr
                                             vector3)
 from capsule_drake.physics.contact_monitor import (capsule_contact_wrench_W,
                                                    peak_contact_pressure)
+from capsule_drake.physics.wall_pressure import WALL_PRESSURE_SYSTEM
 
 WORLD = "world"
 CAPSULE = "capsule"
@@ -101,6 +111,10 @@ PIXELS = "capsule_camera_image"
 IMU = "capsule_imu"
 MAGNETOMETER = "capsule_magnetometer"
 EPM = "epm"
+WALL_MAP = "colon_wall_map"
+# Seconds between the wall's pressure maps: a map holds the whole run so far (it only grows),
+# so its changes come at the pace the capsule moves from patch to patch.
+WALL_MAP_PERIOD = 1.0
 
 
 def hall_frame(i: int) -> str:
@@ -453,6 +467,41 @@ class _PoseEstimateStream(_Stream):
                      "covariance": [float(c) for c in covariance.ravel()]}}, _ns(t))
 
 
+class _WallPressureStream(_Stream):
+    """The map of the wall's pressure (physics/wall_pressure.py, the `map` output of the
+    run's WallPressureMap) as three images of the colon unrolled, one pixel a patch (column
+    i: along, from the anus; row j: around, frame `colon_wall_map`), 32FC1: each patch's
+    peak pressure so far (kPa) and its longest spell above each threshold so far (s; 0
+    where it never went above, or was never touched). Every WALL_MAP_PERIOD from 1 s on,
+    stamped with the state its last sample saw (held up to that sample's time, as /tf's);
+    none before the first sample."""
+
+    def __init__(self, layout, period: float = WALL_MAP_PERIOD,
+                 timing: PlantTiming = PlantTiming()):
+        self.period, self.offset = period, period
+        self.timing = timing
+        self._layout = layout
+        self.inputs = {f"{WALL_PRESSURE_SYSTEM}.map": layout.size}
+
+    def _image(self, log, topic, stamp, values, now):
+        H, W = values.shape
+        log.write(topic, "sensor_msgs/msg/Image", {
+            "header": header(stamp, WALL_MAP), "height": H, "width": W, "encoding": "32FC1",
+            "is_bigendian": 0, "step": 4 * W,
+            "data": np.ascontiguousarray(values, dtype="<f4").tobytes()}, now)
+
+    def write(self, log, t, values):
+        wall = self._layout.map_of(values[f"{WALL_PRESSURE_SYSTEM}.map"])
+        if wall.samples == 0:
+            return
+        stamp, now = _ns(self.timing.held(wall.last_time)), _ns(t)
+        self._image(log, "/capsule/contact/wall_pressure/peak", stamp, wall.peak.T / 1000.0,
+                    now)
+        for name, longest in wall.longest_above.items():
+            self._image(log, f"/capsule/contact/wall_pressure/above_{name}", stamp, longest.T,
+                        now)
+
+
 def camera_info(lens, stamp_ns: int) -> dict:
     """sensor_msgs/CameraInfo of a capsule lens (perception/lens.py). The fisheye models
     (equidistant, kannala_brandt) are OpenCV's fisheye model, which ROS names "equidistant"
@@ -723,13 +772,17 @@ def expected_mcap_bytes(scenario) -> float:
         total += 400.0 * len(array.positions) * array.sample_rate * seconds
     if capsule.localizer is not None:
         total += 700.0 / capsule.localizer.period * seconds
+    # The wall's pressure maps: three float images of a patch a pixel (~1,800 patches).
+    total += 3 * (4 * 2000 + 200) / WALL_MAP_PERIOD * seconds
     return total
 
 
 def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd") -> McapLogger:
     """Adds an McapLogger for `scenario` beside a built `station` (in `builder`), writing
-    `path`, with a stream for each source the station has; connects it. Call `close()` on
-    the result when the run ends (it is what `simulate`'s extend returns)."""
+    `path`, with a stream for each source the station has and, when `builder` holds the
+    run's map of the wall's pressure with a pressure field (app/run.py
+    `add_wall_pressure`), one of its images; connects it. Call `close()` on the result when
+    the run ends (it is what `simulate`'s extend returns)."""
     capsule = scenario.capsule
     outputs = {station.get_output_port(i).get_name() for i in range(station.num_output_ports())}
     plant = station.GetSubsystemByName("plant")
@@ -772,8 +825,15 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
         streams.append(_ContactSensorStream(capsule.contact_sensor, timing))
     if "capsule.localizer.pose" in outputs:
         streams.append(_PoseEstimateStream(capsule.localizer, timing))
+    sources = {}  # what the logger reads from beside the station
+    if builder.HasSubsystemNamed(WALL_PRESSURE_SYSTEM):
+        wall = builder.GetSubsystemByName(WALL_PRESSURE_SYSTEM)
+        if wall.layout.pressure_field:
+            streams.append(_WallPressureStream(wall.layout, timing=timing))
+            sources[f"{WALL_PRESSURE_SYSTEM}.map"] = wall.GetOutputPort("map")
     logger = builder.AddNamedSystem("mcap_logger", McapLogger(
         Ros2McapFile(path, compression), streams, static))
     for name in logger.stream_inputs():
-        builder.Connect(station.GetOutputPort(name), logger.GetInputPort(name))
+        builder.Connect(sources[name] if name in sources else station.GetOutputPort(name),
+                        logger.GetInputPort(name))
     return logger

@@ -48,7 +48,7 @@ import numpy as np
 # What a run writes into its folder (a previous run's are removed by --force); error.txt
 # only after an error inside the simulation.
 RUN_OUTPUTS = ("metrics.json", "scenario.yaml", "logs.npz", "recording.html", "logs.parts",
-               "error.txt")
+               "error.txt", "wall_pressure.npz", "wall_pressure.png")
 # Of those, the folders (the others are files).
 OUTPUT_FOLDERS = ("logs.parts", "Frames")
 # What `capsule-sim record` writes into a dataset folder (app/dataset.py), besides a run's.
@@ -70,6 +70,9 @@ SAMPLE_BYTES = 8 * (1 + 13 + 1 + 6)
 # animation (measured: 16.2 MB for 3.4 s of the Default run, 16-18 MB for 60 s).
 RECORDING_BYTES = 20e6
 RECORDING_BYTES_PER_S = 0.05e6
+# The map of the wall's pressure and its picture (wall_pressure.npz, .png: measured 3-4 kB
+# and 70-90 kB), with room to spare.
+WALL_MAP_BYTES = 0.3e6
 # Room kept free beyond the estimate (bytes).
 SPARE_BYTES = 20e6
 # The probe `check_room` writes; `write_atomic` writes `path` through ".<name>" + PARTIAL.
@@ -491,7 +494,7 @@ def check_file_output(path, what: str, replace: bool | None = False, previous=No
 
 def run_output_bytes(duration: float, log_period: float, recording: bool) -> float:
     """Bytes a run of `duration` will write (logs uncompressed, plus the recording)."""
-    return (duration / log_period + 1) * SAMPLE_BYTES + (
+    return (duration / log_period + 1) * SAMPLE_BYTES + WALL_MAP_BYTES + (
         RECORDING_BYTES + RECORDING_BYTES_PER_S * duration if recording else 0.0)
 
 

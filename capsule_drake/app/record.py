@@ -59,7 +59,8 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
     """Simulates `scenario` with a camera and writes a dataset to `out_dir` as it runs
     (app/dataset.py; its README.md describes it, naming the scenario `scenario_name`).
 
-    Also writes the run's metrics.json, scenario.yaml and logs.npz there (see `simulate`),
+    Also writes the run's metrics.json, scenario.yaml, logs.npz and the wall's pressure map
+    (wall_pressure.npz, .png) there (see `simulate`),
     and with `mcap` an MCAP file of ROS 2 messages (app/mcap_log.py) as well.
     """
     scenario = with_all_sensors(scenario)

@@ -26,7 +26,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import ColonSourceError, load_colon
 from capsule_drake.anatomy.start_check import REST_SETTLE, check_start, pick_start
-from capsule_drake.capsule.model import capsule_model
+from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model
 from capsule_drake.epm.paths import External, epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
@@ -34,10 +34,13 @@ from capsule_drake.io.guard import ENDING_OF_KIND, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
-                                      run_output_bytes, write_atomic)
-from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots
+                                      run_output_bytes, save_npz, write_atomic)
+from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots, wall_map_panel
 from capsule_drake.io.visualization import MARKER_SYSTEM
+from capsule_drake.io.wall_map import wall_map_png, write_wall_map
 from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,
+                                                 WallPressureMap, capsule_has_pressure_field)
 from capsule_drake.plugins import FAILURES, culprit, failure_text, noting_loads, what_it_did
 from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
@@ -54,6 +57,9 @@ class RunResult:
     contact_pressure: np.ndarray  # (K,) Pa, the contact's peak pressure (NaN: point contact)
     epm_pose: np.ndarray       # (6, K) EPM centre and moment direction
     out_dir: Path | None
+    # The wall's patches: each one's peak pressure and longest spells above the thresholds
+    # (physics/wall_pressure.py), or None (a run without loggers).
+    wall_pressure: WallPressure | None = None
     diagram: object = None     # the simulated diagram ("station" inside), its final
     context: object = None     # context (for the loggers an `extend` added), and the
     station: object = None     # station
@@ -291,7 +297,8 @@ class Run:
         stop_when: optional `stop_when(station, station_context) -> str | None`, asked every
             simulated half second: a text ends the run there (Ending "goal").
         log: add the loggers of the capsule's state, contact load and EPM pose (every
-            scenario.outputs.log_period), which `drain()` empties.
+            scenario.outputs.log_period), which `drain()` empties, and the map of the
+            wall's pressure (`add_wall_pressure`, read by `wall_pressure()`).
         signals: a DeferredSignals whose noted signal ends the run at its next step.
     """
 
@@ -313,6 +320,7 @@ class Run:
                     LogVectorOutput(monitor.GetOutputPort("peak_pressure"), builder, period),
                     LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
                 ) if log else ()
+                self._wall_map = add_wall_pressure(builder, station, colon) if log else None
                 self._finish = extend(builder, station) if extend is not None else None
                 diagram = builder.Build()
                 simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
@@ -415,6 +423,16 @@ class Run:
             log.Clear()
         return chunk
 
+    def wall_pressure(self) -> WallPressure | None:
+        """The map of the wall's pressure now (`add_wall_pressure`), or None: a run without
+        loggers, or a diagram that failed mid-step."""
+        if self._wall_map is None:
+            return None
+        try:
+            return self._wall_map.wall_pressure(self.context)
+        except Exception:
+            return None
+
     def epm_guard_counts(self) -> np.ndarray | None:
         """The EPM guard's counts now (the station's `epm.guard_counts`: epm/guard.py
         GUARD_COUNTS), or None if they cannot be read (a diagram that failed mid-step)."""
@@ -465,9 +483,11 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         meshcat: a pydrake Meshcat to draw into and record, or None.
         out_dir: if given, a folder (created if need be) that is checked for room, then
             gets scenario.yaml at once, the logs every few simulated seconds (logs.parts/,
-            see app/outputs.py), and at the end metrics.json, logs.npz, (with meshcat)
-            recording.html (the replay page: `replay_html`) and (after an error) error.txt
-            with the traceback.
+            see app/outputs.py), and at the end metrics.json, logs.npz,
+            wall_pressure.npz and (when the contact has a pressure field)
+            wall_pressure.png (the map of the wall's pressure: `add_wall_pressure`), (with
+            meshcat) recording.html (the replay page: `replay_html`) and (after an error)
+            error.txt with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
         recording: with `meshcat`, record the run into recording.html (False: the page
@@ -549,13 +569,14 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             if status in ("completed", "goal"):
                 status, error = "error", traceback.format_exc()
                 stopped_early = f"could not finish the run's extension: {e}"
+        wall_pressure = run.wall_pressure()
         run.close()
         logs = spool.joined()
         result = RunResult(metrics={}, times=logs["times"], capsule_state=logs["capsule_state"],
                            contact_load=logs["contact_load"],
                            contact_pressure=logs["contact_pressure"], epm_pose=logs["epm_pose"],
-                           out_dir=out, diagram=run.diagram, context=run.context,
-                           station=run.station, status=status)
+                           out_dir=out, wall_pressure=wall_pressure, diagram=run.diagram,
+                           context=run.context, station=run.station, status=status)
         model = capsule_model()
         result.metrics = run_metrics(
             run.colon, result.times, result.capsule_state, result.contact_load,
@@ -563,7 +584,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             epm_geometry=scenario.epm.magnet, start_s=scenario.capsule.start_s,
             sim_time=run.time, wall_time=wall_time, stopped_early=stopped_early,
             diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts(),
-            contact_pressure=result.contact_pressure)
+            contact_pressure=result.contact_pressure, wall_pressure=wall_pressure)
         result.metrics["status"] = status
         if status == "interrupted":
             result.metrics["signal"] = ending.signal
@@ -643,6 +664,18 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     return station, colon, monitor
 
 
+def add_wall_pressure(builder: DiagramBuilder, station, colon) -> WallPressureMap:
+    """Adds the map of the wall's pressure ("wall_pressure", physics/wall_pressure.py) beside
+    `station`, reading its contact results; it samples them only when the capsule's contact
+    has a pressure field (hydroelastic), and otherwise says it has none."""
+    field = capsule_has_pressure_field(station.GetSubsystemByName("plant"),
+                                       station.GetSubsystemByName("scene_graph"), CAPSULE_BODY)
+    system = builder.AddNamedSystem(WALL_PRESSURE_SYSTEM,
+                                    WallPressureMap(colon.centerline, pressure_field=field))
+    builder.Connect(station.GetOutputPort("contact_results"), system.get_input_port())
+    return system
+
+
 def _close_quietly(close) -> None:
     """Runs a close hook (if any) on the way out of a failure: its own error is dropped, the
     failure being handled is the one to report."""
@@ -683,9 +716,17 @@ def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | Non
     """The run's outputs, each written whole or not at all; WriteError names the first
     that could not be written (what is on disk already stays)."""
     out = result.out_dir
+    wall = result.wall_pressure
     steps = [("logs.npz", spool.finish),
              ("metrics.json", lambda: write_atomic(
                  out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n"))]
+    if wall is not None:  # the map of the wall's pressure, and its picture when it has one
+        steps.append(("wall_pressure.npz", lambda: save_npz(out / "wall_pressure.npz",
+                                                            wall.arrays())))
+        if wall.has_pressure:
+            steps.append(("wall_pressure.png", lambda: write_atomic(
+                out / "wall_pressure.png",
+                writer=lambda path: write_wall_map(path, wall, colon.centerline))))
     if error is not None:
         steps.append(("error.txt", lambda: write_atomic(out / "error.txt", error)))
     if meshcat is not None:
@@ -708,4 +749,22 @@ def replay_html(result: RunResult, meshcat, colon) -> str:
     frames = (station.GetSubsystemByName(STREAM_SYSTEM).frames()
               if station is not None and station.HasSubsystemNamed(STREAM_SYSTEM) else [])
     plots = run_plots(colon, result.times, result.capsule_state, result.contact_load)
-    return replay_page(meshcat.StaticHtml(), frames, plots)
+    return replay_page(meshcat.StaticHtml(), frames, plots,
+                       replay_wall_map(result.wall_pressure, colon, plots))
+
+
+def replay_wall_map(wall, colon, plots) -> dict | None:
+    """The replay's section of the wall's pressure map (io/replay.py `wall_map_panel`: the
+    compact picture of io/wall_map.py, the capsule's track from the plot of its place along
+    the colon), or None for a map without pressures."""
+    if wall is None or not wall.has_pressure:
+        return None
+    png, boxes = wall_map_png(wall, colon.centerline, width=3.2, height=2.7, dpi=100,
+                              compact=True)
+    track = next((p for p in plots if p["unit"] == "cm"), {"t": [], "y": []})
+    longest = wall.longest_above.get("ischaemia")
+    title = (f"wall pressure per patch: peak {wall.peak.max() / 1000:.0f} kPa"
+             + (f"; longest above {wall.thresholds['ischaemia'] / 1000:.1f} kPa "
+                f"{longest.max():.1f} s" if longest is not None else ""))
+    return wall_map_panel(png, boxes, (0.0, 100.0 * wall.grid.s_edges[-1]), track["t"],
+                          track["y"], title)

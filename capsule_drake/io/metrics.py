@@ -64,19 +64,76 @@ OUTCOMES = ("final_s_m", "max_s_m", "advance_m", "stop_segment", "peak_contact_f
             "peak_contact_pressure_kPa", "time_above_injury_pressure_s",
             "time_above_ischaemia_pressure_s")
 
+# The wall's patches (physics/wall_pressure.py): what each went through, the worst of them.
+SITE_OUTCOMES = ("site_peak_pressure_kPa", "site_peak_at_s_m", "site_peak_at_theta_deg",
+                 "site_peak_segment", "site_longest_above_injury_s",
+                 "site_longest_above_ischaemia_s", "site_longest_above_ischaemia_at_s_m",
+                 "site_longest_above_ischaemia_segment", "sites_above_injury",
+                 "sites_above_ischaemia")
+
 
 def pressure_metrics(times, contact_pressure) -> dict:
     """The contact's peak pressure (kPa) over a run's samples and the seconds spent above
     each threshold of physics/tissue.py (`time_above_<name>_pressure_s`: injury 330 kPa,
     ischaemia 4.0 kPa). None where nothing was measured: no samples, or point contact (NaN
-    samples: it has no pressure field)."""
+    samples: it has no pressure field; one is enough, the samples before the capsule
+    touched the wall being 0)."""
     names = [f"time_above_{name}_pressure_s" for name in PRESSURE_THRESHOLDS]
     pressure = np.asarray(contact_pressure, dtype=float) if contact_pressure is not None else None
-    if pressure is None or pressure.size == 0 or not np.any(np.isfinite(pressure)):
+    if pressure is None or pressure.size == 0 or np.any(np.isnan(pressure)):
         return {"peak_contact_pressure_kPa": None, **{name: None for name in names}}
     return {"peak_contact_pressure_kPa": float(np.nanmax(pressure)) / 1000.0,
             **{name: time_above(times, pressure, threshold)
                for name, threshold in zip(names, PRESSURE_THRESHOLDS.values())}}
+
+
+def site_pressure_metrics(wall, centerline) -> dict:
+    """The wall's patches' figures (physics/wall_pressure.py `WallPressure`, on the colon's
+    `centerline`), as metrics (SITE_OUTCOMES and the patch size):
+
+    - site_peak_pressure_kPa: the highest pressure any patch felt; site_peak_at_s_m,
+      site_peak_at_theta_deg, site_peak_segment: that patch's centre and segment;
+    - site_longest_above_<name>_s (injury 330 kPa, ischaemia 4.0 kPa): the longest time ONE
+      patch spent above the threshold without a break; for ischaemia, where that patch is
+      (site_longest_above_ischaemia_at_s_m, _segment; null if none went above);
+    - sites_above_<name>: how many patches went above the threshold;
+    - wall_pressure_field: whether the contact has a pressure field (false: point contact);
+      wall_patch_length_m, wall_patch_angle_deg, wall_pressure_period_s: the patches and
+      how often they were sampled.
+
+    All null without a map (None) or without pressures in it (point contact has no
+    pressure field)."""
+    figures = {key: None for key in SITE_OUTCOMES}
+    if wall is None:
+        return figures
+    figures.update(wall_pressure_field=wall.pressure_field,
+                   wall_patch_length_m=wall.grid.length,
+                   wall_patch_angle_deg=360.0 / wall.grid.n_around,
+                   wall_pressure_period_s=wall.period)
+    if not wall.has_pressure:
+        return figures
+
+    def where(flat):
+        i, j = np.unravel_index(int(flat), wall.grid.shape)
+        s, theta = wall.patch_centre(i, j)
+        return s, theta, centerline.segment_at(s)
+
+    peak = wall.peak
+    s, theta, segment = where(np.argmax(peak))
+    figures.update(site_peak_pressure_kPa=float(peak.max()) / 1000.0, site_peak_at_s_m=s,
+                   site_peak_at_theta_deg=theta, site_peak_segment=segment)
+    for name, threshold in wall.thresholds.items():
+        longest = wall.longest_above[name]
+        figures[f"site_longest_above_{name}_s"] = float(longest.max())
+        figures[f"sites_above_{name}"] = int(np.sum(peak > threshold))
+    longest = wall.longest_above.get("ischaemia")
+    if longest is not None and longest.max() > 0.0:
+        # The longest press, the higher peak among patches pressed as long.
+        flat = np.lexsort((peak.ravel(), longest.ravel()))[-1]
+        s, _, segment = where(flat)
+        figures.update(site_longest_above_ischaemia_at_s_m=s,
+                       site_longest_above_ischaemia_segment=segment)
+    return figures
 
 
 def guard_metrics(counts) -> dict:
@@ -94,7 +151,8 @@ def guard_metrics(counts) -> dict:
 
 def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_radius,
                 capsule_length, epm_geometry, start_s, sim_time, wall_time, stopped_early=None,
-                diverged=False, epm_guard_counts=None, contact_pressure=None):
+                diverged=False, epm_guard_counts=None, contact_pressure=None,
+                wall_pressure=None):
     """Metrics of one run as a JSON-ready dict.
 
     Args:
@@ -116,6 +174,9 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
             given, its counts are reported (`guard_metrics`), whatever the run's status.
         contact_pressure: (K,) the contact's peak pressure (Pa; NaN for point contact), or
             None: the pressure metrics (`pressure_metrics`) are then null.
+        wall_pressure: the run's map of the wall's patches (physics/wall_pressure.py
+            `WallPressure`), or None: the per-site figures (`site_pressure_metrics`) are
+            then null.
 
     Samples whose capsule state is not finite (or whose quaternion is far from unit length,
     as in a diverging run) are left out.
@@ -135,9 +196,11 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
               "scenario_start_s_m": float(start_s), "stopped_early": stopped_early,
               "diverged": bool(diverged)}
     guarded = guard_metrics(epm_guard_counts) if epm_guard_counts is not None else {}
+    sites = site_pressure_metrics(wall_pressure, colon.centerline)
     if len(times) == 0:
+        sites.update({key: None for key in SITE_OUTCOMES})
         return {**timing, **{key: None for key in OUTCOMES}, "start_s_m": None,
-                "min_epm_skin_gap_m": None, **guarded}
+                "min_epm_skin_gap_m": None, **sites, **guarded}
     R_WC, p_WC = capsule_poses(capsule_state)
     s, _, _ = colon.centerline.closest(p_WC)
     excursion = wall_excursion(colon, R_WC, p_WC, capsule_surface_points_C(capsule_radius,
@@ -164,10 +227,11 @@ def run_metrics(colon, times, capsule_state, contact_load, epm_pose, *, capsule_
         "min_epm_skin_gap_m": float(np.min(gaps)),
         "min_epm_capsule_distance_m": float(np.min(distance)),
         **pressure_metrics(times, contact_pressure),
+        **sites,
         "stopped_early": stopped_early,
         "diverged": bool(diverged),
     }
     metrics.update(guarded)
     if diverged:
-        metrics.update({key: None for key in OUTCOMES})
+        metrics.update({key: None for key in OUTCOMES + SITE_OUTCOMES})
     return metrics

@@ -6,7 +6,9 @@ camera's frames and plots of the run, each following the replay's time.
   STREAM_FPS a simulated second, shrunk to STREAM_SIDE px and JPEG-encoded; when they pass
   STREAM_BUDGET bytes, every other frame is dropped and the rate halved, as often as need
   be, so a long run keeps a stream over its whole length at a bounded size.
-- `replay_page` puts Meshcat's page, the frames (as data URIs) and the plots into one file.
+- `replay_page` puts Meshcat's page, the frames (as data URIs), the plots and the map of the
+  wall's pressure (io/wall_map.py, the capsule's place on it following the replay) into one
+  file.
   The page's script reads the time of Meshcat's animation (`viewer.animator.time`: set as
   it plays, and by its time slider) each display frame, shows the last camera frame exposed
   by then and draws a cursor on the plots. Nothing is fetched when the page is viewed.
@@ -155,13 +157,26 @@ def run_plots(colon, times, capsule_state, contact_load) -> list:
     return plots
 
 
-def replay_page(meshcat_html: str, frames=(), plots=()) -> str:
+def wall_map_panel(png: bytes, boxes, s_range_cm, times, s_cm, title: str) -> dict:
+    """The replay's section of the wall's pressure map: the picture (PNG bytes of
+    io/wall_map.py `wall_map_png`), its maps' boxes in the image ([left, top, right, bottom]
+    fractions from its top left), the arc length its maps span (cm), the capsule's track
+    (times (s) and its centreline station (cm), thinned) for the cursor, and a title."""
+    t, s = decimate(times, s_cm)
+    return {"src": "data:image/png;base64," + base64.b64encode(png).decode(),
+            "boxes": [[round(float(v), 5) for v in box] for box in boxes],
+            "s_range": [float(s_range_cm[0]), float(s_range_cm[1])],
+            "t": [round(float(v), 4) for v in t],
+            "s": [round(float(v), 3) if np.isfinite(v) else None for v in s], "title": title}
+
+
+def replay_page(meshcat_html: str, frames=(), plots=(), wall_map: dict | None = None) -> str:
     """Meshcat's static HTML with a panel on its left: the camera frames [(exposure time
-    (s), JPEG bytes)] (no camera section when there are none) and the plots [{"label",
-    "unit", "t", "y"}] (series of the run, already thinned), both following the replay's
-    time. Nothing to show, or an HTML that is not Meshcat's (no viewer to follow): the
-    page as given."""
-    if not frames and not plots:
+    (s), JPEG bytes)] (no camera section when there are none), the plots [{"label",
+    "unit", "t", "y"}] (series of the run, already thinned) and the map of the wall's
+    pressure (`wall_map_panel`, or None), all following the replay's time. Nothing to show,
+    or an HTML that is not Meshcat's (no viewer to follow): the page as given."""
+    if not frames and not plots and not wall_map:
         return meshcat_html
     head, body = meshcat_html.rfind("</head>"), meshcat_html.rfind("</body>")
     if head < 0 or body < head or "var viewer = new MeshCat.Viewer" not in meshcat_html:
@@ -174,6 +189,7 @@ def replay_page(meshcat_html: str, frames=(), plots=()) -> str:
                    "t": [round(float(v), 4) for v in p["t"]],
                    "y": [round(float(v), 5) if np.isfinite(v) else None for v in p["y"]]}
                   for p in plots],
+        "wall": wall_map,
     }
     # Inside a <script> element only "</" can end it early.
     payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
@@ -185,7 +201,7 @@ def replay_page(meshcat_html: str, frames=(), plots=()) -> str:
   <div id="replay-camera-caption" class="replay-caption"></div>""" if frames else "")
     panel = f"""
 <div id="replay-panel" class="{'replay-side' if frames else 'replay-box'}">{camera}
-  <div id="replay-plots"></div>
+  <div id="replay-plots"></div>{_WALL_SECTION if wall_map else ""}
 </div>
 <script type="application/json" id="replay-data">{payload}</script>
 <script>{_PANEL_SCRIPT}</script>
@@ -206,6 +222,9 @@ _PANEL_STYLE = f"""<style>
   .replay-title {{ font-weight: bold; margin: 6px 0 4px; }}
   .replay-caption {{ margin: 3px 0 8px; color: #b8b8b8; }}
   #replay-plots canvas {{ display: block; width: 100%; margin-bottom: 2px; }}
+  #replay-wall {{ position: relative; background: #fff; }}
+  #replay-wall img {{ display: block; width: 100%; }}
+  #replay-wall canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; }}
 </style>
 """
 # The scene beside the side panel (in <head>, so the viewer is sized to it when made).
@@ -214,6 +233,13 @@ _SIDE_STYLE = f"""<style>
     width: calc(100vw - {PANEL_WIDTH}px) !important; }}
 </style>
 """
+
+# The wall's pressure map: its picture, and a canvas over it for the capsule's place.
+_WALL_SECTION = """
+  <div id="replay-wall-title" class="replay-title"></div>
+  <div id="replay-wall"><img id="replay-wall-map" alt="wall pressure map">
+    <canvas id="replay-wall-cursor"></canvas></div>
+  <div class="replay-caption">the capsule's place along the colon now: green line</div>"""
 
 # Follows Meshcat's animation (viewer.animator.time, in simulated seconds: the recording
 # starts at 0) once per display frame; redraws only when that time changes.
@@ -272,7 +298,33 @@ _PANEL_SCRIPT = r"""
     const now = i >= 0 && q.p.y[i] !== null ? q.p.y[i].toPrecision(3) + " " + q.p.unit : "-";
     q.title.textContent = q.p.label + ": " + now;
   }
+  const wall = data.wall;
+  const wallImg = document.getElementById("replay-wall-map");
+  const wallCanvas = document.getElementById("replay-wall-cursor");
+  if (wall) {
+    document.getElementById("replay-wall-title").textContent = wall.title;
+    wallImg.onload = function () {
+      wallCanvas.width = wallImg.naturalWidth; wallCanvas.height = wallImg.naturalHeight;
+      last = null;
+    };
+    wallImg.src = wall.src;
+  }
+  // The capsule's station at time t as a line across each map.
+  function drawWall(t) {
+    if (!wall || !wallCanvas.width) { return; }
+    const g = wallCanvas.getContext("2d"), w = wallCanvas.width, h = wallCanvas.height;
+    g.clearRect(0, 0, w, h);
+    const i = lastAtOrBefore(wall.t, t);
+    if (i < 0 || wall.s[i] === null) { return; }
+    const f = (wall.s[i] - wall.s_range[0]) / (wall.s_range[1] - wall.s_range[0]);
+    g.strokeStyle = "#3cff5a"; g.lineWidth = 2;
+    wall.boxes.forEach(function (b) {
+      const x = w * (b[0] + (b[2] - b[0]) * Math.min(Math.max(f, 0), 1));
+      g.beginPath(); g.moveTo(x, h * b[1]); g.lineTo(x, h * b[3]); g.stroke();
+    });
+  }
   function update(t) {
+    drawWall(t);
     if (img) {
       const i = lastAtOrBefore(data.frames.t, t);
       if (img.dataset.frame !== String(i)) {
