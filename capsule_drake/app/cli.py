@@ -722,8 +722,8 @@ def _run(args) -> int:
               f"{m['start_s_m'] * 100:.1f} cm to s = {m['final_s_m'] * 100:.1f} cm of "
               f"{m['colon_length_m'] * 100:.1f} cm; stopped in the {m['stop_segment']}")
         print(f"simulated {m['sim_time_s']:.2f} s in {m['wall_time_s']:.2f} s "
-              f"(x{m['real_time_factor']:.2f} real time); peak contact force "
-              f"{m['peak_contact_force_N']:.2f} N; largest excursion beyond the wall "
+              f"(x{m['real_time_factor']:.2f} real time); {contact_words(m)}: peak contact "
+              f"force {m['peak_contact_force_N']:.2f} N, largest excursion beyond the wall "
               f"{m['max_wall_excursion_m'] * 1000:.2f} mm; closest EPM to skin "
               f"{m['min_epm_skin_gap_m'] * 1000:.0f} mm")
     _report_pressure(m)
@@ -743,6 +743,17 @@ def _run(args) -> int:
     return code
 
 
+def contact_words(m: dict) -> str:
+    """How a printed contact figure names the model it comes from (metrics' contact_model,
+    physics/contact/), and, for the rigid stand-in, that its figures are the stand-in's."""
+    model = m.get("contact_model")
+    if model is None:
+        return "contact"
+    if model.startswith("rigid"):
+        return f"contact on the {model}, not a tissue figure"
+    return f"contact on the {model}"
+
+
 def pressure_summary(m: dict) -> str | None:
     """The run's pressure on the colon wall as one line, from its metrics' per-patch figures
     (io/metrics.py `site_pressure_metrics`): the highest pressure any patch of the wall felt
@@ -753,8 +764,9 @@ def pressure_summary(m: dict) -> str | None:
     if "wall_pressure_field" not in m:
         return None
     patch = f"{m['wall_patch_length_m'] * 100:.0f} cm x {m['wall_patch_angle_deg']:.0f} deg"
+    patch = f"{patch} patch, {contact_words(m)}"
     if not m["wall_pressure_field"]:
-        return f"wall pressure per {patch} patch: none (the contact has no pressure field)"
+        return f"wall pressure per {patch}: none (the contact has no pressure field)"
     if m.get("site_peak_pressure_kPa") is None:
         return None
 
@@ -762,7 +774,7 @@ def pressure_summary(m: dict) -> str | None:
         s = m.get(f"{prefix}_at_s_m")
         return f" ({m[f'{prefix}_segment']}, {s * 100:.1f} cm)" if s is not None else ""
 
-    return (f"wall pressure per {patch} patch: peak {m['site_peak_pressure_kPa']:.0f} kPa"
+    return (f"wall pressure per {patch}: peak {m['site_peak_pressure_kPa']:.0f} kPa"
             f"{where('site_peak')}; longest on one patch above {INJURY_PRESSURE / 1000:.0f} "
             f"kPa (mucosal injury) {m['site_longest_above_injury_s']:.2f} s, above "
             f"{ISCHAEMIA_PRESSURE / 1000:.1f} kPa (blood flow falls) "

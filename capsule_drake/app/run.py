@@ -40,7 +40,7 @@ from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.io.wall_map import wall_map_png, write_wall_map
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,
-                                                 WallPressureMap, capsule_has_pressure_field)
+                                                 WallPressureMap)
 from capsule_drake.plugins import FAILURES, culprit, failure_text, noting_loads, what_it_did
 from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
 from capsule_drake.station import make_station
@@ -320,7 +320,9 @@ class Run:
                     LogVectorOutput(monitor.GetOutputPort("peak_pressure"), builder, period),
                     LogVectorOutput(station.GetOutputPort("epm.pose"), builder, period)
                 ) if log else ()
-                self._wall_map = add_wall_pressure(builder, station, colon) if log else None
+                self._wall_map = (add_wall_pressure(builder, station, colon,
+                                                    scenario.contact.pressure_field)
+                                  if log else None)
                 self._finish = extend(builder, station) if extend is not None else None
                 diagram = builder.Build()
                 simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
@@ -586,6 +588,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts(),
             contact_pressure=result.contact_pressure, wall_pressure=wall_pressure)
         result.metrics["status"] = status
+        # The model every contact figure comes from (physics/contact/): printed with them.
+        result.metrics["contact_model"] = scenario.contact.label()
         if status == "interrupted":
             result.metrics["signal"] = ending.signal
         if stopped_at:
@@ -664,14 +668,14 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     return station, colon, monitor
 
 
-def add_wall_pressure(builder: DiagramBuilder, station, colon) -> WallPressureMap:
+def add_wall_pressure(builder: DiagramBuilder, station, colon,
+                      pressure_field: bool) -> WallPressureMap:
     """Adds the map of the wall's pressure ("wall_pressure", physics/wall_pressure.py) beside
-    `station`, reading its contact results; it samples them only when the capsule's contact
-    has a pressure field (hydroelastic), and otherwise says it has none."""
-    field = capsule_has_pressure_field(station.GetSubsystemByName("plant"),
-                                       station.GetSubsystemByName("scene_graph"), CAPSULE_BODY)
-    system = builder.AddNamedSystem(WALL_PRESSURE_SYSTEM,
-                                    WallPressureMap(colon.centerline, pressure_field=field))
+    `station`, reading its contact results; it samples them only when the contact model has
+    a pressure field (`pressure_field`: the scenario's contact's), and otherwise says it has
+    none."""
+    system = builder.AddNamedSystem(WALL_PRESSURE_SYSTEM, WallPressureMap(
+        colon.centerline, pressure_field=pressure_field))
     builder.Connect(station.GetOutputPort("contact_results"), system.get_input_port())
     return system
 

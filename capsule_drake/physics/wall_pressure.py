@@ -225,15 +225,17 @@ def contact_faces(results) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def capsule_has_pressure_field(plant, scene_graph, body_name: str) -> bool:
-    """Whether the collision geometries of the plant's body `body_name` are hydroelastic
-    (they have a compliance type): only then does its contact carry a pressure field."""
+    """Whether the collision geometries of the plant's body `body_name` that take part in
+    contact (a proximity role) are hydroelastic (they have a compliance type): only then does
+    its contact carry a pressure field. (A station's runs ask the contact model instead:
+    its `pressure_field`.)"""
     inspector = scene_graph.model_inspector()
     body = plant.GetBodyByName(body_name)
-    geometries = plant.GetCollisionGeometriesForBody(body)
-    return bool(geometries) and all(
-        inspector.GetProximityProperties(g) is not None
-        and inspector.GetProximityProperties(g).HasProperty("hydroelastic", "compliance_type")
-        for g in geometries)
+    touching = [inspector.GetProximityProperties(g)
+                for g in plant.GetCollisionGeometriesForBody(body)]
+    touching = [p for p in touching if p is not None]
+    return bool(touching) and all(p.HasProperty("hydroelastic", "compliance_type")
+                                  for p in touching)
 
 
 # --- The map ---------------------------------------------------------------------------------

@@ -66,7 +66,7 @@ class RigidWall:
 
     def label(self) -> str:
         """How a printed contact figure names the model it comes from."""
-        return f"rigid stand-in ({self.model})"
+        return f"rigid stand-in wall ({self.model})"
 
     @property
     def pressure_field(self) -> bool:
