@@ -184,3 +184,21 @@ def test_impossible_tissue_is_one_line_at_load_naming_the_key(text, key):
         load_scenario(override=text)
     message = str(caught.value)
     assert "\n" not in message and key in message, message
+
+
+def test_every_printed_contact_line_names_its_model():
+    # The default run's contact figures came from the stand-in and read as the patient's; a
+    # printed line now names the model, and the stand-in's says it is not a tissue figure.
+    from capsule_drake.app.cli import contact_words, pressure_summary
+    rigid = {"contact_model": RigidWall().label(), "wall_pressure_field": True,
+             "wall_patch_length_m": 0.01, "wall_patch_angle_deg": 30.0,
+             "site_peak_pressure_kPa": 375.0, "site_peak_at_s_m": 0.155,
+             "site_peak_segment": "sigmoid", "site_longest_above_injury_s": 0.01,
+             "site_longest_above_ischaemia_s": 7.4, "site_longest_above_ischaemia_at_s_m": 0.5,
+             "site_longest_above_ischaemia_segment": "descending"}
+    assert contact_words(rigid) == ("contact on the rigid stand-in wall (hydroelastic), not a "
+                                    "tissue figure")
+    assert "rigid stand-in wall (hydroelastic), not a tissue figure" in pressure_summary(rigid)
+    compliant = dict(rigid, contact_model=CompliantWall().label())
+    assert contact_words(compliant) == "contact on the compliant wall"
+    assert "contact on the compliant wall: peak 375 kPa" in pressure_summary(compliant)

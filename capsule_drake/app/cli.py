@@ -747,7 +747,7 @@ def contact_words(m: dict) -> str:
     """How a printed contact figure names the model it comes from (metrics' contact_model,
     physics/contact/), and, for the rigid stand-in, that its figures are the stand-in's."""
     model = m.get("contact_model")
-    if model is None:
+    if model is None:   # metrics of a run before the models were named
         return "contact"
     if model.startswith("rigid"):
         return f"contact on the {model}, not a tissue figure"
@@ -764,7 +764,7 @@ def pressure_summary(m: dict) -> str | None:
     if "wall_pressure_field" not in m:
         return None
     patch = f"{m['wall_patch_length_m'] * 100:.0f} cm x {m['wall_patch_angle_deg']:.0f} deg"
-    patch = f"{patch} patch, {contact_words(m)}"
+    patch = f"{patch} patch" + (f", {contact_words(m)}" if "contact_model" in m else "")
     if not m["wall_pressure_field"]:
         return f"wall pressure per {patch}: none (the contact has no pressure field)"
     if m.get("site_peak_pressure_kPa") is None:

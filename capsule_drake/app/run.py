@@ -26,7 +26,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import ColonSourceError, load_colon
 from capsule_drake.anatomy.start_check import REST_SETTLE, check_start, pick_start
-from capsule_drake.capsule.model import CAPSULE_BODY, capsule_model
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.epm.paths import External, epm_start
 from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
