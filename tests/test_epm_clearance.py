@@ -372,6 +372,7 @@ MOUNTS = {"kinematic": "!Stage {}", "servoed-softest": softest_stage_gains(), "a
           "servoed": "!Stage {kinematic: false}"}   # the default servo: the benchmark's only
 SMALL_CAMERA = "capsule: {camera: {fps: 5.0, lens: {width: 64, height: 64}}"
 # Each kind of driver: its scenario text, what else it needs, and how long it runs (s).
+# (!HoldAbove is a path driver as !AlongColon is: the benchmark runs it, the test does not.)
 DRIVERS = {
     "along": ("!AlongColon {speed: 0.05}", "", 1.0),
     "hold": ("!HoldAbove {height: 0.3}", "", 0.5),
@@ -428,7 +429,8 @@ def run_and_measure(mount: str, driver: str):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("mount, driver", [(mount, driver) for mount in sorted(MOUNTS)
-                                           if mount != "servoed" for driver in sorted(DRIVERS)])
+                                           if mount != "servoed" for driver in sorted(DRIVERS)
+                                           if driver != "hold"])
 def test_every_mount_keeps_the_clearance_under_every_driver(mount, driver):
     # The issue's sweep at the floor from flank to flank (a plug-in, and a script on the
     # !External input), the built-in drivers, on each mount: the magnet's smallest gap over
