@@ -17,11 +17,13 @@ from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE, ti
 RADIUS, LENGTH = 0.0058, 0.020   # the capsule's collision shape (m)
 
 
-def capsule_on_a_plate(modulus: float, point_contact: bool = False):
-    """A compliant hydroelastic capsule lying on a rigid plate (z <= 0): (plant, its
-    context, the capsule body, the monitor's context)."""
+def capsule_and_plate(modulus: float = 5.0e6, point_contact: bool = False,
+                      plate_x: float = 0.0):
+    """A capsule (body "capsule", axis along x: lying on its side; compliant hydroelastic of
+    `modulus`, or point contact) free above a rigid plate whose top is z = 0, centred at
+    x = `plate_x`: (builder, finalised plant, scene graph, body)."""
     builder = DiagramBuilder()
-    plant, _ = AddMultibodyPlantSceneGraph(builder, 0.001)
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.001)
     plant.SetUseSampledOutputPorts(False)   # contact results of the state as it is set
     body = plant.AddRigidBody("capsule", SpatialInertia.SolidCapsuleWithMass(
         0.005, RADIUS, LENGTH, [0.0, 0.0, 1.0]))
@@ -31,12 +33,18 @@ def capsule_on_a_plate(modulus: float, point_contact: bool = False):
     if not point_contact:
         AddCompliantHydroelasticProperties(0.004, modulus, soft)
         AddRigidHydroelasticProperties(properties=hard)
-    # Lying on its side: its axis along x.
     plant.RegisterCollisionGeometry(body, RigidTransform(RotationMatrix.MakeYRotation(np.pi / 2)),
                                     Capsule(RADIUS, LENGTH), "capsule", soft)
-    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.05]),
+    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([plate_x, 0.0, -0.05]),
                                     Box(0.2, 0.2, 0.1), "plate", hard)
     plant.Finalize()
+    return builder, plant, scene_graph, body
+
+
+def capsule_on_a_plate(modulus: float, point_contact: bool = False):
+    """`capsule_and_plate` with a ContactMonitor: (plant, its context, the capsule body, the
+    monitor's context, the monitor)."""
+    builder, plant, _, body = capsule_and_plate(modulus, point_contact)
     monitor = builder.AddSystem(ContactMonitor())
     builder.Connect(plant.get_contact_results_output_port(), monitor.get_input_port())
     diagram = builder.Build()

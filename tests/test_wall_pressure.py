@@ -12,14 +12,9 @@ import weakref
 import cv2
 import numpy as np
 import pytest
-from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
-                              AddRigidHydroelasticProperties, Box, Capsule, Meshcat,
-                              MeshcatParams, ProximityProperties)
-from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
-from pydrake.multibody.tree import SpatialInertia
+from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.centerline import Centerline, rotation_minimising_frame
@@ -35,6 +30,7 @@ from capsule_drake.physics.wall_pressure import (MapLayout, PatchGrid, WallLocat
                                                  capsule_has_pressure_field, contact_faces,
                                                  face_peaks, patch_index, patch_peaks)
 from capsule_drake.scenario import load_scenario
+from test_tissue import capsule_and_plate as tissue_capsule_and_plate
 
 RADIUS, LENGTH = 0.0058, 0.020   # the capsule's collision shape (m)
 THRESHOLDS = np.array([INJURY_PRESSURE, ISCHAEMIA_PRESSURE])
@@ -205,25 +201,9 @@ def test_spells_agree_with_a_plain_loop_over_random_histories():
 # --- Drake's contact, as faces; the system ---------------------------------------------------
 
 def capsule_and_plate(point_contact: bool = False):
-    """A capsule (body "capsule", axis along x, compliant hydroelastic, or point contact)
-    free above a rigid plate whose top is z = 0: (diagram, plant, scene graph, body)."""
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.001)
-    plant.SetUseSampledOutputPorts(False)   # contact results of the state as it is set
-    body = plant.AddRigidBody("capsule", SpatialInertia.SolidCapsuleWithMass(
-        0.005, RADIUS, LENGTH, [0.0, 0.0, 1.0]))
-    soft, hard = ProximityProperties(), ProximityProperties()
-    for props in (soft, hard):
-        AddContactMaterial(5.0, 2.0e4, CoulombFriction(0.2, 0.2), props)
-    if not point_contact:
-        AddCompliantHydroelasticProperties(0.004, 5.0e6, soft)
-        AddRigidHydroelasticProperties(properties=hard)
-    plant.RegisterCollisionGeometry(body, RigidTransform(RotationMatrix.MakeYRotation(np.pi / 2)),
-                                    Capsule(RADIUS, LENGTH), "capsule", soft)
-    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0.1, 0.0, -0.05]),
-                                    Box(0.2, 0.2, 0.1), "plate", hard)
-    plant.Finalize()
-    return builder, plant, scene_graph, body
+    """test_tissue's capsule free above a rigid plate (z <= 0), the plate under x = 0.1 m:
+    (builder, plant, scene graph, body)."""
+    return tissue_capsule_and_plate(point_contact=point_contact, plate_x=0.1)
 
 
 def test_the_faces_of_a_pressed_capsule_carry_the_closed_form_peak():
