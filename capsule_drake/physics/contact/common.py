@@ -38,15 +38,17 @@ def add_polyp_hulls(plant, colon_params, properties, rigid_hydroelastic: bool) -
     return len(polyps.polyps)
 
 
-def add_rigid_hydroelastic_wall(plant, colon_params, colon, properties) -> int:
+def add_rigid_hydroelastic_wall(plant, colon_params, colon, properties,
+                                chunks: bool = True) -> int:
     """The colon wall as rigid hydroelastic triangle-mesh chunks and the boxes that close
     the space around it, on the world body, after the polyps' hulls; `properties()` gives
     each its contact material. Diverticula are in the wall's own meshes (its last chunk
-    holds their collars and sacs). Returns how many geometries it took."""
+    holds their collars and sacs). Without `chunks`, only the polyps and the boxes (the
+    wall's own force is computed elsewhere). Returns how many geometries it took."""
     count = add_polyp_hulls(plant, colon_params, properties, rigid_hydroelastic=True)
     world = plant.world_body()
-    chunks = colon_assets(colon_params).collision_objs
-    for i, chunk in enumerate(chunks):
+    meshes = colon_assets(colon_params).collision_objs if chunks else []
+    for i, chunk in enumerate(meshes):
         props = properties()
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(chunk)),
@@ -57,7 +59,7 @@ def add_rigid_hydroelastic_wall(plant, colon_params, colon, properties) -> int:
         AddRigidHydroelasticProperties(properties=props)
         plant.RegisterCollisionGeometry(world, RigidTransform(centre), Box(*extents),
                                         f"colon_surround_{i:02d}", props)
-    return count + len(chunks) + len(boxes)
+    return count + len(meshes) + len(boxes)
 
 
 def set_capsule_properties(plant, scene_graph, properties, resolution_hint: float | None = None,

@@ -43,6 +43,7 @@ import numpy as np
 
 from capsule_drake.blocks import block
 from capsule_drake.physics.contact.capsule_field import capsule_field_mesh
+from capsule_drake.physics.contact.foundation import FoundationContact, WallTable
 from capsule_drake.physics.contact.common import (add_capsule_drag, add_rigid_hydroelastic_wall,
                                                   contact_properties, set_capsule_field_mesh)
 from capsule_drake.schema import need_range
@@ -81,6 +82,12 @@ class CompliantWall:
     # 0: none (no measurement supports one for the colon).
     drag_translational: float = 0.0
     drag_rotational: float = 0.0
+    # How the wall's force is computed: "foundation" (physics/contact/foundation.py: the
+    # foundation integrated over the capsule's surface against the colon's wall table; the
+    # default, ~1x the rigid stand-in's cost) or "hydroelastic" (Drake's hydroelastic
+    # contact of the capsule's field mesh against the wall mesh: the same closed form,
+    # 3-4x slower, for comparison).
+    realisation: str = "foundation"
 
     def label(self) -> str:
         """How a printed contact figure names the model it comes from."""
@@ -146,6 +153,9 @@ def median_lumen_radius(colon) -> float:
     return float(np.median(np.mean(radii, axis=1)))
 
 
+REALISATIONS = ("foundation", "hydroelastic")
+
+
 # Bounds of the settings (check_compliant_wall).
 def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
     """Raises ValueError naming the first impossible field."""
@@ -165,6 +175,9 @@ def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
                "s/m")
     need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
     need_range(config.drag_rotational, "contact.drag_rotational", ">= 0", "N m s/rad")
+    if config.realisation not in REALISATIONS:
+        raise ValueError(f"contact.realisation must be one of {', '.join(REALISATIONS)}, "
+                         f"got {config.realisation!r}")
     if config.lumen_radius == 0.0 and config.support_stiffness == 0.0:
         return
     k = foundation_modulus(config, config.lumen_radius or 0.025)
@@ -174,15 +187,18 @@ def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
 
 def add_compliant_contact(plant, scene_graph, colon_params, colon, config: CompliantWall,
                           capsule_radius: float, capsule_length: float) -> float:
-    """Before Finalize, after every other model: the wall's rigid mesh (polyps' hulls,
-    chunks, the boxes around it), the capsule's compliant layer of modulus k r (k the wall's
-    foundation modulus at the colon's lumen radius, r the capsule's), and the drag. Returns
-    k (Pa/m)."""
+    """Before Finalize, after every other model: the capsule's compliant layer of modulus
+    k r (k the wall's foundation modulus at the colon's lumen radius, r the capsule's)
+    against the polyps' hulls and the boxes closing the tube, and (realisation
+    "hydroelastic") against the wall's rigid mesh too; the drag. Returns k (Pa/m)."""
 
     def properties():
         return contact_properties(config.friction, config.hunt_crossley_dissipation)
 
-    add_rigid_hydroelastic_wall(plant, colon_params, colon, properties)
+    if config.realisation == "hydroelastic":
+        add_rigid_hydroelastic_wall(plant, colon_params, colon, properties)
+    else:
+        add_rigid_hydroelastic_wall(plant, colon_params, colon, properties, chunks=False)
     k = foundation_modulus(config, config.lumen_radius or median_lumen_radius(colon))
     set_capsule_field_mesh(plant, scene_graph, properties,
                            capsule_field_mesh(capsule_radius, capsule_length),
@@ -199,5 +215,24 @@ def add_compliant_wall(parts, config: CompliantWall) -> None:
         parts.capsule.radius, parts.capsule.length))
 
 
-block("contact", CompliantWall, check=check_compliant_wall, models=add_compliant_wall,
-      where="")(None)
+@block("contact", CompliantWall, check=check_compliant_wall, models=add_compliant_wall,
+       where="")
+def add_foundation(builder, parts, config: CompliantWall) -> None:
+    """After Finalize (realisation "foundation"): the wall's force on the capsule
+    (FoundationContact) among the applied forces; exports contact.wall (WallContact)."""
+    if config.realisation != "foundation":
+        return
+    plant = parts.plant
+    body = parts.capsule_body
+    inspector = parts.scene_graph.model_inspector()
+    shell = [g for g in plant.GetCollisionGeometriesForBody(body)
+             if inspector.GetName(g).endswith("shell_field")]
+    X_BG = inspector.GetPoseInFrame(shell[0])
+    axial = body.default_rotational_inertia().get_moments()[2]
+    system = builder.AddNamedSystem("wall_contact", FoundationContact(
+        body.index(), WallTable(parts.colon), X_BG, parts.capsule.radius,
+        parts.capsule.length, parts.shared("contact.foundation_modulus"), config.friction,
+        config.hunt_crossley_dissipation, plant.time_step(), body.default_mass(), axial))
+    builder.Connect(parts.output("capsule.state"), system.GetInputPort("capsule_state"))
+    parts.applied_forces.append(system.GetOutputPort("applied_spatial_force"))
+    parts.export(system.GetOutputPort("wall_contact"), "contact.wall")
