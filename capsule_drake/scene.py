@@ -23,9 +23,12 @@ import math
 from typing import Callable
 
 import numpy as np
+from pydrake.common.value import AbstractValue
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (AddMultibodyPlant, ApplyMultibodyPlantConfig,
+                                    ExternallyAppliedSpatialForce,
                                     ExternallyAppliedSpatialForceMultiplexer, MultibodyPlant)
+from pydrake.systems.primitives import ConstantValueSource
 
 from capsule_drake.anatomy import ColonParams, ColonSourceError, check_colon_params, load_colon
 from capsule_drake.anatomy.course import solve_course
@@ -66,6 +69,9 @@ class StationParts:
     # Ports of list[ExternallyAppliedSpatialForce] for the plant (the magnet's, the fluid's):
     # the `applied_forces` block wires them, through a multiplexer when there are several.
     applied_forces: list = dataclasses.field(default_factory=list)
+    # A system the applied forces pass through on their way into the plant (input, output
+    # ports), when a block needs them all (the compliant wall's implicit force).
+    applied_through: tuple | None = None
     start_override: object = None  # a capsule start pose given to make_station
     _outputs: dict = dataclasses.field(default_factory=dict)
     _shared: dict = dataclasses.field(default_factory=dict)
@@ -295,13 +301,22 @@ def connect_applied_forces(builder, parts: StationParts, scenario):
     """The applied forces (`parts.applied_forces`) into the plant: one directly, several
     through an ExternallyAppliedSpatialForceMultiplexer."""
     ports = parts.applied_forces
+    into = parts.plant.get_applied_spatial_force_input_port()
+    if parts.applied_through is not None:   # the forces pass through a system first
+        into, out = parts.applied_through
+        builder.Connect(out, parts.plant.get_applied_spatial_force_input_port())
+        if not ports:
+            none = builder.AddNamedSystem("applied_forces", ConstantValueSource(
+                AbstractValue.Make([ExternallyAppliedSpatialForce()][:0])))
+            builder.Connect(none.get_output_port(), into)
+            return
     if not ports:
         return
     if len(ports) == 1:
-        builder.Connect(ports[0], parts.plant.get_applied_spatial_force_input_port())
+        builder.Connect(ports[0], into)
         return
     mux = builder.AddNamedSystem("applied_forces",
                                  ExternallyAppliedSpatialForceMultiplexer(len(ports)))
     for k, port in enumerate(ports):
         builder.Connect(port, mux.get_input_port(k))
-    builder.Connect(mux.get_output_port(), parts.plant.get_applied_spatial_force_input_port())
+    builder.Connect(mux.get_output_port(), into)

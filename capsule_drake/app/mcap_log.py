@@ -97,6 +97,7 @@ from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsul
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
                                             vector3)
+from capsule_drake.physics.contact.foundation import empty_wall_contact
 from capsule_drake.physics.contact_monitor import (capsule_contact_wrench_W,
                                                    peak_contact_pressure)
 from capsule_drake.physics.wall_pressure import WALL_PRESSURE_SYSTEM
@@ -307,7 +308,7 @@ class _PosesStream(_Stream):
     z, then pitch about y; +z its moment) from epm.pose."""
 
     def __init__(self, period, capsule_geometries, epm_body_index=None, num_bodies=0,
-                 timing: PlantTiming = PlantTiming()):
+                 timing: PlantTiming = PlantTiming(), wall: bool = False):
         self.period = period
         self.timing = timing
         # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
@@ -317,6 +318,8 @@ class _PosesStream(_Stream):
                        "contact_results": AbstractValue.Make(ContactResults())}
         if epm_body_index is not None:
             self.inputs["body_poses"] = AbstractValue.Make([RigidTransform()] * num_bodies)
+        if wall:   # the compliant wall's own force (its foundation realisation)
+            self.inputs["contact.wall"] = AbstractValue.Make(empty_wall_contact())
 
     def epm_pose(self, values) -> tuple[np.ndarray, np.ndarray]:
         if self._epm_index is not None:
@@ -336,8 +339,9 @@ class _PosesStream(_Stream):
             transform_stamped(ns, WORLD, CAPSULE, state[4:7], q_WB),
             transform_stamped(ns, WORLD, EPM, p_WE, q_WE)]}, _ns(t))
         R_WB = rotation_from_quaternion(q_WB)
+        wall = values.get("contact.wall")
         torque_W, force_W = capsule_contact_wrench_W(values["contact_results"], self._geometries,
-                                                     state[4:7])
+                                                     state[4:7], wall)
         log.write("/capsule/contact/wrench", "geometry_msgs/msg/WrenchStamped", {
             "header": header(ns, CAPSULE),
             "wrench": {"force": vector3(R_WB.T @ force_W),
@@ -346,7 +350,7 @@ class _PosesStream(_Stream):
         # thresholds of mucosal injury (physics/tissue.py) are stated in.
         log.write("/capsule/contact/peak_pressure", "sensor_msgs/msg/FluidPressure", {
             "header": header(ns, CAPSULE),
-            "fluid_pressure": peak_contact_pressure(values["contact_results"]),
+            "fluid_pressure": peak_contact_pressure(values["contact_results"], wall),
             "variance": 0.0}, _ns(t))
 
 
@@ -792,7 +796,7 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
     timing = PlantTiming.of(plant)
     streams = [_PosesStream(scenario.outputs.log_period,
                             plant.GetCollisionGeometriesForBody(body), epm_index,
-                            plant.num_bodies(), timing)]
+                            plant.num_bodies(), timing, wall="contact.wall" in outputs)]
     static = []
     if "capsule.camera.rgb_image" in outputs:
         camera = station.GetSubsystemByName("capsule.camera")

@@ -659,8 +659,12 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     except ValueError as e:
         close_render_worker(station)
         raise ScenarioError(f"scenario: {e}") from None
-    monitor = builder.AddNamedSystem(CONTACT_MONITOR, ContactMonitor())
-    builder.Connect(station.GetOutputPort("contact_results"), monitor.get_input_port())
+    wall = station.HasOutputPort("contact.wall")
+    monitor = builder.AddNamedSystem(CONTACT_MONITOR, ContactMonitor(wall=wall))
+    builder.Connect(station.GetOutputPort("contact_results"),
+                    monitor.GetInputPort("contact_results"))
+    if wall:
+        builder.Connect(station.GetOutputPort("contact.wall"), monitor.GetInputPort("wall_contact"))
     guard = builder.AddNamedSystem("run_guard", RunGuard(
         colon, model.radius, model.length, scenario.guard,
         wall_allowance=scenario.contact.wall_allowance(model.radius)))
@@ -674,9 +678,13 @@ def add_wall_pressure(builder: DiagramBuilder, station, colon,
     `station`, reading its contact results; it samples them only when the contact model has
     a pressure field (`pressure_field`: the scenario's contact's), and otherwise says it has
     none."""
+    wall = station.HasOutputPort("contact.wall")
     system = builder.AddNamedSystem(WALL_PRESSURE_SYSTEM, WallPressureMap(
-        colon.centerline, pressure_field=pressure_field))
-    builder.Connect(station.GetOutputPort("contact_results"), system.get_input_port())
+        colon.centerline, pressure_field=pressure_field, wall=wall))
+    builder.Connect(station.GetOutputPort("contact_results"),
+                    system.GetInputPort("contact_results"))
+    if wall:
+        builder.Connect(station.GetOutputPort("contact.wall"), system.GetInputPort("wall_contact"))
     return system
 
 

@@ -18,6 +18,8 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.common.value import AbstractValue
 from pydrake.multibody.plant import ContactResults
+
+from capsule_drake.physics.contact.foundation import empty_wall_contact
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.capsule.imu import add_random_sources
@@ -70,13 +72,17 @@ class ContactForceSensor(LeafSystem):
         config: a ContactSensorConfig.
     """
 
-    def __init__(self, capsule_geometries, config: ContactSensorConfig):
+    def __init__(self, capsule_geometries, config: ContactSensorConfig, wall: bool = False):
         super().__init__()
         # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
         self._geometries = id_values(capsule_geometries)
         self._config = dataclasses.replace(config)
         self._results = self.DeclareAbstractInputPort(
             "contact_results", AbstractValue.Make(ContactResults()))
+        # The compliant wall's own force (its foundation realisation), when it has one.
+        self._wall = (self.DeclareAbstractInputPort("wall_contact",
+                                                    AbstractValue.Make(empty_wall_contact()))
+                      if wall else None)
         self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
         self._noise = self.DeclareVectorInputPort(
             "noise", 3, random_type=RandomDistribution.kGaussian)
@@ -91,7 +97,8 @@ class ContactForceSensor(LeafSystem):
 
     def _sample(self, context, discrete_state):
         x = self._state_port.Eval(context)
-        F_W = capsule_contact_force_W(self._results.Eval(context), self._geometries)
+        F_W = capsule_contact_force_W(self._results.Eval(context), self._geometries,
+                                      self._wall.Eval(context) if self._wall else None)
         F_B = rotation_from_quaternion(x[:4]).T @ F_W
         c = self._config
         reading = np.clip(F_B + c.noise_std * np.asarray(self._noise.Eval(context)),
@@ -110,10 +117,13 @@ def add_contact_sensor(builder, parts, config: ContactSensorConfig):
     """`capsule.contact_sensor` on the plant's contact results and the capsule's state,
     its noise from a seeded random source; exports capsule.contact_sensor.{F_B, F_B_true}."""
     plant = parts.plant
+    wall = parts.has("contact.wall")
     sensor = builder.AddNamedSystem("capsule.contact_sensor", ContactForceSensor(
-        plant.GetCollisionGeometriesForBody(parts.capsule_body), config))
+        plant.GetCollisionGeometriesForBody(parts.capsule_body), config, wall=wall))
     builder.Connect(plant.get_contact_results_output_port(),
                     sensor.GetInputPort("contact_results"))
+    if wall:
+        builder.Connect(parts.output("contact.wall"), sensor.GetInputPort("wall_contact"))
     builder.Connect(parts.capsule_state, sensor.GetInputPort("capsule_state"))
     add_random_sources(builder, [sensor.GetInputPort("noise")], sensor.period())
     parts.export_outputs(sensor, "capsule.contact_sensor")

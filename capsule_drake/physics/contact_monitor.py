@@ -8,6 +8,7 @@ from pydrake.multibody.plant import ContactResults
 from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.lifetime import id_values
+from capsule_drake.physics.contact.foundation import empty_wall_contact
 
 
 class ContactMonitor(LeafSystem):
@@ -34,31 +35,44 @@ class ContactMonitor(LeafSystem):
     capsule_force_W: the net contact force on the capsule (N, world frame), when the
     capsule's collision geometries were given; zero otherwise.
 
+    With `wall` (the compliant wall's foundation realisation, whose force is not Drake's
+    contact) a second input, wall_contact (physics/contact/foundation.py WallContact), adds
+    the wall's force and pressures to Drake's contact results (polyps, the tube's ends).
+
     Args:
         capsule_geometries: the capsule's collision GeometryIds, or their values (optional).
+        wall: whether to read the wall's own contact (the station's contact.wall).
     """
 
-    def __init__(self, capsule_geometries=()):
+    def __init__(self, capsule_geometries=(), wall: bool = False):
         super().__init__()
         # Their values: the ids a plant returns keep it alive (capsule_drake/lifetime.py).
         self._capsule = id_values(capsule_geometries)
         self._contact_results_port = self.DeclareAbstractInputPort(
             "contact_results", AbstractValue.Make(ContactResults()))
+        self._wall = (self.DeclareAbstractInputPort("wall_contact",
+                                                    AbstractValue.Make(empty_wall_contact()))
+                      if wall else None)
         self._contact_load_port = self.DeclareVectorOutputPort(
             "contact_load", 1, self._calc_contact_load)
         self.DeclareVectorOutputPort("capsule_force_W", 3, self._calc_capsule_force)
         self.DeclareVectorOutputPort("peak_pressure", 1, self._calc_peak_pressure)
 
+    def _wall_of(self, context):
+        return self._wall.Eval(context) if self._wall is not None else None
+
     def _calc_peak_pressure(self, context, output):
-        output.SetAtIndex(0, peak_contact_pressure(self._contact_results_port.Eval(context)))
+        output.SetAtIndex(0, peak_contact_pressure(self._contact_results_port.Eval(context),
+                                                   self._wall_of(context)))
 
     def _calc_capsule_force(self, context, output):
         output.SetFromVector(capsule_contact_force_W(self._contact_results_port.Eval(context),
-                                                     self._capsule))
+                                                     self._capsule, self._wall_of(context)))
 
     def _calc_contact_load(self, context, output):
         results = self._contact_results_port.Eval(context)
-        total = 0.0
+        wall = self._wall_of(context)
+        total = float(np.linalg.norm(wall.force_W)) if wall is not None else 0.0
         for i in range(results.num_hydroelastic_contacts()):
             total += np.linalg.norm(
                 results.hydroelastic_contact_info(i).F_Ac_W().translational())
@@ -67,14 +81,15 @@ class ContactMonitor(LeafSystem):
         output.SetAtIndex(0, total)
 
 
-def peak_contact_pressure(results) -> float:
+def peak_contact_pressure(results, wall=None) -> float:
     """The highest pressure (Pa) over the hydroelastic contact surfaces of a plant's
     ContactResults: their pressure fields at the surfaces' vertices (the field is linear
-    between them, so its maximum is at one). 0 with no contact; NaN with a point contact,
-    which has a force but no pressure."""
+    between them, so its maximum is at one), and over the compliant wall's cells (`wall`, a
+    WallContact, if given). 0 with no contact; NaN with a point contact, which has a force
+    but no pressure."""
     if results.num_point_pair_contacts():
         return float("nan")
-    peak = 0.0
+    peak = float(wall.pressures.max()) if wall is not None and len(wall.pressures) else 0.0
     for i in range(results.num_hydroelastic_contacts()):
         surface = results.hydroelastic_contact_info(i).contact_surface()
         field = surface.tri_e_MN() if surface.is_triangle() else surface.poly_e_MN()
@@ -83,12 +98,13 @@ def peak_contact_pressure(results) -> float:
     return peak
 
 
-def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
+def capsule_contact_force_W(results, capsule_geometries, wall=None) -> np.ndarray:
     """The net contact force (N, world frame) on the body of `capsule_geometries` (its
     GeometryIds, or their values: `lifetime.id_values`) in a plant's ContactResults:
-    hydroelastic and point contacts alike."""
+    hydroelastic and point contacts alike; and the compliant wall's (`wall`, a WallContact,
+    if given)."""
     capsule_geometries = id_values(capsule_geometries)
-    total = np.zeros(3)
+    total = np.array(wall.force_W, dtype=float) if wall is not None else np.zeros(3)
     for i in range(results.num_hydroelastic_contacts()):
         info = results.hydroelastic_contact_info(i)
         surface = info.contact_surface()
@@ -107,13 +123,17 @@ def capsule_contact_force_W(results, capsule_geometries) -> np.ndarray:
     return total
 
 
-def capsule_contact_wrench_W(results, capsule_geometries, p_WBo) -> tuple[np.ndarray, np.ndarray]:
+def capsule_contact_wrench_W(results, capsule_geometries, p_WBo,
+                             wall=None) -> tuple[np.ndarray, np.ndarray]:
     """(torque, force) of the contact on the body of `capsule_geometries` (its GeometryIds,
     or their values) about its point p_WBo (N m, N; world frame): each hydroelastic
     contact's spatial force acts at its surface's centroid, each point contact's force at
-    its contact point."""
+    its contact point; the compliant wall's (`wall`, a WallContact about the body's origin,
+    which p_WBo must be) added."""
     capsule_geometries = id_values(capsule_geometries)
     torque, force = np.zeros(3), np.zeros(3)
+    if wall is not None:
+        torque, force = np.array(wall.torque_W, dtype=float), np.array(wall.force_W, dtype=float)
     p_WBo = np.asarray(p_WBo, dtype=float)
     for i in range(results.num_hydroelastic_contacts()):
         info = results.hydroelastic_contact_info(i)

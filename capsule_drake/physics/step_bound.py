@@ -192,6 +192,7 @@ class CapsuleInertia:
     transverse_inertia: float  # kg m^2, about the centre of mass, across the axis
     ipm_offset: float      # m, the IPM's centre from the centre of mass
     radius: float          # m, of the collision capsule
+    length: float = 0.0    # m, of its cylinder
 
 
 @functools.cache
@@ -211,7 +212,8 @@ def capsule_inertia() -> CapsuleInertia:
     p_BM = [float(x) for x in ipm.findtext("pose").split()[:3]]
     offset = math.dist(p_BM, com)
     radius = float(link.find("./collision/geometry/capsule/radius").text)
-    return CapsuleInertia(mass, transverse, offset, radius)
+    length = float(link.find("./collision/geometry/capsule/length").text)
+    return CapsuleInertia(mass, transverse, offset, radius, length)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -318,6 +320,10 @@ def step_bounds(scenario) -> StepBounds:
     contact_why = (f"contact: a capsule meeting the wall at {IMPACT_SPEED:g} m/s must not "
                    f"enter it by more than {CONTACT_TRAVEL * 1e3:g} mm in the step before "
                    "the contact acts")
+    # The contact model's own part (an explicit wall force: its stiffest mode).
+    wall_step, wall_why = scenario.contact.step_bound(capsule)
+    if wall_step < contact_step:
+        contact_step, contact_why = wall_step, wall_why
 
     stiffness = None
     magnet_step = math.inf

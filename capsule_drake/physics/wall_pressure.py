@@ -34,6 +34,8 @@ import functools
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.multibody.plant import ContactResults
+
+from capsule_drake.physics.contact.foundation import empty_wall_contact
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from scipy.spatial import cKDTree
 
@@ -383,7 +385,7 @@ class WallPressureMap(LeafSystem):
     """
 
     def __init__(self, centerline, pressure_field: bool = True, period: float = SAMPLE_PERIOD,
-                 grid: PatchGrid | None = None, thresholds=None):
+                 grid: PatchGrid | None = None, thresholds=None, wall: bool = False):
         super().__init__()
         self._locator = WallLocator(centerline)
         self.layout = MapLayout(grid or PatchGrid(float(centerline.length)),
@@ -393,6 +395,10 @@ class WallPressureMap(LeafSystem):
         self._state = self.DeclareDiscreteState(BasicVector(self.layout.initial()))
         self._results = self.DeclareAbstractInputPort("contact_results",
                                                       AbstractValue.Make(ContactResults()))
+        # The compliant wall's own cells (its foundation realisation), when it has them.
+        self._wall = (self.DeclareAbstractInputPort("wall_contact",
+                                                    AbstractValue.Make(empty_wall_contact()))
+                      if wall else None)
         self.DeclareStateOutputPort("map", self._state)
         if self.layout.pressure_field:
             # An unrestricted update: with the plant's own step (itself one, with sampled
@@ -412,6 +418,11 @@ class WallPressureMap(LeafSystem):
         x = np.array(context.get_discrete_state(self._state).get_value())
         peak, start, longest, counts = self.layout.split(x)   # views into x
         points, pressures, point_contacts = contact_faces(self._results.Eval(context))
+        if self._wall is not None:
+            cells = self._wall.Eval(context)
+            if len(cells.pressures):
+                points = np.concatenate([points, cells.points_W])
+                pressures = np.concatenate([pressures, cells.pressures])
         t = context.get_time()
         pressed = (patch_index(*self._locator.locate(points), self.grid) if len(points)
                    else np.zeros(0, dtype=np.int64))

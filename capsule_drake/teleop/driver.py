@@ -152,10 +152,13 @@ def add_teleop(builder, parts, teleop: Teleop):
             parts.export(free.GetOutputPort("range"), "teleop.lumen_range")
 
     # What the operator feels: the pseudo-force (if any) and the capsule's contact.
+    wall = parts.has("contact.wall")
     monitor = builder.AddNamedSystem("teleop.contact", ContactMonitor(
-        plant.GetCollisionGeometriesForBody(capsule)))
+        plant.GetCollisionGeometriesForBody(capsule), wall=wall))
     builder.Connect(plant.get_contact_results_output_port(),
                     monitor.GetInputPort("contact_results"))
+    if wall:
+        builder.Connect(parts.output("contact.wall"), monitor.GetInputPort("wall_contact"))
     rpy = parts.shared("pseudo_force.device_from_camera_rpy_deg", (180.0, 0.0, 0.0))
     feedback = builder.AddNamedSystem("teleop.feedback", ForceFeedback(
         X_BC, teleop.contact_gain, teleop.device.force_limit, rpy))

@@ -98,6 +98,13 @@ class CompliantWall:
         """Whether the contact has a pressure field: always (hydroelastic)."""
         return True
 
+    def step_bound(self, capsule) -> tuple[float, str]:
+        """(longest plant step in s, why) of the model's own (physics/step_bound.py): none.
+        The foundation's force is linearly implicit in the wall's own stiffness, damping and
+        friction (foundation.py), stable at any step as Drake's implicit contact is; how far
+        a step carries the capsule into the wall is physics/step_bound.py's own bound."""
+        return math.inf, ""
+
     def wall_allowance(self, capsule_radius: float) -> float:
         """How far (m) the capsule may be inside the wall's undeformed surface because the
         wall gave: its layer's depth, the capsule's radius. The run guard adds it to its
@@ -154,6 +161,7 @@ def median_lumen_radius(colon) -> float:
 
 
 REALISATIONS = ("foundation", "hydroelastic")
+
 
 
 # Bounds of the settings (check_compliant_wall).
@@ -232,7 +240,12 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
     system = builder.AddNamedSystem("wall_contact", FoundationContact(
         body.index(), WallTable(parts.colon), X_BG, parts.capsule.radius,
         parts.capsule.length, parts.shared("contact.foundation_modulus"), config.friction,
-        config.hunt_crossley_dissipation, plant.time_step(), body.default_mass(), axial))
+        config.hunt_crossley_dissipation, plant.time_step(), body.default_mass(), axial,
+        body.default_spatial_inertia().CopyToFullMatrix6(),
+        body.default_spatial_inertia().get_com(), parts.gravity))
     builder.Connect(parts.output("capsule.state"), system.GetInputPort("capsule_state"))
-    parts.applied_forces.append(system.GetOutputPort("applied_spatial_force"))
+    # The other applied forces pass through it (its force is implicit in the wall's own
+    # response, exact at rest only with the others known): the applied_forces block.
+    parts.applied_through = (system.GetInputPort("other_forces"),
+                             system.GetOutputPort("applied_spatial_force"))
     parts.export(system.GetOutputPort("wall_contact"), "contact.wall")

@@ -1,6 +1,7 @@
 """The compliant wall as an elastic foundation under the capsule, computed here
-(`FoundationContact`): the default realisation of `CompliantWall` (its `realisation`
-"foundation"; "hydroelastic" gives the same wall to Drake's hydroelastic contact instead).
+(`FoundationContact`): the default realisation of the compliant wall (compliant.py, its
+`realisation` "foundation"; "hydroelastic" gives the same wall to Drake's hydroelastic
+contact instead).
 
 Why not Drake's hydroelastic contact. A wall that yields by millimetres wraps a large patch
 of the capsule: Drake cuts it into 100-500 polygons (the wall's triangles against the
@@ -45,9 +46,10 @@ Forces are explicit: computed at the start of each plant step from the capsule's
 the magnet's. physics/step_bound.py keeps the wall's stiffest normal mode (the capsule half
 buried, `contact_stiffness_bound`) within omega dt <= 1.
 
-What it leaves out: the diverticula (pouches cut into the wall mesh: the foundation sees the
-wall without them); polyps and the boxes closing the tube's ends keep Drake's hydroelastic
-contact with the capsule's field mesh (compliant.py). The wall is taken as undeformed
+The tube's two ends are closed by flat caps across the centreline's end tangents, as its
+collision mesh is. What it leaves out: the diverticula (pouches cut into the wall mesh: the
+foundation sees the wall without them); polyps and the boxes around the tube keep Drake's
+hydroelastic contact with the capsule's field mesh (compliant.py). The wall is taken as undeformed
 elsewhere: a capsule's dent does not move the wall beside it.
 """
 
@@ -110,12 +112,28 @@ class WallTable:
         # The tangent's rate of turn dT/ds (1/m): a Newton step to a point's foot divides its
         # offset along the tangent by 1 - (offset . dT/ds).
         self.bends = np.gradient(self.tangents, step, axis=0)
+        self.curvature = np.linalg.norm(self.bends, axis=1)
+        self.smallest = radius.min(axis=1)        # each station's narrowest radius
         self._tree = cKDTree(self.points)
         self._corners = np.array([0, 1, around + 1, around + 2])
 
     def nearest(self, p) -> int:
         """The table's station nearest the point p (3,)."""
         return int(self._tree.query(p)[1])
+
+    def near_wall(self, points, station: int, reach: float) -> np.ndarray:
+        """Indices of the points (N, 3), all within `reach` (m) of the station `station`'s
+        point, that may lie beyond the mucosa: their distance from the centreline, measured
+        in that station's plane, exceeds the narrowest radius of the stations within reach,
+        less what a bend can change that distance by over their offset u along the
+        centreline (kappa u^2 / 2 for the sharpest curvature kappa there) and 1 mm."""
+        window = slice(max(station - int(reach / self.step) - 1, 0),
+                       station + int(reach / self.step) + 2)
+        local = (points - self.frames[station, 0]) @ self.frames[station, 1:].T
+        rho2 = local[:, 1] ** 2 + local[:, 2] ** 2
+        lowest = float(self.smallest[window].min()) - 1e-3
+        bend = 0.5 * float(self.curvature[window].max())
+        return np.flatnonzero(np.sqrt(rho2) > lowest - bend * local[:, 0] ** 2)
 
     def depth(self, points, station: int):
         """For world points (N, 3) near the station `station` (a table index near them):
@@ -156,7 +174,19 @@ class WallTable:
         norm = np.sqrt(1.0 + slope_s * slope_s + tilt * tilt)
         outward = np.stack([-slope_s, cx + tilt * cy, cy - tilt * cx], axis=1)
         inward = -np.einsum("nji,nj->ni", frame[:, 1:], outward) / norm[:, None]
-        return (rho - radius) / norm, inward
+        depth = (rho - radius) / norm
+        # The flat caps closing the tube at its two ends (as its collision mesh's): a point
+        # whose station is an end and that lies past the end's plane is that far into it.
+        for end, sign in ((0, -1.0), (last, 1.0)):
+            at_end = np.flatnonzero(j == end)
+            if at_end.size:
+                past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
+                deeper = past > depth[at_end]
+                if np.any(deeper):
+                    k = at_end[deeper]
+                    depth[k] = past[deeper]
+                    inward[k] = -sign * frames[end, 1]
+        return depth, inward
 
 
 def capsule_probes(radius: float, length: float, around: int = PROBES_AROUND,
@@ -223,7 +253,8 @@ class WallContact:
     normals_W: np.ndarray
 
 
-def _empty_contact() -> WallContact:
+def empty_wall_contact() -> WallContact:
+    """A WallContact with no contact (a port's model value)."""
     return WallContact(np.zeros(3), np.zeros(3), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
                        np.zeros((0, 3)))
 
@@ -231,15 +262,17 @@ def _empty_contact() -> WallContact:
 class FoundationContact(LeafSystem):
     """The compliant wall's force on the capsule (module docstring).
 
-    Input port: capsule_state ([q_WB (wxyz), p_WB, w_WB, v_WB], 13). Output ports:
-    applied_spatial_force (list[ExternallyAppliedSpatialForce], on the capsule's body at
-    its origin), wall_contact (WallContact). State: each surface cell's bristle deflection
+    Input ports: capsule_state ([q_WB (wxyz), p_WB, w_WB, v_WB], 13), other_forces (the
+    other applied forces, list[ExternallyAppliedSpatialForce]). Output ports:
+    applied_spatial_force (the other forces and the wall's, on the capsule's body at its
+    origin: what the plant is given), wall_contact (WallContact). State: each surface cell's bristle deflection
     (world, m), updated every plant step.
     """
 
     def __init__(self, body_index, table: WallTable, X_BG, radius: float, length: float,
                  foundation_modulus: float, friction: float, dissipation: float,
-                 time_step: float, mass: float, axial_inertia: float):
+                 time_step: float, mass: float, axial_inertia: float,
+                 spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0), gravity: float = 9.81):
         super().__init__()
         self._index = body_index
         self._table = table
@@ -249,24 +282,34 @@ class FoundationContact(LeafSystem):
         self._n_B = normals @ R_BG.T
         self._areas = areas
         self._count = len(areas)
+        self._reach = float(np.linalg.norm(self._p_B, axis=1).max())
         self._k = foundation_modulus
         self._mu = friction
         self._dissipation = dissipation
         self._dt = time_step
         m_t = tangential_mass(mass, radius, axial_inertia)
+        # The capsule's spatial inertia about its body origin in its frame (6x6, [w; v]).
+        if spatial_inertia is None:
+            spatial_inertia = np.diag([axial_inertia] * 3 + [mass] * 3)
+        self._inertia_B = np.asarray(spatial_inertia, dtype=float)
+        self._p_BoBcm = np.asarray(p_BoBcm, dtype=float)
+        self._weight = np.array([0.0, 0.0, -mass * gravity])
         omega = TANGENTIAL_TURN / time_step
         self._tangential_stiffness = omega**2 * m_t                         # N/m, whole patch
         self._tangential_damping = 2.0 * TANGENTIAL_DAMPING_RATIO * omega * m_t  # N s/m
         self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
+        self._others = self.DeclareAbstractInputPort(
+            "other_forces", AbstractValue.Make([ExternallyAppliedSpatialForce()]))
         self._bristles = self.DeclareDiscreteState(3 * self._count)
         self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, weak_method(self._update))
         ticket = {self.input_port_ticket(self._state_port.get_index()),
+                  self.input_port_ticket(self._others.get_index()),
                   self.discrete_state_ticket(self._bristles)}
         self._force_port = self.DeclareAbstractOutputPort(
             "applied_spatial_force", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             weak_method(self._calc_force), prerequisites_of_calc=ticket)
         self._contact_port = self.DeclareAbstractOutputPort(
-            "wall_contact", lambda: AbstractValue.Make(_empty_contact()),
+            "wall_contact", lambda: AbstractValue.Make(empty_wall_contact()),
             weak_method(self._calc_wall_contact), prerequisites_of_calc=ticket)
         self._memo = (None, None)
 
@@ -282,20 +325,30 @@ class FoundationContact(LeafSystem):
         table = self._table
         offsets = self._p_B @ R.T
         points = offsets + p_WB
-        depth, inward = table.depth(points, table.nearest(p_WB))
-        facing = -np.einsum("ij,ij->i", self._n_B @ R.T, inward)
-        pressed = np.flatnonzero((depth > 0.0) & (facing > 0.0))
+        station = table.nearest(p_WB)
+        near = table.near_wall(points, station, self._reach)
+        depth, inward = table.depth(points[near], station)
+        facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
+        touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
+        pressed = near[touching]
+        depth, facing = depth[touching], facing[touching]
         r = offsets[pressed]
-        nu = inward[pressed]
+        nu = inward[touching]
         w = w_W
         velocity = v_W + np.stack([w[1] * r[:, 2] - w[2] * r[:, 1],
                                    w[2] * r[:, 0] - w[0] * r[:, 2],
                                    w[0] * r[:, 1] - w[1] * r[:, 0]], axis=1)
         into = -np.einsum("ij,ij->i", velocity, nu)
-        area = self._areas[pressed] * facing[pressed]
-        pressure = self._k * depth[pressed] * np.maximum(1.0 + self._dissipation * into, 0.0)
+        area = self._areas[pressed] * facing
+        rate = 1.0 + self._dissipation * into
+        pressure = self._k * depth * np.maximum(rate, 0.0)
+        # The normal force's stiffness over a step and its damping, per cell (N s/m):
+        # d f / d v = -k d c A (the dissipation), d f / d x = -k (1 + c d') A (the spring).
+        normal_gain = self._k * area * np.where(
+            rate > 0.0, depth * self._dissipation + self._dt * rate, 0.0)
         geometry = {"pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
+                    "normal_gain": normal_gain, "R": R,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
                     "share": area / max(float(np.sum(area)), 1e-300),
                     "limit": self._mu * pressure * area}
@@ -317,14 +370,67 @@ class FoundationContact(LeafSystem):
                        + self._tangential_damping * g["slip"]) * g["share"][:, None]
         size = np.linalg.norm(tangential, axis=1)
         over = size > g["limit"]
-        if np.any(over):
-            tangential[over] *= (g["limit"][over] / size[over])[:, None]
+        tangential[over] *= (g["limit"][over] / np.maximum(size[over], 1e-300))[:, None]
         forces = (g["pressures"] * g["areas"])[:, None] * g["normals"] + tangential
         r = g["offsets"]
         torque = np.stack([r[:, 1] * forces[:, 2] - r[:, 2] * forces[:, 1],
                            r[:, 2] * forces[:, 0] - r[:, 0] * forces[:, 2],
                            r[:, 0] * forces[:, 1] - r[:, 1] * forces[:, 0]], axis=1)
-        return g, forces.sum(axis=0), torque.sum(axis=0)
+        explicit = np.concatenate([torque.sum(axis=0), forces.sum(axis=0)])
+        self._explicit = explicit
+        # Linearly implicit: the wall's own stiffness over the step and damping, as a 6x6
+        # gain A on the capsule's spatial velocity (each cell's 3x3 gain mapped by its
+        # Jacobian J = [-[r]x, I]); the wrench applied is M (M + dt A)^-1 F, what the step
+        # would give with the wall's force taken at its end (for the wall's own response).
+        nu = g["normals"]
+        tangential_gain = np.where(over, 0.0, (self._tangential_damping
+                                               + self._dt * self._tangential_stiffness)
+                                   * g["share"])
+        jacobian = np.zeros((len(r), 3, 6))
+        jacobian[:, 0, 1], jacobian[:, 0, 2] = r[:, 2], -r[:, 1]
+        jacobian[:, 1, 0], jacobian[:, 1, 2] = -r[:, 2], r[:, 0]
+        jacobian[:, 2, 0], jacobian[:, 2, 1] = r[:, 1], -r[:, 0]
+        jacobian[:, 0, 3] = jacobian[:, 1, 4] = jacobian[:, 2, 5] = 1.0
+        along_normal = np.einsum("ni,nia->na", nu, jacobian)
+        gain = (np.einsum("n,nia,nib->ab", tangential_gain, jacobian, jacobian)
+                + np.einsum("n,na,nb->ab", g["normal_gain"] - tangential_gain, along_normal,
+                            along_normal))
+        M = self._spatial_inertia(g["R"])
+        total = explicit + self._other_wrench(context, g["R"])
+        applied = explicit - self._dt * gain @ np.linalg.solve(M + self._dt * gain, total)
+        return g, applied[3:], applied[:3]
+
+    def wall_wrench(self, context) -> np.ndarray:
+        """The wall's force at this context's state as its pressures and bristles give it
+        ([torque about the body origin; force], world), before the implicit correction
+        (what the closed form describes)."""
+        g = self._geometry(self._state_port.Eval(context))
+        if len(g["pressed"]) == 0:
+            return np.zeros(6)
+        self._solve(context)
+        return self._explicit.copy()
+
+    def _other_wrench(self, context, R):
+        """The other forces on the capsule this step ([torque about the body origin; force],
+        world): gravity and the applied forces given to this system (the magnet's, the
+        fluid's)."""
+        wrench = np.zeros(6)
+        wrench[3:] = self._weight
+        wrench[:3] = np.cross(R @ self._p_BoBcm, self._weight)
+        for force in self._others.Eval(context):
+            if force.body_index != self._index:
+                continue
+            F = force.F_Bq_W
+            f = F.translational()
+            wrench[:3] += F.rotational() + np.cross(R @ force.p_BoBq_B, f)
+            wrench[3:] += f
+        return wrench
+
+    def _spatial_inertia(self, R):
+        """The capsule's spatial inertia about its body origin, in world (6x6, [w; v])."""
+        rotate = np.zeros((6, 6))
+        rotate[:3, :3] = rotate[3:, 3:] = R
+        return rotate @ self._inertia_B @ rotate.T
 
     def _calc_force(self, context, output):
         _, f, tau = self._solve(context)
@@ -332,7 +438,7 @@ class FoundationContact(LeafSystem):
         force.body_index = self._index
         force.p_BoBq_B = np.zeros(3)
         force.F_Bq_W = SpatialForce(tau, f)
-        output.set_value([force])
+        output.set_value(list(self._others.Eval(context)) + [force])
 
     def _calc_wall_contact(self, context, output):
         g, f, tau = self._solve(context)

@@ -11,6 +11,7 @@ contact figure from this model describes the stand-in, not a patient.
 
 
 import dataclasses
+import math
 
 from pydrake.geometry import Convex
 from pydrake.math import RigidTransform
@@ -72,6 +73,11 @@ class RigidWall:
     def pressure_field(self) -> bool:
         """Whether the contact has a pressure field (hydroelastic), or point contact."""
         return self.model == "hydroelastic"
+
+    def step_bound(self, capsule) -> tuple[float, str]:
+        """(longest plant step in s, why) of the model's own (physics/step_bound.py): none,
+        Drake's contact being implicit."""
+        return math.inf, ""
 
     def wall_allowance(self, capsule_radius: float) -> float:
         """The rigid wall gives nothing: the run guard's max_wall_excursion alone."""
