@@ -30,6 +30,8 @@ from pydrake.multibody.plant import (AddMultibodyPlant, ApplyMultibodyPlantConfi
                                     ExternallyAppliedSpatialForceMultiplexer, MultibodyPlant)
 from pydrake.systems.primitives import ConstantValueSource
 
+from capsule_drake.physics.contact.foundation import no_forces
+
 from capsule_drake.anatomy import ColonParams, ColonSourceError, check_colon_params, load_colon
 from capsule_drake.anatomy.course import solve_course
 from capsule_drake.anatomy.params import SEGMENT_NAMES

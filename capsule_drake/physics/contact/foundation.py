@@ -60,10 +60,10 @@ import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from scipy.spatial import cKDTree
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
+from scipy.spatial import cKDTree
 
 from capsule_drake.lifetime import weak_method
 
@@ -253,6 +253,13 @@ class WallContact:
     normals_W: np.ndarray
 
 
+def no_forces() -> AbstractValue:
+    """An empty list of applied forces, as a value of the plant's applied-force port type."""
+    value = AbstractValue.Make([ExternallyAppliedSpatialForce()])
+    value.set_value([])
+    return value
+
+
 def empty_wall_contact() -> WallContact:
     """A WallContact with no contact (a port's model value)."""
     return WallContact(np.zeros(3), np.zeros(3), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
@@ -272,7 +279,8 @@ class FoundationContact(LeafSystem):
     def __init__(self, body_index, table: WallTable, X_BG, radius: float, length: float,
                  foundation_modulus: float, friction: float, dissipation: float,
                  time_step: float, mass: float, axial_inertia: float,
-                 spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0), gravity: float = 9.81):
+                 spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0),
+                 gravity_W=(0.0, 0.0, -9.81)):
         super().__init__()
         self._index = body_index
         self._table = table
@@ -293,7 +301,7 @@ class FoundationContact(LeafSystem):
             spatial_inertia = np.diag([axial_inertia] * 3 + [mass] * 3)
         self._inertia_B = np.asarray(spatial_inertia, dtype=float)
         self._p_BoBcm = np.asarray(p_BoBcm, dtype=float)
-        self._weight = np.array([0.0, 0.0, -mass * gravity])
+        self._weight = mass * np.asarray(gravity_W, dtype=float)
         omega = TANGENTIAL_TURN / time_step
         self._tangential_stiffness = omega**2 * m_t                         # N/m, whole patch
         self._tangential_damping = 2.0 * TANGENTIAL_DAMPING_RATIO * omega * m_t  # N s/m
@@ -397,8 +405,21 @@ class FoundationContact(LeafSystem):
                             along_normal))
         M = self._spatial_inertia(g["R"])
         total = explicit + self._other_wrench(context, g["R"])
-        applied = explicit - self._dt * gain @ np.linalg.solve(M + self._dt * gain, total)
-        return g, applied[3:], applied[:3]
+        # The velocity change over the step with every cell's response taken at its end,
+        # then each cell's force there: its normal force at least 0, its friction within
+        # mu times that (a cell that would need more slips: Coulomb's cone after the step).
+        change = self._dt * np.linalg.solve(M + self._dt * gain, total)
+        dv = change[3:] + np.cross(change[:3], r)
+        dv_normal = np.einsum("ij,ij->i", dv, nu)
+        normal = np.maximum(g["pressures"] * g["areas"] - g["normal_gain"] * dv_normal, 0.0)
+        tangential = tangential - tangential_gain[:, None] * (dv - dv_normal[:, None] * nu)
+        size = np.linalg.norm(tangential, axis=1)
+        limit = self._mu * normal
+        over = size > limit
+        tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
+        forces = normal[:, None] * nu + tangential
+        torque = np.cross(r, forces)
+        return g, forces.sum(axis=0), torque.sum(axis=0)
 
     def wall_wrench(self, context) -> np.ndarray:
         """The wall's force at this context's state as its pressures and bristles give it

@@ -1,0 +1,190 @@
+"""The compliant wall's foundation realisation (physics/contact/foundation.py), each figure
+against a second route: the displaced volume's closed form, a capsule's weight at rest,
+Coulomb's law on an incline, and the colon's own wall radius."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
+from pydrake.multibody.tree import BodyIndex, SpatialInertia, UnitInertia
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
+
+from capsule_drake.anatomy.centerline import Centerline
+from capsule_drake.capsule.model import capsule_model
+from capsule_drake.physics.contact.compliant import displaced_volume_force
+from capsule_drake.physics.contact.foundation import FoundationContact, WallTable, no_forces
+
+MASS, TRANSVERSE, AXIAL = 0.012, 1.093e-6, 2.02e-7   # models/capsule.sdf
+K = 3.0e6                                             # Pa/m, the nominal wall's order
+
+
+class FlatTube:
+    """A straight tube along x of radius R0 (2 m: flat across the capsule's patch, within
+    0.01 mm), its angle measured from +z: the capsule lies on its floor (theta = pi)."""
+
+    def __init__(self, radius=2.0, length=0.3):
+        s = np.arange(0.0, length + 1e-9, 0.001)
+        self.centerline = Centerline(s, np.stack([s, 0 * s, 0 * s], 1),
+                                     np.tile([0.0, 0.0, 1.0], (len(s), 1)),
+                                     np.full(len(s), radius), np.zeros(len(s), int), ["tube"])
+        self.radius = radius
+
+    def wall_radius(self, s, theta):
+        return np.full(np.broadcast(np.asarray(s), np.asarray(theta)).shape, self.radius)
+
+
+def capsule_state(depth, roll=0.0, radius=2.0):
+    """The capsule lying along the tube on its floor, `depth` (m) into it, at rest."""
+    model = capsule_model()
+    q = (RotationMatrix.MakeYRotation(math.pi / 2)
+         @ RotationMatrix.MakeZRotation(roll)).ToQuaternion()
+    p = [0.15, 0.0, -(radius - model.radius + depth)]
+    return np.r_[q.w(), q.x(), q.y(), q.z(), p, np.zeros(6)]
+
+
+def wall_system(tube, friction=0.09, dissipation=0.0, time_step=2e-3):
+    model = capsule_model()
+    return FoundationContact(BodyIndex(1), WallTable(tube), RigidTransform(), model.radius,
+                             model.length, K, friction, dissipation, time_step, MASS, AXIAL)
+
+
+@pytest.mark.parametrize("roll", [0.0, math.pi / 40, math.pi / 20])  # on a cell, between
+def test_the_wall_pushes_back_with_its_closed_form(roll):
+    # k times the capsule's volume beyond the mucosa: within 5 % over the indentations runs
+    # reach, from a capsule lying under its weight (~0.7 mm) to one half buried.
+    model = capsule_model()
+    system = wall_system(FlatTube())
+    context = system.CreateDefaultContext()
+    system.GetInputPort("other_forces").FixValue(context, [])
+    for depth in (0.0002, 0.0003, 0.0005, 0.001, 0.002, 0.004, model.radius):
+        system.GetInputPort("capsule_state").FixValue(context, capsule_state(depth, roll))
+        wrench = system.wall_wrench(context)
+        closed = displaced_volume_force(K, depth, model.radius, model.length)
+        assert wrench[5] == pytest.approx(closed, rel=0.05), (depth, wrench[5], closed)
+        # Straight up, through the capsule's axis: no side force, no torque.
+        assert np.allclose(wrench[3:5], 0.0, atol=1e-9 + 1e-6 * closed)
+        assert np.allclose(wrench[:3], 0.0, atol=1e-9 + 1e-6 * closed)
+
+
+def test_the_closed_form_is_the_displaced_volume():
+    # A second route: the volume of a capsule below a plane, by summing thin slices.
+    model = capsule_model()
+    r, L = model.radius, model.length
+    for depth in (0.0003, 0.002, r):
+        z = np.linspace(-0.5 * L - r, 0.5 * L + r, 40001)
+        rho = np.sqrt(np.maximum(r**2 - np.maximum(np.abs(z) - 0.5 * L, 0.0) ** 2, 0.0))
+        c = np.clip((r - depth) / np.maximum(rho, 1e-12), -1.0, 1.0)
+        segment = rho**2 * (np.arccos(c) - c * np.sqrt(1 - c**2))
+        volume = np.trapezoid(segment, z)
+        assert displaced_volume_force(K, depth, r, L) == pytest.approx(K * volume, rel=2e-3)
+
+
+def falling_capsule(gravity, friction=0.09, time_step=2e-3, dissipation=5.0):
+    """A diagram of the capsule as a free body on the flat tube's floor with the wall's
+    force, gravity `gravity` (3,)."""
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(MultibodyPlant(time_step))
+    body = plant.AddRigidBody("capsule", SpatialInertia(
+        MASS, np.zeros(3), UnitInertia(TRANSVERSE / MASS, TRANSVERSE / MASS, AXIAL / MASS)))
+    plant.mutable_gravity_field().set_gravity_vector(gravity)
+    plant.Finalize()
+    model = capsule_model()
+    wall = builder.AddSystem(FoundationContact(
+        body.index(), WallTable(FlatTube()), RigidTransform(), model.radius, model.length, K,
+        friction, dissipation, time_step, MASS, AXIAL,
+        np.diag([TRANSVERSE, TRANSVERSE, AXIAL, MASS, MASS, MASS]), gravity_W=gravity))
+    none = builder.AddSystem(ConstantValueSource(no_forces()))
+    builder.Connect(none.get_output_port(), wall.GetInputPort("other_forces"))
+    builder.Connect(plant.get_state_output_port(), wall.GetInputPort("capsule_state"))
+    builder.Connect(wall.GetOutputPort("applied_spatial_force"),
+                    plant.get_applied_spatial_force_input_port())
+    diagram = builder.Build()
+    return diagram, plant, body, wall
+
+
+def test_a_capsule_comes_to_rest_as_deep_as_its_weight_needs():
+    # At rest, k V(depth) = m g: the depth from the closed form, the simulated one from the
+    # plant (a 2 ms step: the wall's force is linearly implicit, so its step does not bias
+    # where the capsule rests).
+    model = capsule_model()
+    g = 9.81
+    diagram, plant, body, wall = falling_capsule(np.array([0.0, 0.0, -g]))
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    x0 = capsule_state(0.0)
+    plant.SetPositionsAndVelocities(plant.GetMyMutableContextFromRoot(context), x0)
+    simulator.AdvanceTo(1.0)
+    x = plant.GetPositionsAndVelocities(plant.GetMyContextFromRoot(context))
+    depth = -x[6] - (2.0 - model.radius)
+    depths = np.linspace(1e-5, 3e-3, 30001)
+    expected = depths[np.searchsorted(
+        displaced_volume_force(K, depths, model.radius, model.length), MASS * g)]
+    assert depth == pytest.approx(expected, rel=0.03)
+    assert np.linalg.norm(x[7:]) < 1e-3   # at rest
+
+
+@pytest.mark.parametrize("slope, slides", [(0.06, False), (0.15, True)])
+def test_on_an_incline_the_capsule_sticks_below_mu_and_slides_above(slope, slides):
+    # Coulomb's law along the capsule's axis (no rolling): held below tan(a) = mu = 0.09,
+    # sliding above it at g (sin a - mu cos a).
+    mu, g = 0.09, 9.81
+    gravity = g * np.array([-math.sin(slope), 0.0, -math.cos(slope)])
+    diagram, plant, body, wall = falling_capsule(gravity, friction=mu)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    depths = np.linspace(1e-5, 3e-3, 30001)
+    model = capsule_model()
+    rest = depths[np.searchsorted(displaced_volume_force(K, depths, model.radius, model.length),
+                                  MASS * g * math.cos(slope))]
+    plant.SetPositionsAndVelocities(plant_context, capsule_state(rest))
+    # Half a second: a sliding capsule travels 7 cm of the 15 cm to the tube's end.
+    simulator.AdvanceTo(0.25)
+    x_quarter = plant.GetPositionsAndVelocities(plant_context)[4]
+    simulator.AdvanceTo(0.5)
+    x_half, v_half = plant.GetPositionsAndVelocities(plant_context)[[4, 10]]
+    if slides:
+        accel = g * (math.sin(slope) - mu * math.cos(slope))
+        assert -v_half == pytest.approx(accel * 0.5, rel=0.05)
+    else:
+        assert abs(x_half - x_quarter) < 1e-5     # held: under 10 micrometres in 0.25 s
+        assert abs(v_half) < 1e-4
+
+
+def test_the_wall_table_reads_the_colon_wall_within_a_tenth_of_a_millimetre():
+    # The depth of points near the wall, from the table, against the colon's own wall radius
+    # at each point's closest centreline station (anatomy's route), on the Default colon.
+    from capsule_drake.anatomy import load_colon
+    from capsule_drake.scenario import load_scenario
+    colon = load_colon(load_scenario(name="Default").colon)[0]
+    table = WallTable(colon)
+    centerline = colon.centerline
+    rng = np.random.default_rng(7)
+    errors = []
+    for _ in range(120):
+        s0 = rng.uniform(0.05, centerline.length - 0.05)
+        _, n, b = centerline.frame_at(s0)
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        centre = centerline.point_at(s0) + (colon.wall_radius(s0, angle) - 0.006) * (
+            math.cos(angle) * n + math.sin(angle) * b)
+        direction = rng.normal(size=3)
+        points = centre + np.linspace(-0.0157, 0.0157, 7)[:, None] * direction / np.linalg.norm(
+            direction) + rng.normal(scale=0.003, size=(7, 3))
+        depth, _ = table.depth(points, table.nearest(centre))
+        s, rho, theta = centerline.closest(points)
+        ds, dt = 1e-4, 1e-3
+        radius = colon.wall_radius(s, theta)
+        slope_s = (colon.wall_radius(s + ds, theta) - colon.wall_radius(s - ds, theta)) / (2 * ds)
+        slope_t = (colon.wall_radius(s, theta + dt) - colon.wall_radius(s, theta - dt)) / (
+            2 * dt * radius)
+        exact = (rho - radius) / np.sqrt(1.0 + slope_s**2 + slope_t**2)
+        near = np.abs(exact) < 0.006
+        errors += list(np.abs(depth - exact)[near])
+    errors = np.array(errors)
+    assert np.percentile(errors, 99) < 1e-4
+    assert np.median(errors) < 2e-5
