@@ -23,10 +23,8 @@ import math
 from typing import Callable
 
 import numpy as np
-from pydrake.common.value import AbstractValue
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (AddMultibodyPlant, ApplyMultibodyPlantConfig,
-                                    ExternallyAppliedSpatialForce,
                                     ExternallyAppliedSpatialForceMultiplexer, MultibodyPlant)
 from pydrake.systems.primitives import ConstantValueSource
 
@@ -308,8 +306,7 @@ def connect_applied_forces(builder, parts: StationParts, scenario):
         into, out = parts.applied_through
         builder.Connect(out, parts.plant.get_applied_spatial_force_input_port())
         if not ports:
-            none = builder.AddNamedSystem("applied_forces", ConstantValueSource(
-                AbstractValue.Make([ExternallyAppliedSpatialForce()][:0])))
+            none = builder.AddNamedSystem("applied_forces", ConstantValueSource(no_forces()))
             builder.Connect(none.get_output_port(), into)
             return
     if not ports:

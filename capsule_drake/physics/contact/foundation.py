@@ -76,6 +76,9 @@ PROBES_AROUND = 40
 PROBES_ALONG = 6
 PROBES_CAP_RINGS = 5
 """The capsule's surface cells (`capsule_probes`)."""
+CAP_REACH = 0.05
+"""How near (m, along the centreline) a tube's end a capsule's station must be for its
+points to be checked against that end's cap (its farthest point is 16 mm from its centre)."""
 REFINEMENTS = 1
 """Steps of each point's station from the capsule's (module docstring): one, then its own."""
 TANGENTIAL_TURN = 0.5
@@ -178,6 +181,8 @@ class WallTable:
         # The flat caps closing the tube at its two ends (as its collision mesh's): a point
         # whose station is an end and that lies past the end's plane is that far into it.
         for end, sign in ((0, -1.0), (last, 1.0)):
+            if abs(station - end) * step > CAP_REACH:
+                continue
             at_end = np.flatnonzero(j == end)
             if at_end.size:
                 past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
@@ -342,10 +347,7 @@ class FoundationContact(LeafSystem):
         depth, facing = depth[touching], facing[touching]
         r = offsets[pressed]
         nu = inward[touching]
-        w = w_W
-        velocity = v_W + np.stack([w[1] * r[:, 2] - w[2] * r[:, 1],
-                                   w[2] * r[:, 0] - w[0] * r[:, 2],
-                                   w[0] * r[:, 1] - w[1] * r[:, 0]], axis=1)
+        velocity = v_W + r @ _skew(w_W).T                          # v + w x r
         into = -np.einsum("ij,ij->i", velocity, nu)
         area = self._areas[pressed] * facing
         rate = 1.0 + self._dissipation * into
@@ -374,52 +376,47 @@ class FoundationContact(LeafSystem):
         g = self._geometry(self._state_port.Eval(context))
         if len(g["pressed"]) == 0:
             return g, np.zeros(3), np.zeros(3)
+        r, nu = g["offsets"], g["normals"]
+        share = g["share"]
         tangential = -(self._tangential_stiffness * self._bristles_of(context, g)
-                       + self._tangential_damping * g["slip"]) * g["share"][:, None]
-        size = np.linalg.norm(tangential, axis=1)
+                       + self._tangential_damping * g["slip"]) * share[:, None]
+        size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
         over = size > g["limit"]
         tangential[over] *= (g["limit"][over] / np.maximum(size[over], 1e-300))[:, None]
-        forces = (g["pressures"] * g["areas"])[:, None] * g["normals"] + tangential
-        r = g["offsets"]
-        torque = np.stack([r[:, 1] * forces[:, 2] - r[:, 2] * forces[:, 1],
-                           r[:, 2] * forces[:, 0] - r[:, 0] * forces[:, 2],
-                           r[:, 0] * forces[:, 1] - r[:, 1] * forces[:, 0]], axis=1)
-        explicit = np.concatenate([torque.sum(axis=0), forces.sum(axis=0)])
-        self._explicit = explicit
-        # Linearly implicit: the wall's own stiffness over the step and damping, as a 6x6
-        # gain A on the capsule's spatial velocity (each cell's 3x3 gain mapped by its
-        # Jacobian J = [-[r]x, I]); the wrench applied is M (M + dt A)^-1 F, what the step
-        # would give with the wall's force taken at its end (for the wall's own response).
-        nu = g["normals"]
-        tangential_gain = np.where(over, 0.0, (self._tangential_damping
-                                               + self._dt * self._tangential_stiffness)
-                                   * g["share"])
-        jacobian = np.zeros((len(r), 3, 6))
-        jacobian[:, 0, 1], jacobian[:, 0, 2] = r[:, 2], -r[:, 1]
-        jacobian[:, 1, 0], jacobian[:, 1, 2] = -r[:, 2], r[:, 0]
-        jacobian[:, 2, 0], jacobian[:, 2, 1] = r[:, 1], -r[:, 0]
-        jacobian[:, 0, 3] = jacobian[:, 1, 4] = jacobian[:, 2, 5] = 1.0
-        along_normal = np.einsum("ni,nia->na", nu, jacobian)
-        gain = (np.einsum("n,nia,nib->ab", tangential_gain, jacobian, jacobian)
-                + np.einsum("n,na,nb->ab", g["normal_gain"] - tangential_gain, along_normal,
-                            along_normal))
+        forces = (g["pressures"] * g["areas"])[:, None] * nu + tangential
+        self._explicit = _wrench(r, forces)
+        # Linearly implicit in the wall's own response: each cell's 3x3 gain over the step
+        # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
+        # bristle's, 0 where it slides) mapped by its Jacobian J = [-[r]x, I] onto the
+        # capsule's spatial velocity [w; v] (6x6 A); the velocity change over the step with
+        # every cell's force taken at the step's end is dt (M + dt A)^-1 (F + F_other).
+        beta = np.where(over, 0.0, (self._tangential_damping
+                                    + self._dt * self._tangential_stiffness) * share)
+        alpha = g["normal_gain"]
+        u = np.concatenate([_cross(r, nu), nu], axis=1)              # J^T nu
+        br = beta @ r
+        gain = ((u * (alpha - beta)[:, None]).T @ u)
+        gain[:3, :3] += (float(beta @ np.einsum("ij,ij->i", r, r)) * np.eye(3)
+                         - (r * beta[:, None]).T @ r)
+        cross = _skew(br)
+        gain[:3, 3:] += cross
+        gain[3:, :3] -= cross
+        gain[3:, 3:] += float(beta.sum()) * np.eye(3)
         M = self._spatial_inertia(g["R"])
-        total = explicit + self._other_wrench(context, g["R"])
-        # The velocity change over the step with every cell's response taken at its end,
-        # then each cell's force there: its normal force at least 0, its friction within
-        # mu times that (a cell that would need more slips: Coulomb's cone after the step).
+        total = self._explicit + self._other_wrench(context, g["R"])
         change = self._dt * np.linalg.solve(M + self._dt * gain, total)
-        dv = change[3:] + np.cross(change[:3], r)
+        # Each cell's force at the step's end: its normal force at least 0, its friction
+        # within mu times that (a cell that would need more slips: Coulomb's cone).
+        dv = change[3:] + r @ _skew(change[:3]).T                   # dv + dw x r
         dv_normal = np.einsum("ij,ij->i", dv, nu)
-        normal = np.maximum(g["pressures"] * g["areas"] - g["normal_gain"] * dv_normal, 0.0)
-        tangential = tangential - tangential_gain[:, None] * (dv - dv_normal[:, None] * nu)
-        size = np.linalg.norm(tangential, axis=1)
+        normal = np.maximum(g["pressures"] * g["areas"] - alpha * dv_normal, 0.0)
+        tangential -= beta[:, None] * (dv - dv_normal[:, None] * nu)
+        size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
         limit = self._mu * normal
         over = size > limit
         tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
-        forces = normal[:, None] * nu + tangential
-        torque = np.cross(r, forces)
-        return g, forces.sum(axis=0), torque.sum(axis=0)
+        applied = _wrench(r, normal[:, None] * nu + tangential)
+        return g, applied[3:], applied[:3]
 
     def wall_wrench(self, context) -> np.ndarray:
         """The wall's force at this context's state as its pressures and bristles give it
@@ -437,13 +434,13 @@ class FoundationContact(LeafSystem):
         fluid's)."""
         wrench = np.zeros(6)
         wrench[3:] = self._weight
-        wrench[:3] = np.cross(R @ self._p_BoBcm, self._weight)
+        wrench[:3] = _skew(R @ self._p_BoBcm) @ self._weight
         for force in self._others.Eval(context):
             if force.body_index != self._index:
                 continue
             F = force.F_Bq_W
             f = F.translational()
-            wrench[:3] += F.rotational() + np.cross(R @ force.p_BoBq_B, f)
+            wrench[:3] += F.rotational() + _skew(R @ force.p_BoBq_B) @ f
             wrench[3:] += f
         return wrench
 
@@ -480,6 +477,28 @@ class FoundationContact(LeafSystem):
                 bristles[over] *= (g["limit"][over] / size[over])[:, None]
             z[pressed] = bristles
         discrete_state.set_value(self._bristles, z.ravel())
+
+
+def _skew(v) -> np.ndarray:
+    """[v]x: the matrix of v x (3,)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _cross(a, b) -> np.ndarray:
+    """Row-wise a x b of (N, 3) arrays."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+def _wrench(r, forces) -> np.ndarray:
+    """[sum r x f; sum f] of forces (N, 3) at offsets r (N, 3): the torque from the
+    antisymmetric part of sum f r^T."""
+    S = forces.T @ r
+    return np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1],
+                     *forces.sum(axis=0)])
 
 
 def _rotation(w, x, y, z) -> np.ndarray:
