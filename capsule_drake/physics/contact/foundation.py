@@ -106,9 +106,13 @@ class WallTable:
         slope_s = np.gradient(radius, step, axis=0)
         slope_theta = (np.roll(radius, -1, axis=1) - np.roll(radius, 1, axis=1)) / (
             2.0 * self.dtheta)
-        table = np.stack([radius, slope_s, slope_theta], axis=-1)
-        # Flattened (S (K + 1), 3): the angle wraps, so each row's last entry repeats its first.
-        self.flat = np.concatenate([table, table[:, :1]], axis=1).reshape(-1, 3)
+        # The wall's curvature along and around (for the stiffness of its normal's turn).
+        curve_s = np.gradient(slope_s, step, axis=0)
+        curve_theta = (np.roll(radius, -1, axis=1) - 2.0 * radius
+                       + np.roll(radius, 1, axis=1)) / self.dtheta**2
+        table = np.stack([radius, slope_s, slope_theta, curve_s, curve_theta], axis=-1)
+        # Flattened (S (K + 1), 5): the angle wraps, so each row's last entry repeats its first.
+        self.flat = np.concatenate([table, table[:, :1]], axis=1).reshape(-1, 5)
         # (S, 4, 3): each station's point, tangent, normal and binormal.
         self.frames = np.stack([self.points, self.tangents, self.normals, self.binormals],
                                axis=1)
@@ -169,7 +173,8 @@ class WallTable:
         gu, gv = 1.0 - fu, 1.0 - fv
         weights = np.stack([gu * gv, gu * fv, fu * gv, fu * fv])
         corners = self.flat[i00[None, :] + self._corners[:, None]]
-        radius, slope_s, slope_theta = np.einsum("cn,cnk->kn", weights, corners)
+        radius, slope_s, slope_theta, curve_s, curve_theta = np.einsum("cn,cnk->kn", weights,
+                                                                      corners)
         # The outward normal e_rho - R_s e_s - R_theta / R e_theta, in the frame (T, N, B).
         inv = 1.0 / np.maximum(rho, 1e-9)
         cx, cy = x * inv, y * inv
@@ -178,6 +183,14 @@ class WallTable:
         outward = np.stack([-slope_s, cx + tilt * cy, cy - tilt * cx], axis=1)
         inward = -np.einsum("nji,nj->ni", frame[:, 1:], outward) / norm[:, None]
         depth = (rho - radius) / norm
+        # How fast the inward normal turns along and around (1/m; positive where the wall is
+        # hollow, R'' < 0, and pushes a point back toward the hollow's bottom):
+        # -R_ss / norm^3 along the centreline, -R_thth / R^2 / norm^3 around.
+        cubed = norm**3
+        turn_s = -curve_s / cubed
+        turn_theta = -curve_theta / (np.maximum(radius, 1e-9) ** 2 * cubed)
+        around = frame[:, 2] * -cy[:, None] + frame[:, 3] * cx[:, None]      # e_theta
+        self.turns = (frame[:, 1], turn_s, around, turn_theta)
         # The flat caps closing the tube at its two ends (as its collision mesh's): a point
         # whose station is an end and that lies past the end's plane is that far into it.
         for end, sign in ((0, -1.0), (last, 1.0)):
@@ -191,6 +204,7 @@ class WallTable:
                     k = at_end[deeper]
                     depth[k] = past[deeper]
                     inward[k] = -sign * frames[end, 1]
+                    turn_s[k] = turn_theta[k] = 0.0
         return depth, inward
 
 
@@ -341,6 +355,7 @@ class FoundationContact(LeafSystem):
         station = table.nearest(p_WB)
         near = table.near_wall(points, station, self._reach)
         depth, inward = table.depth(points[near], station)
+        along_W, turn_s, around_W, turn_theta = table.turns
         facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
         touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
         pressed = near[touching]
@@ -356,9 +371,15 @@ class FoundationContact(LeafSystem):
         # d f / d v = -k d c A (the dissipation), d f / d x = -k (1 + c d') A (the spring).
         normal_gain = self._k * area * np.where(
             rate > 0.0, depth * self._dissipation + self._dt * rate, 0.0)
+        # The stiffness of the normal's turn (N/m, times the step): a cell pressed with force
+        # P into a hollow is pushed back toward its bottom by P times the normal's rate of
+        # turn; only the restoring part (a crest's is left explicit).
+        push = pressure * area * self._dt
+        turn_gains = (along_W[touching], np.maximum(push * turn_s[touching], 0.0),
+                      around_W[touching], np.maximum(push * turn_theta[touching], 0.0))
         geometry = {"pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
-                    "normal_gain": normal_gain, "R": R,
+                    "normal_gain": normal_gain, "R": R, "turn_gains": turn_gains,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
                     "share": area / max(float(np.sum(area)), 1e-300),
                     "limit": self._mu * pressure * area}
@@ -402,6 +423,10 @@ class FoundationContact(LeafSystem):
         gain[:3, 3:] += cross
         gain[3:, :3] -= cross
         gain[3:, 3:] += float(beta.sum()) * np.eye(3)
+        along_W, gain_s, around_W, gain_theta = g["turn_gains"]
+        u_s = np.concatenate([_cross(r, along_W), along_W], axis=1)
+        u_theta = np.concatenate([_cross(r, around_W), around_W], axis=1)
+        gain += (u_s * gain_s[:, None]).T @ u_s + (u_theta * gain_theta[:, None]).T @ u_theta
         M = self._spatial_inertia(g["R"])
         total = self._explicit + self._other_wrench(context, g["R"])
         change = self._dt * np.linalg.solve(M + self._dt * gain, total)
@@ -415,7 +440,9 @@ class FoundationContact(LeafSystem):
         limit = self._mu * normal
         over = size > limit
         tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
-        applied = _wrench(r, normal[:, None] * nu + tangential)
+        turned = -(gain_s * np.einsum("ij,ij->i", dv, along_W))[:, None] * along_W - (
+            gain_theta * np.einsum("ij,ij->i", dv, around_W))[:, None] * around_W
+        applied = _wrench(r, normal[:, None] * nu + turned + tangential)
         return g, applied[3:], applied[:3]
 
     def wall_wrench(self, context) -> np.ndarray:
