@@ -38,6 +38,7 @@ from capsule_drake.anatomy.source import fluid_scene
 from capsule_drake.blocks import block, checked, need
 from capsule_drake.capsule.model import CAPSULE_BODY, CapsuleModel, capsule_model, start_pose
 from capsule_drake.models import configure_parser, model_url
+from capsule_drake.physics.contact.tissue import check_tissue_request
 from capsule_drake.physics.fluid_force import FluidForce
 from capsule_drake.physics.magnetics import check_magnet_geometry
 from capsule_drake.scene_geometry import add_colon_visuals
@@ -261,6 +262,8 @@ def check_colon_course(params: ColonParams) -> None:
 
 def check_colon(params: ColonParams, scenario) -> None:
     check_colon_params(params)
+    if params.population is not None:   # the patient's wall (physics/contact/tissue.py)
+        check_tissue_request(params.population.tissue, params.population.tissue_percentile)
     if params.procedural:
         check_colon_course(params)
 

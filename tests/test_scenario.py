@@ -209,6 +209,13 @@ EXCEPTIONS = {
     "colon.source[Imported].reverse": (
         "as colon.source[Imported]; the ex vivo segment's `reverse` is set in "
         "OneOfEverythingElse", ("test_imported.py::test_bad_sources_get_one_line",)),
+    "colon.source[Population].tissue_percentile": (
+        "every figure of the wall at one percentile in place of the draw: it excludes the "
+        "named corner (colon.source[Population].tissue) that OneOfEverything, the only "
+        "simulated scenario with a population colon, sets; it changes the compliant wall's "
+        "figures, not the wiring",
+        ("test_patient_tissue.py::test_the_corners_order_the_wall",
+         "test_patient_tissue.py::test_metrics_and_benchmark_columns_say_what_the_wall_was")),
     "simulator": (
         "Drake's SimulatorConfig, a leaf: setting it (target_realtime_rate) would pace the "
         "runs to the wall clock", ()),

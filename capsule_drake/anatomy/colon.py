@@ -18,7 +18,7 @@ from .cache import ColonAssets, asset_paths, build_once, default_cache_root, par
 from .mesh import closed_tube, ring_stations, textured_tube, tube_chunks
 from .params import SEGMENT_NAMES, ColonParams
 from .lumen_state import narrowed
-from .population import resolve_population
+from .population import resolve_population, shape_params
 from .texture import write_mucosa_texture
 from .wall import HaustralWall
 
@@ -225,6 +225,6 @@ def procedural_colon_assets(params: ColonParams, cache_dir=None) -> ColonAssets:
     place, so concurrent processes never see a half-written set.
     """
     root = Path(cache_dir) if cache_dir is not None else default_cache_root()
-    final = root / params_hash(params)
+    final = root / params_hash(shape_params(params))
     build_once(final, lambda tmp: write_colon_assets(build_colon(params), tmp))
     return asset_paths(final, len(sorted(final.glob("colon_collision_*.obj"))))

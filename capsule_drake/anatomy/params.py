@@ -53,6 +53,17 @@ class Population:
     # "any", "normal" (the sigmoid among the shortest 76 %) or "redundant" (the longest
     # 24 %, anatomy/population.py REDUNDANT_SIGMOID_SHARE).
     sigmoid: str = "any"
+    # The patient's colon wall, for the compliant wall (physics/contact/tissue.py; the rigid
+    # stand-in has no tissue figures): "drawn" (its thickness, circumferential modulus,
+    # support and friction drawn from their published spreads for the seed), "nominal" (the
+    # scenario's contact figures as given), or a named corner: "soft", "stiff", "slippery",
+    # "sticky", "soft_slippery", "soft_sticky", "stiff_slippery", "stiff_sticky" (each
+    # figure at its 5th, 50th or 95th percentile). Not part of the colon's shape: patients
+    # differing only in it share their course and cached files.
+    tissue: str = "drawn"
+    # Every figure of the wall at this percentile among the population's patients (0-100;
+    # low: thin, soft, loosely held, slippery), with tissue "drawn"; or None: drawn.
+    tissue_percentile: float | None = None
 
 
 def check_population_params(params: Population) -> None:

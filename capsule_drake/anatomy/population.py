@@ -262,10 +262,14 @@ def resolve_population(params: ColonParams, bend: bool = True) -> tuple[ColonPar
     With `bend` False the course is not bent to the patient's flexures (seconds to minutes,
     `bend_course`): what the scenario's check and the patient's label need; the patient is
     the same unless no placement of its flexures passes the course's checks, then the next
-    draw's."""
-    key = yaml_dump_typed(params) + f"\nbend: {bend}"
+    draw's. The wall's tissue asked of the population is not the colon's shape: patients
+    differing only in it are resolved once (`shape_params`)."""
+    key = _resolved_key(params, bend)
     if key in _RESOLVED:
-        return _RESOLVED[key]
+        out, course = _RESOLVED[key]
+        if out.source != params.source:   # the same colon, another wall asked for
+            out = dataclasses.replace(out, source=params.source)
+        return out, course
     stored = _course_file(params)
     for attempt in range(COURSE_ATTEMPTS):
         patient = sample_patient(params.population, params.seed, attempt)
@@ -299,10 +303,33 @@ def resolve_population(params: ColonParams, bend: bool = True) -> tuple[ColonPar
                      f"{COURSE_ATTEMPTS} patients of seed {params.seed} with these traits")
 
 
+def _resolved_key(params: ColonParams, bend: bool) -> str:
+    """What `resolve_population` keeps its patients by: the colon's shape, and `bend`."""
+    return yaml_dump_typed(shape_params(params)) + f"\nbend: {bend}"
+
+
 def _course_file(params: ColonParams) -> Path:
     """Where the resolved course of `params` is kept between processes (seconds to a few
     minutes to bend; keyed like the colon's files, by parameters and source)."""
-    return default_cache_root().parent / "population" / f"{params_hash(params)}.npz"
+    key = params_hash(shape_params(params))
+    return default_cache_root().parent / "population" / f"{key}.npz"
+
+
+_TISSUE_FIELDS = ("tissue", "tissue_percentile")
+"""The population's fields that say what the wall is made of, not where it lies."""
+
+
+def shape_params(params: ColonParams) -> ColonParams:
+    """`params` with the population's tissue request (`tissue`, `tissue_percentile`: the
+    wall's mechanics, physics/contact/tissue.py) at its defaults: what the colon's shape
+    depends on, the key of its cached course and files (a patient asked for with another
+    wall is the same colon)."""
+    population = params.population
+    if population is None:
+        return params
+    defaults = Population()
+    return dataclasses.replace(params, source=dataclasses.replace(
+        population, **{name: getattr(defaults, name) for name in _TISSUE_FIELDS}))
 
 
 def _read_course(path: Path, attempt: int):
@@ -386,7 +413,7 @@ def resolved_patient(params: ColonParams, bend: bool = True) -> Patient:
     """The patient `resolve_population(params, bend)` draws (the attempt the course could
     draw)."""
     resolve_population(params, bend)
-    return _PATIENTS[yaml_dump_typed(params) + f"\nbend: {bend}"]
+    return _PATIENTS[_resolved_key(params, bend)]
 
 
 def patient_label(params: ColonParams) -> str:

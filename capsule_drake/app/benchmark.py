@@ -55,6 +55,7 @@ from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator
+from capsule_drake.physics.contact.tissue import TISSUE_COLUMNS
 from capsule_drake.plugins import first_line, load_function, what_it_did
 from capsule_drake.scenario import load_scenario
 
@@ -72,7 +73,11 @@ PROGRESS_PERIOD = 1.0
 # The Dask event topic the runs report their progress on.
 PROGRESS_TOPIC = "capsule-benchmark-progress"
 # The columns of the table, CSV and summary (per run; the summary averages or counts them).
-COLUMNS = ("navigator", "seed", "colon_cm", "patient", "reached_cecum", "time_to_cecum_s", "progress",
+# The patient's columns: the colon's length, the patient's traits, and the wall's tissue
+# (physics/contact/tissue.py TISSUE_COLUMNS: how it was chosen, thickness, circumferential
+# modulus, support, friction; NaN figures on the rigid stand-in, which has none).
+COLUMNS = ("navigator", "seed", "colon_cm", "patient", *TISSUE_COLUMNS, "reached_cecum",
+           "time_to_cecum_s", "progress",
            "progress_cm", "stuck_in", "wall_contact_s", "peak_contact_force_N",
            "peak_contact_pressure_kPa", "injury_pressure_s", "site_peak_pressure_kPa",
            "site_injury_s", "site_ischaemia_s", "centring_error_deg",
@@ -256,11 +261,18 @@ def run_task(task: Task, progress=None) -> dict:
     row.update(polyps_detected=np.nan if score is None else score["seen_detected"],
                polyp_fp_per_min=np.nan if score is None else round(score["fp_per_min"], 2))
     row["patient"] = patient_label(scenario.colon)
+    row.update(tissue_columns(result.metrics))
     row["sim_time_s"] = round(float(result.context.get_time()), 3)
     row["wall_time_s"] = round(float(result.metrics.get("wall_time_s", 0.0)), 1)
     row.update(status=FINISHED, error="")
     return {"row": row, "curve": curve, "segments": colon.centerline.segment_ranges(),
             "worker_pid": os.getpid()}
+
+
+def tissue_columns(metrics: dict) -> dict:
+    """The run's wall as its metrics give it (TISSUE_COLUMNS), NaN for a figure it has not
+    got (the rigid stand-in's)."""
+    return {key: np.nan if metrics.get(key) is None else metrics[key] for key in TISSUE_COLUMNS}
 
 
 def lesion_columns(polyps, shown_s) -> dict:

@@ -38,6 +38,7 @@ from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_ro
 from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots, wall_map_panel
 from capsule_drake.io.visualization import MARKER_SYSTEM
 from capsule_drake.io.wall_map import wall_map_png, write_wall_map
+from capsule_drake.physics.contact.tissue import tissue_metrics
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,
                                                  WallPressureMap)
@@ -590,6 +591,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         result.metrics["status"] = status
         # The model every contact figure comes from (physics/contact/): printed with them.
         result.metrics["contact_model"] = scenario.contact.label()
+        # The patient's wall (physics/contact/tissue.py): its figures and how they were chosen.
+        result.metrics.update(tissue_metrics(scenario.contact, scenario.colon))
         if status == "interrupted":
             result.metrics["signal"] = ending.signal
         if stopped_at:
