@@ -254,3 +254,28 @@ def test_every_tissue_choice_loads_and_is_documented():
         assert f'"{choice}"' in params, choice
     assert load_scenario(override="{colon: {source: !Population {tissue_percentile: 12.5}}}"
                          ).colon.population.tissue_percentile == 12.5
+
+
+@pytest.mark.slow
+def test_the_station_builds_the_patients_wall():
+    # The contact the plant is given is the patient's: a stiff patient's capsule layer (its
+    # modulus k r) is stiffer than a soft one's, and the friction is the drawn one.
+    from capsule_drake.scenario import load_scenario
+    from capsule_drake.station import make_station
+    from capsule_drake.physics.contact.tissue import patient_wall
+    moduli = {}
+    for corner in ("soft", "stiff"):
+        scenario = load_scenario(name="Default", override=(
+            "{contact: !CompliantWall {}, colon: {source: !Population {tissue: %s}}}" % corner))
+        station = make_station(scenario)
+        plant = station.GetSubsystemByName("plant")
+        inspector = station.GetSubsystemByName("scene_graph").model_inspector()
+        body = plant.GetBodyByName("capsule")
+        props = [inspector.GetProximityProperties(g)
+                 for g in plant.GetCollisionGeometriesForBody(body)]
+        props = [p for p in props if p is not None]
+        moduli[corner] = props[0].GetProperty("hydroelastic", "hydroelastic_modulus")
+        friction = props[0].GetProperty("material", "coulomb_friction").static_friction()
+        wall = patient_wall(scenario.contact, scenario.colon)
+        assert friction == pytest.approx(wall.friction)
+    assert moduli["stiff"] > 3.0 * moduli["soft"]

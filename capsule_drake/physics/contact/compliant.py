@@ -44,6 +44,7 @@ import numpy as np
 from capsule_drake.blocks import block
 from capsule_drake.physics.contact.capsule_field import capsule_field_mesh
 from capsule_drake.physics.contact.foundation import FoundationContact, WallTable
+from capsule_drake.physics.contact.tissue import patient_wall
 from capsule_drake.physics.contact.common import (add_capsule_drag, add_rigid_hydroelastic_wall,
                                                   contact_properties, set_capsule_field_mesh)
 from capsule_drake.schema import need_range
@@ -234,8 +235,11 @@ def add_compliant_contact(plant, scene_graph, colon_params, colon, config: Compl
 
 
 def add_compliant_wall(parts, config: CompliantWall) -> None:
-    """The "contact" block's models: `add_compliant_contact` in the station; shares the
-    wall's foundation modulus as contact.foundation_modulus."""
+    """The "contact" block's models: `add_compliant_contact` in the station, with the
+    patient's wall when the colon comes from the population (tissue.py `patient_wall`);
+    shares the wall's foundation modulus as contact.foundation_modulus."""
+    config = patient_wall(config, parts.colon_params)
+    parts.share("contact.wall_config", config)
     parts.share("contact.foundation_modulus", add_compliant_contact(
         parts.plant, parts.scene_graph, parts.colon_params, parts.colon, config,
         parts.capsule.radius, parts.capsule.length))
@@ -248,6 +252,7 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
     (FoundationContact) among the applied forces; exports contact.wall (WallContact)."""
     if config.realisation != "foundation":
         return
+    config = parts.shared("contact.wall_config")        # the patient's
     plant = parts.plant
     body = parts.capsule_body
     inspector = parts.scene_graph.model_inspector()
