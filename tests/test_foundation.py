@@ -213,3 +213,41 @@ def test_both_realisations_drag_the_capsule_alike():
     colon = load_colon(scenario.colon)[0]
     s = [colon.centerline.closest(p)[0] for p in ends]
     assert abs(s[0] - s[1]) < 0.01, s
+
+
+def test_the_near_wall_filter_keeps_every_point_beyond_the_wall():
+    # The cheap filter before the table's lookup (WallTable.near_wall) must not drop a point
+    # that is beyond the mucosa or a tube's end cap: capsules' cells placed at random along
+    # the Default colon, at its bends and both ends, deep into the wall and across the lumen.
+    from capsule_drake.anatomy import load_colon
+    from capsule_drake.scenario import load_scenario
+    from capsule_drake.physics.contact.foundation import capsule_probes
+    model = capsule_model()
+    colon = load_colon(load_scenario(name="Default").colon)[0]
+    table = WallTable(colon)
+    centerline = colon.centerline
+    cells, _, _ = capsule_probes(model.radius, model.length)
+    reach = float(np.linalg.norm(cells, axis=1).max())
+    rng = np.random.default_rng(11)
+    kept = beyond = 0
+    for k in range(300):
+        s0 = (rng.uniform(0.0, 0.03) if k % 3 == 0 else
+              centerline.length - rng.uniform(0.0, 0.03) if k % 3 == 1 else
+              rng.uniform(0.0, centerline.length))
+        _, n, b = centerline.frame_at(s0)
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        offset = rng.uniform(0.0, colon.wall_radius(s0, angle) + 0.004)
+        centre = (centerline.point_at(s0) + offset * (math.cos(angle) * n + math.sin(angle) * b)
+                  + rng.normal(scale=0.004, size=3))
+        R = RotationMatrix(np.linalg.qr(rng.normal(size=(3, 3)))[0] * [1, 1, 1]).matrix()
+        if np.linalg.det(R) < 0:
+            R = -R
+        points = cells @ R.T + centre
+        station = table.follow(centre, table.nearest(centre))
+        depth, _ = table.depth(points, station)
+        inside = set(np.flatnonzero(depth > 0.0))
+        near = set(table.near_wall(points, station, reach))
+        assert inside <= near, (s0, sorted(inside - near)[:5])
+        kept += len(near)
+        beyond += len(inside)
+    assert beyond > 1000          # the sample did press many cells into the wall

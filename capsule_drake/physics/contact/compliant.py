@@ -260,13 +260,14 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
              if inspector.GetName(g).endswith("shell_field")]
     X_BG = inspector.GetPoseInFrame(shell[0])
     axial = body.default_rotational_inertia().get_moments()[2]
+    table = WallTable(parts.colon)
     system = builder.AddNamedSystem("wall_contact", FoundationContact(
-        body.index(), WallTable(parts.colon), X_BG, parts.capsule.radius,
+        body.index(), table, X_BG, parts.capsule.radius,
         parts.capsule.length, parts.shared("contact.foundation_modulus"), config.friction,
         config.hunt_crossley_dissipation, plant.time_step(), body.default_mass(), axial,
         body.default_spatial_inertia().CopyToFullMatrix6(),
         body.default_spatial_inertia().get_com(),
-        plant.gravity_field().gravity_vector()))
+        plant.gravity_field().gravity_vector(), table.nearest(parts.X_WB0.translation())))
     builder.Connect(parts.output("capsule.state"), system.GetInputPort("capsule_state"))
     # The other applied forces pass through it (its force is implicit in the wall's own
     # response, exact at rest only with the others known): the applied_forces block.

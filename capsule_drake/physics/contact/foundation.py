@@ -79,6 +79,10 @@ PROBES_CAP_RINGS = 5
 CAP_REACH = 0.05
 """How near (m, along the centreline) a tube's end a capsule's station must be for its
 points to be checked against that end's cap (its farthest point is 16 mm from its centre)."""
+FOLLOW_REACH = 0.06
+"""How far (m) a capsule's centre may lie from its tube's centreline before its station is
+looked up afresh: beyond the widest lumen (a caecum of 45 mm) and a capsule pressed 15 mm
+into its wall."""
 REFINEMENTS = 1
 """Steps of each point's station from the capsule's (module docstring): one, then its own."""
 TANGENTIAL_TURN = 0.5
@@ -119,6 +123,8 @@ class WallTable:
         # The tangent's rate of turn dT/ds (1/m): a Newton step to a point's foot divides its
         # offset along the tangent by 1 - (offset . dT/ds).
         self.bends = np.gradient(self.tangents, step, axis=0)
+        # (S, 3, 2): the tangent and dT/ds as columns, for one product per Newton step.
+        self.newton = np.stack([self.tangents, self.bends], axis=2)
         self.curvature = np.linalg.norm(self.bends, axis=1)
         self.smallest = radius.min(axis=1)        # each station's narrowest radius
         self._tree = cKDTree(self.points)
@@ -127,6 +133,27 @@ class WallTable:
     def nearest(self, p) -> int:
         """The table's station nearest the point p (3,)."""
         return int(self._tree.query(p)[1])
+
+    def follow(self, p, station: int) -> int:
+        """The station of the point p (3,) on the stretch of tube around `station`: Newton
+        steps along the centreline from it (so that a capsule pressed through its wall stays
+        in its own tube rather than being handed to a neighbouring loop that lies nearer),
+        or the nearest station when that does not settle or ends farther from p than
+        FOLLOW_REACH (a capsule placed anew)."""
+        last = self.count - 1
+        j = min(max(int(station), 0), last)
+        for _ in range(8):
+            offset = p - self.frames[j, 0]
+            projected = offset @ self.newton[j]
+            step = int(round(projected[0] / (1.0 - projected[1]) / self.step))
+            j = min(max(j + step, 0), last)
+            if step == 0:
+                break
+        else:
+            return self.nearest(p)
+        if float(np.sum((p - self.frames[j, 0]) ** 2)) > FOLLOW_REACH**2:
+            return self.nearest(p)
+        return j
 
     def near_wall(self, points, station: int, reach: float) -> np.ndarray:
         """Indices of the points (N, 3), all within `reach` (m) of the station `station`'s
@@ -140,7 +167,12 @@ class WallTable:
         rho2 = local[:, 1] ** 2 + local[:, 2] ** 2
         lowest = float(self.smallest[window].min()) - 1e-3
         bend = 0.5 * float(self.curvature[window].max())
-        return np.flatnonzero(np.sqrt(rho2) > lowest - bend * local[:, 0] ** 2)
+        near = np.sqrt(rho2) > lowest - bend * local[:, 0] ** 2
+        # Near an end, every point past (or within 1 mm of) the cap's plane.
+        for end, sign in ((0, -1.0), (self.count - 1, 1.0)):
+            if abs(station - end) * self.step <= CAP_REACH:
+                near |= sign * ((points - self.frames[end, 0]) @ self.frames[end, 1]) > -1e-3
+        return np.flatnonzero(near)
 
     def depth(self, points, station: int):
         """For world points (N, 3) near the station `station` (a table index near them):
@@ -149,14 +181,14 @@ class WallTable:
         frames, step = self.frames, self.step
         last = self.count - 1
         # The station of each point: from the nearest station's frame, then once from its own.
-        offset = points - frames[station, 0]
-        along = (offset @ frames[station, 1]) / (1.0 - offset @ self.bends[station])
+        newton = self.newton
+        projected = (points - frames[station, 0]) @ newton[station]
+        along = projected[:, 0] / (1.0 - projected[:, 1])
         j = np.clip(station + np.rint(along / step).astype(np.intp), 0, last)
         for _ in range(REFINEMENTS):
             frame = frames[j]
-            offset = points - frame[:, 0]
-            along = (np.einsum("ij,ij->i", offset, frame[:, 1])
-                     / (1.0 - np.einsum("ij,ij->i", offset, self.bends[j])))
+            projected = np.einsum("nij,ni->nj", newton[j], points - frame[:, 0])
+            along = projected[:, 0] / (1.0 - projected[:, 1])
             j = np.clip(j + np.rint(along / step).astype(np.intp), 0, last)
         frame = frames[j]
         local = np.einsum("nij,nj->ni", frame[:, 1:], points - frame[:, 0])
@@ -299,7 +331,7 @@ class FoundationContact(LeafSystem):
                  foundation_modulus: float, friction: float, dissipation: float,
                  time_step: float, mass: float, axial_inertia: float,
                  spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0),
-                 gravity_W=(0.0, 0.0, -9.81)):
+                 gravity_W=(0.0, 0.0, -9.81), start_station: int = 0):
         super().__init__()
         self._index = body_index
         self._table = table
@@ -328,10 +360,13 @@ class FoundationContact(LeafSystem):
         self._others = self.DeclareAbstractInputPort(
             "other_forces", AbstractValue.Make([ExternallyAppliedSpatialForce()]))
         self._bristles = self.DeclareDiscreteState(3 * self._count)
+        # The capsule's station on the centreline, followed from step to step (WallTable.follow).
+        self._station = self.DeclareDiscreteState(np.array([float(start_station)]))
         self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, weak_method(self._update))
         ticket = {self.input_port_ticket(self._state_port.get_index()),
                   self.input_port_ticket(self._others.get_index()),
-                  self.discrete_state_ticket(self._bristles)}
+                  self.discrete_state_ticket(self._bristles),
+                  self.discrete_state_ticket(self._station)}
         self._force_port = self.DeclareAbstractOutputPort(
             "applied_spatial_force", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             weak_method(self._calc_force), prerequisites_of_calc=ticket)
@@ -340,19 +375,21 @@ class FoundationContact(LeafSystem):
             weak_method(self._calc_wall_contact), prerequisites_of_calc=ticket)
         self._memo = (None, None)
 
-    def _geometry(self, x):
+    def _geometry(self, x, hint: int):
         """The pressed cells at the capsule state x: a dict of their indices, centres'
         offsets from the body origin (world), depths, wall normals, wall areas and velocities
         (computed once per state: the plant's step and this system's update read it)."""
         key = x.tobytes()
         if self._memo[0] == key:
             return self._memo[1]
-        R = _rotation(*x[0:4])
+        # The plant's quaternion drifts off unit length between its own normalisations:
+        # its rotation is that of the unit quaternion along it.
+        R = _rotation(*(x[0:4] / math.sqrt(float(x[0:4] @ x[0:4]))))
         p_WB, w_W, v_W = x[4:7], x[7:10], x[10:13]
         table = self._table
         offsets = self._p_B @ R.T
         points = offsets + p_WB
-        station = table.nearest(p_WB)
+        station = table.follow(p_WB, hint)
         near = table.near_wall(points, station, self._reach)
         depth, inward = table.depth(points[near], station)
         along_W, turn_s, around_W, turn_theta = table.turns
@@ -377,7 +414,7 @@ class FoundationContact(LeafSystem):
         push = pressure * area * self._dt
         turn_gains = (along_W[touching], np.maximum(push * turn_s[touching], 0.0),
                       around_W[touching], np.maximum(push * turn_theta[touching], 0.0))
-        geometry = {"pressed": pressed, "offsets": r, "points": points[pressed],
+        geometry = {"station": station, "pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
                     "normal_gain": normal_gain, "R": R, "turn_gains": turn_gains,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
@@ -385,6 +422,11 @@ class FoundationContact(LeafSystem):
                     "limit": self._mu * pressure * area}
         self._memo = (key, geometry)
         return geometry
+
+    def _geometry_of(self, context):
+        """`_geometry` at this context's capsule state, followed from its stored station."""
+        return self._geometry(self._state_port.Eval(context),
+                              int(context.get_discrete_state(self._station).GetAtIndex(0)))
 
     def _bristles_of(self, context, g):
         """The pressed cells' bristles, in their wall's tangent plane."""
@@ -394,7 +436,7 @@ class FoundationContact(LeafSystem):
     def _solve(self, context):
         """(the wall's geometry at this state, the net force and torque about the body
         origin, world)."""
-        g = self._geometry(self._state_port.Eval(context))
+        g = self._geometry_of(context)
         if len(g["pressed"]) == 0:
             return g, np.zeros(3), np.zeros(3)
         r, nu = g["offsets"], g["normals"]
@@ -449,7 +491,7 @@ class FoundationContact(LeafSystem):
         """The wall's force at this context's state as its pressures and bristles give it
         ([torque about the body origin; force], world), before the implicit correction
         (what the closed form describes)."""
-        g = self._geometry(self._state_port.Eval(context))
+        g = self._geometry_of(context)
         if len(g["pressed"]) == 0:
             return np.zeros(6)
         self._solve(context)
@@ -493,7 +535,7 @@ class FoundationContact(LeafSystem):
     def _update(self, context, discrete_state):
         """Each pressed cell's bristle follows its slip over the step, up to mu times its
         normal force; a cell out of contact lets go."""
-        g = self._geometry(self._state_port.Eval(context))
+        g = self._geometry_of(context)
         z = np.zeros((self._count, 3))
         pressed = g["pressed"]
         if len(pressed):
@@ -504,6 +546,7 @@ class FoundationContact(LeafSystem):
                 bristles[over] *= (g["limit"][over] / size[over])[:, None]
             z[pressed] = bristles
         discrete_state.set_value(self._bristles, z.ravel())
+        discrete_state.set_value(self._station, np.array([float(g["station"])]))
 
 
 def _skew(v) -> np.ndarray:
