@@ -110,13 +110,9 @@ class WallTable:
         slope_s = np.gradient(radius, step, axis=0)
         slope_theta = (np.roll(radius, -1, axis=1) - np.roll(radius, 1, axis=1)) / (
             2.0 * self.dtheta)
-        # The wall's curvature along and around (for the stiffness of its normal's turn).
-        curve_s = np.gradient(slope_s, step, axis=0)
-        curve_theta = (np.roll(radius, -1, axis=1) - 2.0 * radius
-                       + np.roll(radius, 1, axis=1)) / self.dtheta**2
-        table = np.stack([radius, slope_s, slope_theta, curve_s, curve_theta], axis=-1)
-        # Flattened (S (K + 1), 5): the angle wraps, so each row's last entry repeats its first.
-        self.flat = np.concatenate([table, table[:, :1]], axis=1).reshape(-1, 5)
+        table = np.stack([radius, slope_s, slope_theta], axis=-1)
+        # Flattened (S (K + 1), 3): the angle wraps, so each row's last entry repeats its first.
+        self.flat = np.concatenate([table, table[:, :1]], axis=1).reshape(-1, 3)
         # (S, 4, 3): each station's point, tangent, normal and binormal.
         self.frames = np.stack([self.points, self.tangents, self.normals, self.binormals],
                                axis=1)
@@ -183,46 +179,40 @@ class WallTable:
         # The station of each point: from the nearest station's frame, then once from its own.
         newton = self.newton
         projected = (points - frames[station, 0]) @ newton[station]
-        along = projected[:, 0] / (1.0 - projected[:, 1])
-        j = np.clip(station + np.rint(along / step).astype(np.intp), 0, last)
+        j = station + np.rint(projected[:, 0] / ((1.0 - projected[:, 1]) * step)).astype(np.intp)
+        np.minimum(np.maximum(j, 0, out=j), last, out=j)
         for _ in range(REFINEMENTS):
             frame = frames[j]
             projected = np.einsum("nij,ni->nj", newton[j], points - frame[:, 0])
-            along = projected[:, 0] / (1.0 - projected[:, 1])
-            j = np.clip(j + np.rint(along / step).astype(np.intp), 0, last)
+            j += np.rint(projected[:, 0] / ((1.0 - projected[:, 1]) * step)).astype(np.intp)
+            np.minimum(np.maximum(j, 0, out=j), last, out=j)
         frame = frames[j]
         local = np.einsum("nij,nj->ni", frame[:, 1:], points - frame[:, 0])
-        along, x, y = local[:, 0], local[:, 1], local[:, 2]
+        x, y = local[:, 1], local[:, 2]
         rho = np.hypot(x, y)
         # Bilinear in (s, theta) over the flattened table.
-        u = np.clip(j + along / step, 0.0, last - 1e-6)
+        u = np.minimum(np.maximum(j + local[:, 0] / step, 0.0), last - 1e-6)
         ju = u.astype(np.intp)
-        fu = u - ju
-        v = (np.arctan2(y, x) % (2.0 * math.pi)) / self.dtheta
-        kv = np.minimum(v.astype(np.intp), self.around - 1)
-        fv = v - kv
-        i00 = ju * (self.around + 1) + kv
-        gu, gv = 1.0 - fu, 1.0 - fv
-        weights = np.stack([gu * gv, gu * fv, fu * gv, fu * fv])
-        corners = self.flat[i00[None, :] + self._corners[:, None]]
-        radius, slope_s, slope_theta, curve_s, curve_theta = np.einsum("cn,cnk->kn", weights,
-                                                                      corners)
-        # The outward normal e_rho - R_s e_s - R_theta / R e_theta, in the frame (T, N, B).
+        fu = (u - ju)[:, None]
+        v = np.arctan2(y, x) * (1.0 / self.dtheta) % self.around
+        kv = v.astype(np.intp)
+        fv = (v - kv)[:, None]
+        corners = self.flat[(ju * (self.around + 1) + kv)[:, None] + self._corners]   # (n, 4, 3)
+        near_s = corners[:, 0] + fv * (corners[:, 1] - corners[:, 0])
+        far_s = corners[:, 2] + fv * (corners[:, 3] - corners[:, 2])
+        values = near_s + fu * (far_s - near_s)
+        radius, slope_s, slope_theta = values[:, 0], values[:, 1], values[:, 2]
+        # The inward normal -(e_rho - R_s e_s - R_theta / R e_theta) / |...|, from the frame
+        # (T, N, B): e_rho = (x N + y B) / rho, e_theta = (-y N + x B) / rho.
         inv = 1.0 / np.maximum(rho, 1e-9)
-        cx, cy = x * inv, y * inv
         tilt = slope_theta / np.maximum(radius, 1e-9)
         norm = np.sqrt(1.0 + slope_s * slope_s + tilt * tilt)
-        outward = np.stack([-slope_s, cx + tilt * cy, cy - tilt * cx], axis=1)
-        inward = -np.einsum("nji,nj->ni", frame[:, 1:], outward) / norm[:, None]
+        coefficients = np.empty((len(points), 3))
+        coefficients[:, 0] = slope_s
+        coefficients[:, 1] = -(x + tilt * y) * inv
+        coefficients[:, 2] = -(y - tilt * x) * inv
+        inward = np.einsum("nji,nj->ni", frame[:, 1:], coefficients) / norm[:, None]
         depth = (rho - radius) / norm
-        # How fast the inward normal turns along and around (1/m; positive where the wall is
-        # hollow, R'' < 0, and pushes a point back toward the hollow's bottom):
-        # -R_ss / norm^3 along the centreline, -R_thth / R^2 / norm^3 around.
-        cubed = norm**3
-        turn_s = -curve_s / cubed
-        turn_theta = -curve_theta / (np.maximum(radius, 1e-9) ** 2 * cubed)
-        around = frame[:, 2] * -cy[:, None] + frame[:, 3] * cx[:, None]      # e_theta
-        self.turns = (frame[:, 1], turn_s, around, turn_theta)
         # The flat caps closing the tube at its two ends (as its collision mesh's): a point
         # whose station is an end and that lies past the end's plane is that far into it.
         for end, sign in ((0, -1.0), (last, 1.0)):
@@ -236,7 +226,6 @@ class WallTable:
                     k = at_end[deeper]
                     depth[k] = past[deeper]
                     inward[k] = -sign * frames[end, 1]
-                    turn_s[k] = turn_theta[k] = 0.0
         return depth, inward
 
 
@@ -392,7 +381,6 @@ class FoundationContact(LeafSystem):
         station = table.follow(p_WB, hint)
         near = table.near_wall(points, station, self._reach)
         depth, inward = table.depth(points[near], station)
-        along_W, turn_s, around_W, turn_theta = table.turns
         facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
         touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
         pressed = near[touching]
@@ -408,18 +396,29 @@ class FoundationContact(LeafSystem):
         # d f / d v = -k d c A (the dissipation), d f / d x = -k (1 + c d') A (the spring).
         normal_gain = self._k * area * np.where(
             rate > 0.0, depth * self._dissipation + self._dt * rate, 0.0)
-        # The stiffness of the normal's turn (N/m, times the step): a cell pressed with force
-        # P into a hollow is pushed back toward its bottom by P times the normal's rate of
-        # turn; only the restoring part (a crest's is left explicit).
-        push = pressure * area * self._dt
-        turn_gains = (along_W[touching], np.maximum(push * turn_s[touching], 0.0),
-                      around_W[touching], np.maximum(push * turn_theta[touching], 0.0))
+        share = area / max(float(np.sum(area)), 1e-300)
+        # Linearly implicit in the wall's own response: each cell's 3x3 gain over the step
+        # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
+        # bristle's) mapped by its Jacobian J = [-[r]x, I] onto the capsule's spatial
+        # velocity [w; v] (6x6 A); the velocity change over the step with every cell's force
+        # taken at the step's end is dt (M + dt A)^-1 (F + F_other) (`step`).
+        beta = (self._tangential_damping + self._dt * self._tangential_stiffness) * share
+        u = np.concatenate([_cross(r, nu), nu], axis=1)              # J^T nu
+        gain = (u * (normal_gain - beta)[:, None]).T @ u
+        rb = r * beta[:, None]
+        gain[:3, :3] += float(np.einsum("ij,ij->", rb, r)) * np.eye(3) - rb.T @ r
+        cross = _skew(rb.sum(axis=0))
+        gain[:3, 3:] += cross
+        gain[3:, :3] -= cross
+        gain[3:, 3:] += float(beta.sum()) * np.eye(3)
+        M = self._spatial_inertia(R)
         geometry = {"station": station, "pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
-                    "normal_gain": normal_gain, "R": R, "turn_gains": turn_gains,
+                    "normal_force": pressure * area, "normal_gain": normal_gain,
+                    "bristle_gain": beta, "R": R, "share": share,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
-                    "share": area / max(float(np.sum(area)), 1e-300),
-                    "limit": self._mu * pressure * area}
+                    "limit": self._mu * pressure * area,
+                    "step": self._dt * np.linalg.inv(M + self._dt * gain) if len(r) else None}
         self._memo = (key, geometry)
         return geometry
 
@@ -438,53 +437,26 @@ class FoundationContact(LeafSystem):
         origin, world)."""
         g = self._geometry_of(context)
         if len(g["pressed"]) == 0:
+            self._explicit = np.zeros(6)
             return g, np.zeros(3), np.zeros(3)
         r, nu = g["offsets"], g["normals"]
-        share = g["share"]
-        tangential = -(self._tangential_stiffness * self._bristles_of(context, g)
-                       + self._tangential_damping * g["slip"]) * share[:, None]
-        size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
-        over = size > g["limit"]
-        tangential[over] *= (g["limit"][over] / np.maximum(size[over], 1e-300))[:, None]
-        forces = (g["pressures"] * g["areas"])[:, None] * nu + tangential
-        self._explicit = _wrench(r, forces)
-        # Linearly implicit in the wall's own response: each cell's 3x3 gain over the step
-        # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
-        # bristle's, 0 where it slides) mapped by its Jacobian J = [-[r]x, I] onto the
-        # capsule's spatial velocity [w; v] (6x6 A); the velocity change over the step with
-        # every cell's force taken at the step's end is dt (M + dt A)^-1 (F + F_other).
-        beta = np.where(over, 0.0, (self._tangential_damping
-                                    + self._dt * self._tangential_stiffness) * share)
-        alpha = g["normal_gain"]
-        u = np.concatenate([_cross(r, nu), nu], axis=1)              # J^T nu
-        br = beta @ r
-        gain = ((u * (alpha - beta)[:, None]).T @ u)
-        gain[:3, :3] += (float(beta @ np.einsum("ij,ij->i", r, r)) * np.eye(3)
-                         - (r * beta[:, None]).T @ r)
-        cross = _skew(br)
-        gain[:3, 3:] += cross
-        gain[3:, :3] -= cross
-        gain[3:, 3:] += float(beta.sum()) * np.eye(3)
-        along_W, gain_s, around_W, gain_theta = g["turn_gains"]
-        u_s = np.concatenate([_cross(r, along_W), along_W], axis=1)
-        u_theta = np.concatenate([_cross(r, around_W), around_W], axis=1)
-        gain += (u_s * gain_s[:, None]).T @ u_s + (u_theta * gain_theta[:, None]).T @ u_theta
-        M = self._spatial_inertia(g["R"])
-        total = self._explicit + self._other_wrench(context, g["R"])
-        change = self._dt * np.linalg.solve(M + self._dt * gain, total)
-        # Each cell's force at the step's end: its normal force at least 0, its friction
-        # within mu times that (a cell that would need more slips: Coulomb's cone).
+        tangential = (self._tangential_stiffness * self._bristles_of(context, g)
+                      + self._tangential_damping * g["slip"]) * g["share"][:, None]
+        self._explicit = _wrench(r, g["normal_force"][:, None] * nu - tangential)
+        # The velocity change over the step with every cell's force taken at the step's end
+        # (the geometry's `step`: dt (M + dt A)^-1), then each cell's force there: its normal
+        # force at least 0, its friction within mu times that (a cell that would need more
+        # slips: Coulomb's cone).
+        change = g["step"] @ (self._explicit + self._other_wrench(context, g["R"]))
         dv = change[3:] + r @ _skew(change[:3]).T                   # dv + dw x r
         dv_normal = np.einsum("ij,ij->i", dv, nu)
-        normal = np.maximum(g["pressures"] * g["areas"] - alpha * dv_normal, 0.0)
-        tangential -= beta[:, None] * (dv - dv_normal[:, None] * nu)
+        normal = np.maximum(g["normal_force"] - g["normal_gain"] * dv_normal, 0.0)
+        tangential += g["bristle_gain"][:, None] * (dv - dv_normal[:, None] * nu)
         size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
         limit = self._mu * normal
         over = size > limit
         tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
-        turned = -(gain_s * np.einsum("ij,ij->i", dv, along_W))[:, None] * along_W - (
-            gain_theta * np.einsum("ij,ij->i", dv, around_W))[:, None] * around_W
-        applied = _wrench(r, normal[:, None] * nu + turned + tangential)
+        applied = _wrench(r, normal[:, None] * nu - tangential)
         return g, applied[3:], applied[:3]
 
     def wall_wrench(self, context) -> np.ndarray:
