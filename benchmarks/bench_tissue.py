@@ -3,6 +3,16 @@ published). Nothing here is fitted to the figure it is set beside.
 
     python benchmarks/bench_tissue.py
 
+(a) Resistance of a 26 x 11 mm capsule pulled along the bowel (Guo et al. 2020, Nonlinear Dyn
+    101:65: 7 mN to 4.5 N over the contact conditions and progression speeds they tested, pig
+    small intestine). Simulated here: the compliant wall's own route (foundation.py) in a
+    straight tube of lumen radius R_l, the capsule (5.5 mm radius, 15 mm of cylinder, 5 g, U:
+    the abstract gives no mass) pulled along its axis by a stiff spring whose end moves at the
+    speed v; the resistance is the spring's mean force once the capsule slides steadily. The
+    wall's modulus is the model's for that lumen (foundation_modulus: the hoop stretch of a
+    tube of radius R_l, the support, the thickness), its friction the colon's 0.09. R_l from a
+    wide lumen (the capsule lies on the wall under its weight) to a collapsed one narrower
+    than the capsule (the wall wraps it: Guo's bowel was not distended), speeds 1 and 10 mm/s.
 (b) Burst pressure. A thin-walled tube of radius R and wall thickness h bursts when its hoop
     stress P R / h reaches the wall's ultimate tensile strength: P = sigma_u h / R (Laplace).
     With the wall's figures (h: 2.61 mm, EUS in vivo; sigma_u: 0.87 MPa, human rectum and
@@ -28,7 +38,18 @@ would have to change for them to meet.
 import math
 import sys
 
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
+from pydrake.multibody.tree import SpatialInertia, UnitInertia
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+
 from capsule_drake.anatomy import load_colon
+from capsule_drake.anatomy.centerline import Centerline
+from capsule_drake.physics.contact.foundation import FoundationContact, WallTable
 from capsule_drake.physics.contact.compliant import (CompliantWall, foundation_modulus,
                                                       median_lumen_radius)
 from capsule_drake.scenario import load_scenario
@@ -41,6 +62,97 @@ RUPTURE_MMHG = {"cecum": 81.0, "sigmoid": 169.0}
 JOHNSON_N_PER_MM = {"small head, straight": 0.8, "large head, angled": 0.7}
 HEAD_RADIUS = 0.00625      # m (U): a 12.5 mm colonoscope tip
 SUPPORT_SWEEP = (0.0, 1.0e5, 3.0e5, 1.0e6, 3.0e6, 1.0e7)   # Pa/m (U)
+GUO_RANGE_N = (0.007, 4.5)
+GUO_RADIUS, GUO_CYLINDER, GUO_MASS = 0.0055, 0.015, 0.005   # m, m, kg (mass U)
+LUMEN_RADII = (0.020, 0.0060, 0.0055, 0.0050, 0.0045, 0.0040)   # m
+SPEEDS = (0.001, 0.010)                                           # m/s
+
+
+class StraightTube:
+    """A straight tube along x of constant radius (the wall's table needs only these)."""
+
+    def __init__(self, radius, length=0.4):
+        s = np.arange(0.0, length + 1e-9, 0.001)
+        self.centerline = Centerline(s, np.stack([s, 0 * s, 0 * s], 1),
+                                     np.tile([0.0, 0.0, 1.0], (len(s), 1)),
+                                     np.full(len(s), radius), np.zeros(len(s), int), ["tube"])
+        self.radius = radius
+
+    def wall_radius(self, s, theta):
+        return np.full(np.broadcast(np.asarray(s), np.asarray(theta)).shape, self.radius)
+
+
+class Puller(LeafSystem):
+    """A spring (stiffness K, critically damped on the capsule) from the capsule's centre to
+    an anchor moving along +x at `speed` from x0: the pull on the capsule."""
+
+    def __init__(self, body_index, x0, speed, stiffness=300.0, mass=GUO_MASS):
+        super().__init__()
+        self._index, self._x0, self._speed = body_index, x0, speed
+        self._k, self._c = stiffness, 2.0 * math.sqrt(stiffness * mass)
+        self._state = self.DeclareVectorInputPort("state", 13)
+        self.DeclareAbstractOutputPort(
+            "force", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]), self._calc)
+
+    def pull(self, context) -> float:
+        x = self._state.Eval(context)
+        return (self._k * (self._x0 + self._speed * context.get_time() - x[4])
+                - self._c * (x[10] - self._speed))
+
+    def _calc(self, context, output):
+        force = ExternallyAppliedSpatialForce()
+        force.body_index = self._index
+        force.p_BoBq_B = np.zeros(3)
+        force.F_Bq_W = SpatialForce(np.zeros(3), np.array([self.pull(context), 0.0, 0.0]))
+        output.set_value([force])
+
+
+def pulled_resistance(lumen_radius: float, speed: float, time_step: float = 2e-3) -> float:
+    """Mean pull (N) on the capsule sliding steadily along a straight tube (module (a))."""
+    k = foundation_modulus(CompliantWall(), lumen_radius)
+    r, L, m = GUO_RADIUS, GUO_CYLINDER, GUO_MASS
+    axial = 0.5 * m * r**2
+    transverse = m * (3 * r**2 + L**2) / 12.0
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(MultibodyPlant(time_step))
+    body = plant.AddRigidBody("capsule", SpatialInertia(
+        m, np.zeros(3), UnitInertia(transverse / m, transverse / m, axial / m)))
+    plant.Finalize()
+    g = np.array([0.0, 0.0, -9.81])
+    wall = builder.AddSystem(FoundationContact(
+        body.index(), WallTable(StraightTube(lumen_radius)), RigidTransform(), r, L, k, 0.09,
+        5.0, time_step, m, axial, np.diag([transverse, transverse, axial, m, m, m]),
+        gravity_W=g))
+    puller = builder.AddSystem(Puller(body.index(), 0.05, speed))
+    builder.Connect(plant.get_state_output_port(), wall.GetInputPort("capsule_state"))
+    builder.Connect(plant.get_state_output_port(), puller.GetInputPort("state"))
+    builder.Connect(puller.get_output_port(), wall.GetInputPort("other_forces"))
+    builder.Connect(wall.GetOutputPort("applied_spatial_force"),
+                    plant.get_applied_spatial_force_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    # Along the tube's axis, resting on its floor (or centred, where it fills the lumen).
+    q = RotationMatrix.MakeYRotation(math.pi / 2).ToQuaternion()
+    z = -max(lumen_radius - r, 0.0)
+    plant.SetPositionsAndVelocities(plant.GetMyMutableContextFromRoot(context), np.r_[
+        q.w(), q.x(), q.y(), q.z(), 0.05, 0.0, z, np.zeros(6)])
+    # Slide 1 cm (the spring stretched to the resistance first), then average the pull over
+    # the next 1 cm of the capsule's travel; a capsule that does not slide within a minute
+    # is held harder than the spring can pull (reported as inf).
+    puller_context = puller.GetMyContextFromRoot(context)
+    plant_context = plant.GetMyContextFromRoot(context)
+    pulls = []
+    while context.get_time() < 60.0:
+        simulator.AdvanceTo(context.get_time() + 0.002 / speed)     # 2 mm of the anchor's way
+        x = plant.GetPositionsAndVelocities(plant_context)[4]
+        if x > 0.07:
+            pulls.append(puller.pull(puller_context))
+        if x > 0.08:
+            break
+    if not pulls:
+        return math.inf
+    return float(np.mean(pulls))
 
 
 def segment_radius(colon, name: str) -> float:
@@ -67,6 +179,20 @@ def main() -> int:
     scenario = load_scenario()
     colon, _ = load_colon(scenario.colon)
     wall = CompliantWall()
+    print("(a) resistance of a 26 x 11 mm capsule pulled along a straight tube, beside Guo et "
+          "al. 2020's 7 mN - 4.5 N")
+    print("| lumen radius (mm) | k (Pa/m) | speed (mm/s) | resistance (N) | beside 7 mN | "
+          "beside 4.5 N |")
+    print("|---|---|---|---|---|---|")
+    for lumen in LUMEN_RADII:
+        k = foundation_modulus(wall, lumen)
+        for speed in SPEEDS:
+            force = pulled_resistance(lumen, speed)
+            print(f"| {lumen * 1000:.1f} | {k:.2e} | {speed * 1000:.0f} | {force:.4f} | "
+                  f"{force / GUO_RANGE_N[0]:.2f} | {force / GUO_RANGE_N[1]:.2f} |", flush=True)
+    print("The wide lumen's is Coulomb's mu m g (the capsule on the wall under its weight); a "
+          "lumen narrower than the capsule wraps it, and the wall's hoop stretch (1 / R^2) "
+          "presses it all round.\n")
     print("(b) burst pressure, Laplace P = sigma_u h / R, beside cadaver colons insufflated to "
           "rupture")
     print("| segment | R (mm) | strength | P (mmHg) | stretched to failure (mmHg) | measured "

@@ -234,8 +234,8 @@ EXCEPTIONS = {
         ("test_teleop.py::test_teleop_from_the_browser_follows_the_sliders",
          "test_teleop.py::test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it")),
     "contact[CompliantWall].realisation": (
-        "hydroelastic: Drake's realisation of the same wall, three times slower than the "
-        "foundation (the default), kept for comparison",
+        "hydroelastic: Drake's realisation of the same wall, kept for comparison; three "
+        "times slower than the foundation (the default, which OneOfEverythingElse runs)",
         ("test_foundation.py::test_both_realisations_drag_the_capsule_alike",
          "test_contact_models.py::test_the_simulated_wall_pushes_back_as_its_closed_form")),
     "epm.driver[Teleop].udp.host": (

@@ -83,13 +83,13 @@ class CompliantWall:
     # 0: none (no measurement supports one for the colon).
     drag_translational: float = 0.0
     drag_rotational: float = 0.0
-    # How the wall's force is computed: "hydroelastic" (the default: Drake's hydroelastic
-    # contact of the capsule's field mesh against the wall mesh, its pressure k times the
-    # depth along the capsule's normal; ~0.3x the rigid stand-in's speed) or "foundation"
-    # (EXPERIMENTAL, physics/contact/foundation.py: the foundation integrated over the
-    # capsule's surface against the colon's wall table, ~0.75x the rigid stand-in's speed;
-    # it diverges where the capsule wedges across a lumen narrower than its length, README).
-    realisation: str = "hydroelastic"
+    # How the wall's force is computed: "foundation" (the default; foundation.py: the
+    # foundation integrated over the capsule's surface against the colon's wall table, its
+    # force k times the capsule's volume beyond the mucosa; 0.7-0.8x the rigid stand-in's
+    # speed) or "hydroelastic" (Drake's hydroelastic contact of the capsule's field mesh
+    # against the wall mesh, its pressure k times the depth along the capsule's normal;
+    # 0.3x the rigid stand-in's speed, kept for comparison).
+    realisation: str = "foundation"
 
     def label(self) -> str:
         """How a printed contact figure names the model it comes from."""
