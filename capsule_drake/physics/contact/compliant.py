@@ -15,17 +15,25 @@ millimetres wide. Three things resist, the first two in parallel, the third in s
   two at the nominal figures, so it barely counts.
 
 So the wall is a Winkler foundation of modulus k = 1 / (1 / (E_theta h / R^2 + k_support) +
-h / E_through) (Pa/m) to the capsule (`foundation_modulus`). Drake realises it as a compliant
-hydroelastic layer on the capsule against the rigid wall mesh (the same mesh as the rigid
-wall's: the camera's walls, the lumen truth and coverage are unchanged): the capsule's
-pressure field is E_h (r - d) / r at distance d from its axis, so E_h = k r gives the
-pressure k times the depth to which the wall's surface cuts into the capsule, measured along
-the capsule's normal (`capsule_modulus`). Its force against indentation has a closed form
-(`indentation_force`), which the simulated force matches within 5 % from 0.3 to 4 mm of
-indentation on the mesh of the capsule's field (capsule_field.py; tests/test_contact_models.py).
-The layer is r deep: past
-5.8 mm of indentation the wall has given way, which the run guard takes as going through it
-(`wall_allowance`).
+h / E_through) (Pa/m) to the capsule (`foundation_modulus`). Two realisations
+(`realisation`):
+
+- "foundation" (the default, foundation.py): the foundation integrated over the capsule's
+  surface against the colon's wall table, its springs along the wall's normal, so its force
+  is k times the capsule's volume beyond the undeformed mucosa (`displaced_volume_force`,
+  matched within 4 % from 0.2 mm to half buried: tests/test_foundation.py);
+- "hydroelastic": Drake's hydroelastic contact of a compliant layer on the capsule against the
+  rigid wall mesh (the same mesh as the rigid wall's): the capsule's pressure field is
+  E_h (r - d) / r at distance d from its axis, so E_h = k r gives the pressure k times the
+  depth to which the wall's surface cuts into the capsule along the capsule's normal
+  (`capsule_modulus`); its closed form `indentation_force`, matched within 5 % from 0.3 to
+  4 mm on the mesh of the capsule's field (capsule_field.py; tests/test_contact_models.py).
+  The two agree at small indentations and part by 10 % at 2 mm; the hydroelastic one costs
+  three to four times as much a step (the soft wall's patch is hundreds of contact polygons).
+
+The camera's walls, the lumen truth and coverage are unchanged by either. The layer (or the
+foundation's reach) is r deep: past 5.8 mm of indentation the wall has given way, which the
+run guard takes as going through it (`wall_allowance`).
 
 What it leaves out, and says so: one modulus for the whole colon (R is the colon's median
 lumen radius; the hoop term differs by segment as 1 / R^2); under a local load the wall also
