@@ -1,7 +1,7 @@
 """The compliant wall's predictions beside published measurements (issue: tissue from what is
 published). Nothing here is fitted to the figure it is set beside.
 
-    python benchmarks/bench_tissue.py
+    python benchmarks/bench_tissue.py [--figure docs/tissue_predictions.png]
 
 (a) Resistance of a 26 x 11 mm capsule pulled along the bowel (Guo et al. 2020, Nonlinear Dyn
     101:65: 7 mN to 4.5 N over the contact conditions and progression speeds they tested, pig
@@ -176,6 +176,8 @@ def head_force(k: float, depth: float, head_radius: float) -> float:
 
 
 def main() -> int:
+    figure = sys.argv[sys.argv.index("--figure") + 1] if "--figure" in sys.argv else None
+    rows_a, rows_b, rows_c = [], [], []
     scenario = load_scenario()
     colon, _ = load_colon(scenario.colon)
     wall = CompliantWall()
@@ -188,6 +190,7 @@ def main() -> int:
         k = foundation_modulus(wall, lumen)
         for speed in SPEEDS:
             force = pulled_resistance(lumen, speed)
+            rows_a.append((lumen, speed, force))
             print(f"| {lumen * 1000:.1f} | {k:.2e} | {speed * 1000:.0f} | {force:.4f} | "
                   f"{force / GUO_RANGE_N[0]:.2f} | {force / GUO_RANGE_N[1]:.2f} |", flush=True)
     print("The wide lumen's is Coulomb's mu m g (the capsule on the wall under its weight); a "
@@ -203,6 +206,7 @@ def main() -> int:
         for source, sigma in UTS.items():
             p = burst_pressure(sigma, wall.thickness, radius) / MMHG
             stretched = p / FAILURE_STRETCH**2
+            rows_b.append((segment, source, p, stretched, measured))
             print(f"| {segment} | {radius * 1000:.1f} | {sigma / 1e6:.2f} MPa ({source}) | "
                   f"{p:.0f} | {stretched:.0f} | {measured:.0f} | {p / measured:.2f} | "
                   f"{stretched / measured:.2f} |")
@@ -220,12 +224,57 @@ def main() -> int:
         secants = [head_force(k, d, HEAD_RADIUS) / (d * 1000) for d in (0.002, 0.004, 0.006)]
         nominal = " (nominal)" if support == wall.support_stiffness else ""
         measured = JOHNSON_N_PER_MM["small head, straight"]
+        rows_c.append((support, secants[1], measured))
         print(f"| {support:.0e}{nominal} | {k:.2e} | {secants[0]:.3f} | {secants[1]:.3f} | "
               f"{secants[2]:.3f} | {measured} | {secants[1] / measured:.2f} |")
     print("Johnson's samples' support is not in the abstract: a sample on a rigid plate is held "
           "by its thickness alone (E / h = "
           f"{wall.through_thickness_modulus / wall.thickness:.1e} Pa/m), far stiffer.")
+    if figure:
+        plot(figure, rows_a, rows_b, rows_c)
+        print(f"figure: {figure}")
     return 0
+
+
+def plot(path, rows_a, rows_b, rows_c) -> None:
+    """The three checks beside their measurements, one panel each."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    ax = axes[0]
+    ax.axhspan(*GUO_RANGE_N, color="0.85", label="Guo 2020: 7 mN - 4.5 N")
+    for speed, marker in zip(SPEEDS, ("o", "s")):
+        pts = [(lumen * 1e3, force) for lumen, v, force in rows_a if v == speed and force > 0]
+        ax.plot(*zip(*pts), marker=marker, label=f"model, {speed * 1e3:.0f} mm/s")
+    ax.axvline(GUO_RADIUS * 1e3, color="k", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("lumen radius (mm); dotted: the capsule's")
+    ax.set_ylabel("resistance (N)")
+    ax.set_title("(a) a 26 x 11 mm capsule pulled along")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    labels = [f"{seg}\n{src.split(',')[0]}" for seg, src, *_ in rows_b]
+    x = np.arange(len(rows_b))
+    ax.bar(x - 0.2, [p for _, _, p, _, _ in rows_b], 0.4, label="model (Laplace)")
+    ax.bar(x + 0.2, [q for _, _, _, q, _ in rows_b], 0.4, label="stretched to failure")
+    ax.scatter(x, [m for *_, m in rows_b], color="k", zorder=3, label="cadaver rupture")
+    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_ylabel("burst pressure (mmHg)")
+    ax.set_title("(b) the wall's burst pressure")
+    ax.legend(fontsize=8)
+    ax = axes[2]
+    supports = [max(sup, 3e4) for sup, _, _ in rows_c]
+    ax.plot(supports, [k for _, k, _ in rows_c], "o-", label="model, secant at 4 mm")
+    ax.axhline(rows_c[0][2], color="k", ls="--", label="Johnson 2019: 0.8 N/mm")
+    ax.set_xscale("log")
+    ax.set_xlabel("support outside the wall (Pa/m, U; 0 drawn at 3e4)")
+    ax.set_ylabel("stiffness under a colonoscope's head (N/mm)")
+    ax.set_title("(c) the wall under a colonoscope's head")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
