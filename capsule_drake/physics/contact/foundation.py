@@ -123,6 +123,7 @@ class WallTable:
         self.newton = np.stack([self.tangents, self.bends], axis=2)
         self.curvature = np.linalg.norm(self.bends, axis=1)
         self.smallest = radius.min(axis=1)        # each station's narrowest radius
+        self.radii = radius                       # (S, K)
         self._tree = cKDTree(self.points)
         self._corners = np.array([0, 1, around + 1, around + 2])
 
@@ -161,9 +162,14 @@ class WallTable:
                        station + int(reach / self.step) + 2)
         local = (points - self.frames[station, 0]) @ self.frames[station, 1:].T
         rho2 = local[:, 1] ** 2 + local[:, 2] ** 2
-        lowest = float(self.smallest[window].min()) - 1e-3
+        # The narrowest radius over the window, per sector of angle (each point's sector and
+        # its two neighbours: a point's angle seen from this station's frame differs from
+        # its own station's by a little in a bend).
+        lowest = self.radii[window].min(axis=0)
+        lowest = np.minimum(np.minimum(lowest, np.roll(lowest, 1)), np.roll(lowest, -1))
+        sector = (np.arctan2(local[:, 2], local[:, 1]) * (1.0 / self.dtheta)).astype(np.intp)
         bend = 0.5 * float(self.curvature[window].max())
-        near = np.sqrt(rho2) > lowest - bend * local[:, 0] ** 2
+        near = np.sqrt(rho2) > lowest[sector % self.around] - 1e-3 - bend * local[:, 0] ** 2
         # Near an end, every point past (or within 1 mm of) the cap's plane.
         for end, sign in ((0, -1.0), (self.count - 1, 1.0)):
             if abs(station - end) * self.step <= CAP_REACH:
@@ -380,6 +386,12 @@ class FoundationContact(LeafSystem):
         points = offsets + p_WB
         station = table.follow(p_WB, hint)
         near = table.near_wall(points, station, self._reach)
+        if near.size == 0:                    # clear of the wall: nothing to look up
+            geometry = {"station": station, "pressed": near, "points": np.zeros((0, 3)),
+                        "normals": np.zeros((0, 3)), "areas": np.zeros(0),
+                        "pressures": np.zeros(0), "R": R}
+            self._memo = (key, geometry)
+            return geometry
         depth, inward = table.depth(points[near], station)
         facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
         touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
