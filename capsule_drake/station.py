@@ -24,7 +24,8 @@ Exported in every station:
                            every pose command passes the guard (epm/guard.py)
     body_poses, contact_results, query_object   the plant's and scene graph's
 and with some drivers epm.command (the pose command, an output; an input with !External)
-and epm.status (the arm's controller's report).
+and epm.status (the arm's controller's report); on the compliant wall's foundation route,
+contact.wall (its own contact, physics/contact/foundation.py WallContact).
 """
 
 from __future__ import annotations
