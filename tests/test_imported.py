@@ -118,20 +118,33 @@ def test_the_ex_vivo_segment_is_a_textured_thick_wall_with_ragged_ends(ex_vivo):
     assert np.mean(np.einsum("ij,ij->i", toward, mesh.face_normals[inner]) > 0) > 0.99
 
 
+@pytest.fixture(scope="module")
+def exported_default(tmp_path_factory):
+    """The Default scenario's procedural colon exported as a user's OBJ: its path, and the
+    scenario text that imports it as the colon's source. The import (the centreline's
+    extraction from the mesh: ~20 s) is made once, by the colon's cache, for the two tests
+    that read it: the tabulated wall and the drag on it."""
+    from capsule_drake.anatomy import load_colon
+
+    path = tmp_path_factory.mktemp("exported") / "colon.obj"
+    load_colon(load_scenario(name="Default").colon)[0].visual_mesh().export(path)
+    return path, f"colon: {{source: !Imported {{path: {path}}}}}"
+
+
 @pytest.mark.slow
-def test_the_tabulated_wall_matches_the_procedural_wall(tmp_path):
+def test_the_tabulated_wall_matches_the_procedural_wall(exported_default):
     """The procedural colon exported and imported: points on its analytic wall are on the
     imported colon's wall (its excursion, from the table of sections, is ~0) and the
     midpoint between wall and centreline is well inside. (The drag's metrics and the
-    lumen truth read the wall through this table.)"""
+    lumen truth read the wall through this table.) The import is the one a run makes of
+    the OBJ as its colon's source (import_colon_mesh, write_import, ImportedColon.load)."""
     from capsule_drake.anatomy import load_colon
-    from capsule_drake.anatomy.imported import ImportedColon, import_colon_mesh, write_import
+    from capsule_drake.anatomy.imported import ImportedColon
 
     colon, _ = load_colon(load_scenario(name="Default").colon)
-    path = tmp_path / "colon.obj"
-    colon.visual_mesh().export(path)
-    write_import(import_colon_mesh(path), tmp_path / "import")
-    imported = ImportedColon.load(tmp_path / "import")
+    _, source = exported_default
+    imported, _ = load_colon(load_scenario(name="Default", override=f"{{{source}}}").colon)
+    assert isinstance(imported, ImportedColon)
     rng = np.random.default_rng(0)
     s = rng.uniform(0.02, colon.centerline.length - 0.02, 400)
     theta = rng.uniform(0.0, 2 * np.pi, 400)
@@ -178,7 +191,7 @@ def _inside(scenario_name, override, duration):
 
 
 @pytest.mark.slow
-def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_path):
+def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(exported_default):
     """The procedural colon exported as a user's OBJ and imported: the drag moves the
     capsule as far as in the original over 16 s, and the capsule stays inside the imported
     wall. Both are let settle first, as a run on an imported colon is
@@ -188,14 +201,12 @@ def test_the_drag_runs_on_the_imported_procedural_colon_as_on_the_original(tmp_p
     drag is stick-slip: it jumps forward between 6 and 10 s; unsettled, at 4, 6, 10 and
     12 s the two runs agreed within 1 mm, at 8 s, mid-jump, they were 7.1 and 9.9 cm
     along.)"""
-    from capsule_drake.anatomy import load_colon
     from capsule_drake.anatomy.start_check import REST_SETTLE
     from capsule_drake.app.run import simulate
 
-    path = tmp_path / "colon.obj"
-    load_colon(load_scenario(name="Default").colon)[0].visual_mesh().export(path)
+    _, source = exported_default
     settle = f"capsule: {{settle: {REST_SETTLE}}}"
-    text = f"{{colon: {{source: !Imported {{path: {path}}}}}, {settle}}}"
+    text = f"{{{source}, {settle}}}"
     moved, nearest = _inside("Default", text, 16.0)
     original = simulate(dataclasses.replace(load_scenario(name="Default",
                                                           override=f"{{{settle}}}"),

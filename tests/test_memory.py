@@ -240,26 +240,31 @@ from capsule_drake.app.gym_env import ColonNavigationEnv
 observations = tuple(sys.argv[1].split(","))
 env = ColonNavigationEnv(observations=observations, colons=tuple(range(6)))
 rss = {}
-for seed in range(24):   # no collection of its own: as a training loop runs
+for seed in range(18):   # no collection of its own: as a training loop runs
     env.reset(seed=seed)
     env.step(np.zeros(6))
     rss[seed + 1] = psutil.Process().memory_info().rss / 2**20
 env.close()
 left = sum(isinstance(o, Diagram) for o in gc.get_objects())
-print(rss[12], rss[24], env.build_count, left)
+print(rss[6], rss[18], env.build_count, left)
 """
 
 
 @pytest.mark.slow
-def test_24_resets_over_six_colons_stay_within_100_mb_of_the_twelfth():
-    """24 resets cycling over 6 colons (the environment keeps 4, so each reset builds its
-    colon), in one process, with and without the camera: resident memory after the 24th
-    within 100 MB of after the 12th (two rounds in), and no diagram left after close().
-    Before the fix a reset leaked ~12 MB without the camera and ~100 MB with it (515 -> 873
-    MB and 2,042 -> 5,133 MB over 30 resets), ~145 and ~1,200 MB over these 12; fixed, fifty
-    resets over ten colons grew 3 and 48 MB from the 10th to the 50th (README). The two
-    configurations run at once, one process each (benchmarks/bench_memory.py measures the
-    fifty, with a build's time)."""
+def test_18_resets_over_six_colons_stay_within_100_mb_of_the_sixth():
+    """18 resets cycling over 6 colons (the environment keeps 4, so each reset builds its
+    colon), in one process, with and without the camera: resident memory after the 18th
+    within 100 MB of after the 6th (one round in: every colon built once, the environment's
+    four kept and evicting), and no diagram left after close(). Before the fix a reset
+    leaked ~12 MB without the camera and ~100 MB with it (515 -> 873 MB and 2,042 -> 5,133
+    MB over 30 resets), ~145 and ~1,200 MB over these 12; fixed, fifty resets over ten
+    colons grew 3 and 48 MB from the 10th to the 50th (README). Measured over 24 resets:
+    flat from the 5th on (385 -> 386 MB from the 6th to the 18th, 1,073 -> 1,085 MB with
+    the camera; from the 12th to the 24th, 386 -> 386 and 1,085 -> 1,092 MB), so the 12
+    resets after the first round are as good a window as the 12 after the second (the
+    test measured those until the suite's time ran short). The two configurations run at
+    once, one process each (benchmarks/bench_memory.py measures the fifty, with a build's
+    time)."""
     processes = {name: subprocess.Popen([sys.executable, "-c", RESETS, observations],
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                         text=True)
@@ -268,9 +273,9 @@ def test_24_resets_over_six_colons_stay_within_100_mb_of_the_twelfth():
     for name, process in processes.items():
         out, err = process.communicate(timeout=1800)
         assert process.returncode == 0, err
-        twelfth, last, builds, left = out.split()
-        print(f"{name}: {float(twelfth):.0f} MB after 12 resets, {float(last):.0f} MB "
-              "after 24")
-        assert int(builds) == 24                       # every reset built its colon
-        assert float(last) - float(twelfth) < 100.0, (name, twelfth, last)
+        sixth, last, builds, left = out.split()
+        print(f"{name}: {float(sixth):.0f} MB after 6 resets, {float(last):.0f} MB "
+              "after 18")
+        assert int(builds) == 18                       # every reset built its colon
+        assert float(last) - float(sixth) < 100.0, (name, sixth, last)
         assert int(left) == 0, f"{name}: {left} diagrams alive after close()"
