@@ -48,8 +48,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from capsule_drake.anatomy import load_colon
-from capsule_drake.anatomy.centerline import Centerline
-from capsule_drake.physics.contact.foundation import FoundationContact, WallTable
+from capsule_drake.physics.contact.foundation import (FoundationContact, StraightTube,
+                                                     WallTable)
 from capsule_drake.physics.contact.compliant import (CompliantWall, foundation_modulus,
                                                       median_lumen_radius)
 from capsule_drake.scenario import load_scenario
@@ -66,20 +66,6 @@ GUO_RANGE_N = (0.007, 4.5)
 GUO_RADIUS, GUO_CYLINDER, GUO_MASS = 0.0055, 0.015, 0.005   # m, m, kg (mass U)
 LUMEN_RADII = (0.020, 0.0060, 0.0055, 0.0050, 0.0045, 0.0040)   # m
 SPEEDS = (0.001, 0.010)                                           # m/s
-
-
-class StraightTube:
-    """A straight tube along x of constant radius (the wall's table needs only these)."""
-
-    def __init__(self, radius, length=0.4):
-        s = np.arange(0.0, length + 1e-9, 0.001)
-        self.centerline = Centerline(s, np.stack([s, 0 * s, 0 * s], 1),
-                                     np.tile([0.0, 0.0, 1.0], (len(s), 1)),
-                                     np.full(len(s), radius), np.zeros(len(s), int), ["tube"])
-        self.radius = radius
-
-    def wall_radius(self, s, theta):
-        return np.full(np.broadcast(np.asarray(s), np.asarray(theta)).shape, self.radius)
 
 
 class Puller(LeafSystem):

@@ -14,28 +14,19 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
-from capsule_drake.anatomy.centerline import Centerline
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.physics.contact.compliant import displaced_volume_force
-from capsule_drake.physics.contact.foundation import FoundationContact, WallTable, no_forces
+from capsule_drake.physics.contact.foundation import (FoundationContact, StraightTube,
+                                                     WallTable, no_forces)
 
 MASS, TRANSVERSE, AXIAL = 0.012, 1.093e-6, 2.02e-7   # models/capsule.sdf
 K = 3.0e6                                             # Pa/m, the nominal wall's order
 
 
-class FlatTube:
-    """A straight tube along x of radius R0 (2 m: flat across the capsule's patch, within
-    0.01 mm), its angle measured from +z: the capsule lies on its floor (theta = pi)."""
-
-    def __init__(self, radius=2.0, length=0.3):
-        s = np.arange(0.0, length + 1e-9, 0.001)
-        self.centerline = Centerline(s, np.stack([s, 0 * s, 0 * s], 1),
-                                     np.tile([0.0, 0.0, 1.0], (len(s), 1)),
-                                     np.full(len(s), radius), np.zeros(len(s), int), ["tube"])
-        self.radius = radius
-
-    def wall_radius(self, s, theta):
-        return np.full(np.broadcast(np.asarray(s), np.asarray(theta)).shape, self.radius)
+def FlatTube(radius=2.0, length=0.3):
+    """A straight tube along x of radius 2 m: flat across the capsule's patch, within
+    0.01 mm; the capsule lies on its floor (theta = pi)."""
+    return StraightTube(radius, length)
 
 
 def capsule_state(depth, roll=0.0, radius=2.0):

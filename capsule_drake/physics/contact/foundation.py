@@ -42,9 +42,10 @@ about its axis, `tangential_mass`) turns by half a radian per step, and damped a
 critical. At the default 2 ms step a capsule pressed with 1 N creeps 0.36 mm before it
 slides.
 
-Forces are explicit: computed at the start of each plant step from the capsule's state, as
-the magnet's. physics/step_bound.py keeps the wall's stiffest normal mode (the capsule half
-buried, `contact_stiffness_bound`) within omega dt <= 1.
+The force is linearly implicit in the wall's own stiffness, damping and friction (the
+velocity change over the step taken with the cells' response at its end, the other applied
+forces passing through this system), so the wall's stiffness sets no step bound; a capsule at
+rest sits where its weight needs.
 
 The tube's two ends are closed by flat caps across the centreline's end tangents, as its
 collision mesh is. What it leaves out: the diverticula (pouches cut into the wall mesh: the
@@ -65,6 +66,7 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
 from scipy.spatial import cKDTree
 
+from capsule_drake.anatomy.centerline import Centerline
 from capsule_drake.lifetime import weak_method
 
 TABLE_STEP = 0.5e-3
@@ -122,7 +124,6 @@ class WallTable:
         # (S, 3, 2): the tangent and dT/ds as columns, for one product per Newton step.
         self.newton = np.stack([self.tangents, self.bends], axis=2)
         self.curvature = np.linalg.norm(self.bends, axis=1)
-        self.smallest = radius.min(axis=1)        # each station's narrowest radius
         self.radii = radius                       # (S, K)
         self._tree = cKDTree(self.points)
         self._corners = np.array([0, 1, around + 1, around + 2])
@@ -235,6 +236,21 @@ class WallTable:
         return depth, inward
 
 
+class StraightTube:
+    """The simplest colon the wall's table takes: a straight tube along +x of constant
+    radius, its angle measured from +z (for checks and benchmarks of the contact alone)."""
+
+    def __init__(self, radius: float, length: float = 0.4):
+        s = np.arange(0.0, length + 1e-9, 0.001)
+        self.centerline = Centerline(s, np.stack([s, 0 * s, 0 * s], 1),
+                                     np.tile([0.0, 0.0, 1.0], (len(s), 1)),
+                                     np.full(len(s), radius), np.zeros(len(s), int), ["tube"])
+        self.radius = radius
+
+    def wall_radius(self, s, theta):
+        return np.full(np.broadcast(np.asarray(s), np.asarray(theta)).shape, self.radius)
+
+
 def capsule_probes(radius: float, length: float, around: int = PROBES_AROUND,
                    along: int = PROBES_ALONG, cap_rings: int = PROBES_CAP_RINGS):
     """The capsule's surface cut into cells (midpoint rule): (centres (N, 3), outward unit
@@ -276,13 +292,6 @@ def tangential_mass(mass: float, radius: float, axial_inertia: float) -> float:
     """The capsule's lightest effective mass (kg) at its surface for a tangential push:
     across its axis, where the push also rolls it, 1 / (1 / m + r^2 / I_axial)."""
     return 1.0 / (1.0 / mass + radius**2 / axial_inertia)
-
-
-def contact_stiffness_bound(k: float, radius: float, length: float) -> float:
-    """The wall's normal stiffness (N/m) against a capsule half buried (its axis on the
-    mucosa), the stiffest the foundation is over the indentations it takes:
-    d/d depth of k (volume beyond the wall) = k (2 r L + pi r^2)."""
-    return k * (2.0 * radius * length + math.pi * radius**2)
 
 
 @dataclasses.dataclass
