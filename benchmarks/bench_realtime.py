@@ -1,7 +1,7 @@
 """Real-time factors of the scenarios, their build times and memory, and what a step costs.
 
     .venv/bin/python benchmarks/bench_realtime.py [--scenarios Default,FastContact,WithArm,Navigation]
-        [--scenario-text YAML] [--sim-seconds 10] [--repeats 3]
+        [--scenario-text YAML] [--sim-seconds 10] [--repeats 3] [--versus YAML]
 
 Each scenario (diagrams/default.yaml, at its own plant step) runs in a process of its own, so
 that its build time and peak memory (resident set, build and simulation) are its own, with
@@ -17,6 +17,13 @@ costs:
   - the contact query alone (SceneGraph: hydroelastic surfaces or point pairs), timed
     directly on the final context;
   - the rest of the plant step (contact solver, dynamics, PD servos), by difference.
+
+With --versus YAML, each scenario is measured against itself with that YAML layered on
+(e.g. the rigid wall against the compliant one): both stations are built in one process and
+advanced in alternate chunks of 0.5 simulated seconds, each chunk timed, so that a change in
+the machine's speed during the measurement (a shared VM's neighbours) falls on both alike.
+Prints each one's real-time factor per repeat (its chunks' total) and the ratio, median of
+the repeats.
 """
 
 import argparse
@@ -128,6 +135,29 @@ def measure(name, override, sim_seconds, repeats, breakdown):
     return figures
 
 
+def paired_factors(name, override, versus, sim_seconds, repeats, chunk=0.5, warm_up=1.0):
+    """(the scenario's real-time factors, with `versus` layered on, their ratios), one of
+    each per repeat: the two advanced in alternate chunks (module docstring)."""
+    texts = [override, [override, versus] if override else versus]
+    diagrams = [make_station(load_scenario(name=name, override=text)) for text in texts]
+    rows = []
+    for _ in range(repeats):
+        simulators = [Simulator(diagram) for diagram in diagrams]
+        for simulator in simulators:
+            simulator.Initialize()
+            simulator.AdvanceTo(warm_up)
+        spent = [0.0, 0.0]
+        t = warm_up
+        while t < warm_up + sim_seconds - 1e-9:
+            t = min(t + chunk, warm_up + sim_seconds)
+            for k, simulator in enumerate(simulators):
+                start = time.perf_counter()
+                simulator.AdvanceTo(t)
+                spent[k] += time.perf_counter() - start
+        rows.append((sim_seconds / spent[0], sim_seconds / spent[1], spent[0] / spent[1]))
+    return rows
+
+
 def cpu_name():
     try:
         with open("/proc/cpuinfo") as cpuinfo:
@@ -147,8 +177,17 @@ def main():
                              "'{magnet_force: {field_model: finite}}'")
     parser.add_argument("--sim-seconds", type=float, default=10.0)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--versus", default=None,
+                        help="YAML layered on a second copy of each scenario, measured in "
+                             "alternate chunks against the first, e.g. "
+                             "'{contact: !CompliantWall {}}'")
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+
+    if args.versus is not None and args.one is not None:
+        print(json.dumps(paired_factors(args.one, args.scenario_text, args.versus,
+                                        args.sim_seconds, args.repeats)))
+        return
 
     if args.one is not None:   # the child: one scenario, one JSON line
         breakdown = load_scenario(name=args.one).capsule.camera is None
@@ -161,6 +200,27 @@ def main():
     print(f"machine: {platform.machine()}, {cpu_name()}, Python "
           f"{platform.python_version()}; {args.repeats} x {args.sim_seconds:g} s after 1 s; "
           f"GLIBC_TUNABLES={env['GLIBC_TUNABLES']}")
+    if args.versus is not None:
+        print(f"| scenario | as given{' (' + args.scenario_text + ')' if args.scenario_text else ''} "
+              f"| with {args.versus} | ratio (median; repeats) |")
+        print("|---|---|---|---|")
+        for name in args.scenarios.split(","):
+            command = [sys.executable, __file__, "--one", name, "--sim-seconds",
+                       str(args.sim_seconds), "--repeats", str(args.repeats),
+                       "--versus", args.versus]
+            if args.scenario_text:
+                command += ["--scenario-text", args.scenario_text]
+            done = subprocess.run(command, capture_output=True, text=True, env=env)
+            if done.returncode != 0:
+                print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
+                continue
+            rows = json.loads(done.stdout.strip().splitlines()[-1])
+            a, b, r = zip(*rows)
+            print(f"| `{name}` | {statistics.median(a):.2f} ({', '.join(f'{x:.2f}' for x in a)}) "
+                  f"| {statistics.median(b):.2f} ({', '.join(f'{x:.2f}' for x in b)}) "
+                  f"| **{statistics.median(r):.2f}** ({', '.join(f'{x:.2f}' for x in r)}) |",
+                  flush=True)
+        return
     print("| scenario | contact | step | build (colon + diagram) | peak memory "
           "| real-time factor (median; runs) | wall per step | magnet force | contact query "
           "| solver, dynamics, rest |")

@@ -64,6 +64,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.framework import LeafSystem
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.spatial import cKDTree
 
 from capsule_drake.anatomy.centerline import Centerline
@@ -87,6 +88,10 @@ looked up afresh: beyond the widest lumen (a caecum of 45 mm) and a capsule pres
 into its wall."""
 REFINEMENTS = 1
 """Steps of each point's station from the capsule's (module docstring): one, then its own."""
+NEAR_SLACK = 1e-3
+"""How far (m) a capsule's surface may move, on the same station, before the cells that may
+touch the wall are picked afresh (`FoundationContact._near`: they are picked with this
+slack, so the pick holds for any pose within it; the result does not depend on it)."""
 TANGENTIAL_TURN = 0.5
 """The bristles' stiffness: the capsule's lightest tangential mode turns by this many radians
 per step (omega dt)."""
@@ -121,12 +126,17 @@ class WallTable:
         # The tangent's rate of turn dT/ds (1/m): a Newton step to a point's foot divides its
         # offset along the tangent by 1 - (offset . dT/ds).
         self.bends = np.gradient(self.tangents, step, axis=0)
-        # (S, 3, 2): the tangent and dT/ds as columns, for one product per Newton step.
-        self.newton = np.stack([self.tangents, self.bends], axis=2)
+        # (S, 3, 2): the tangent over the table's step and dT/ds as columns, for one product
+        # per Newton step: the step in stations is (d . T / step) / (1 - d . dT/ds).
+        self.newton = np.stack([self.tangents / step, self.bends], axis=2)
         self.curvature = np.linalg.norm(self.bends, axis=1)
         self.radii = radius                       # (S, K)
+        # (S, 3, 3): each station's point, tangent over the step and dT/ds, gathered once per
+        # Newton step.
+        self._steps = np.stack([self.points, self.tangents / step, self.bends], axis=1)
         self._tree = cKDTree(self.points)
         self._corners = np.array([0, 1, around + 1, around + 2])
+        self._filters = {}
 
     def nearest(self, p) -> int:
         """The table's station nearest the point p (3,)."""
@@ -142,58 +152,73 @@ class WallTable:
         j = min(max(int(station), 0), last)
         for _ in range(8):
             offset = p - self.frames[j, 0]
-            projected = offset @ self.newton[j]
-            step = int(round(projected[0] / (1.0 - projected[1]) / self.step))
+            along, bend = (offset @ self.newton[j]).tolist()
+            step = round(along / (1.0 - bend))
             j = min(max(j + step, 0), last)
             if step == 0:
                 break
         else:
             return self.nearest(p)
-        if float(np.sum((p - self.frames[j, 0]) ** 2)) > FOLLOW_REACH**2:
+        if float(offset @ offset) > FOLLOW_REACH**2:
             return self.nearest(p)
         return j
 
-    def near_wall(self, points, station: int, reach: float) -> np.ndarray:
+    def near_wall(self, points, station: int, reach: float, slack: float = 0.0) -> np.ndarray:
         """Indices of the points (N, 3), all within `reach` (m) of the station `station`'s
         point, that may lie beyond the mucosa: their distance from the centreline, measured
         in that station's plane, exceeds the narrowest radius of the stations within reach,
         less what a bend can change that distance by over their offset u along the
-        centreline (kappa u^2 / 2 for the sharpest curvature kappa there) and 1 mm."""
-        window = slice(max(station - int(reach / self.step) - 1, 0),
-                       station + int(reach / self.step) + 2)
-        local = (points - self.frames[station, 0]) @ self.frames[station, 1:].T
-        rho2 = local[:, 1] ** 2 + local[:, 2] ** 2
-        # The narrowest radius over the window, per sector of angle (each point's sector and
-        # its two neighbours: a point's angle seen from this station's frame differs from
-        # its own station's by a little in a bend).
-        lowest = self.radii[window].min(axis=0)
-        lowest = np.minimum(np.minimum(lowest, np.roll(lowest, 1)), np.roll(lowest, -1))
+        centreline (kappa u^2 / 2 for the sharpest curvature kappa there) and 1 mm. With a
+        `slack` (m), every point that may lie beyond it after moving by up to that much."""
+        lowest, bend = self._filter(reach)
+        frame = self.frames[station]
+        local = (points - frame[0]) @ frame[1:].T
         sector = (np.arctan2(local[:, 2], local[:, 1]) * (1.0 / self.dtheta)).astype(np.intp)
-        bend = 0.5 * float(self.curvature[window].max())
-        near = np.sqrt(rho2) > lowest[sector % self.around] - 1e-3 - bend * local[:, 0] ** 2
+        sector %= self.around
+        along = np.abs(local[:, 0]) + slack
+        near = (np.hypot(local[:, 1], local[:, 2]) + (slack + bend[station] * along * along)
+                > lowest[station].take(sector))
         # Near an end, every point past (or within 1 mm of) the cap's plane.
         for end, sign in ((0, -1.0), (self.count - 1, 1.0)):
             if abs(station - end) * self.step <= CAP_REACH:
-                near |= sign * ((points - self.frames[end, 0]) @ self.frames[end, 1]) > -1e-3
+                near |= (sign * ((points - self.frames[end, 0]) @ self.frames[end, 1])
+                         > -1e-3 - slack)
         return np.flatnonzero(near)
+
+    def _filter(self, reach: float):
+        """near_wall's thresholds for points within `reach` of a station, per station
+        (computed once per reach): the narrowest radius over the stations within reach, per
+        sector of angle and its two neighbours (a point's angle seen from this station's
+        frame differs from its own station's by a little in a bend), less 1 mm (S, K); and
+        half the sharpest curvature there (S,)."""
+        cached = self._filters.get(reach)
+        if cached is None:
+            size = 2 * (int(reach / self.step) + 1) + 1
+            lowest = minimum_filter1d(self.radii, size, axis=0, mode="nearest")
+            lowest = minimum_filter1d(lowest, 3, axis=1, mode="wrap") - 1e-3
+            bend = 0.5 * maximum_filter1d(self.curvature, size, mode="nearest")
+            cached = self._filters[reach] = (lowest, bend)
+        return cached
 
     def depth(self, points, station: int):
         """For world points (N, 3) near the station `station` (a table index near them):
         (depth along the wall's normal beyond the mucosa (N,; negative inside the lumen),
         the wall's inward unit normal (N, 3)), in m."""
+        if len(points) == 0:
+            return np.zeros(0), np.zeros((0, 3))
         frames, step = self.frames, self.step
         last = self.count - 1
         # The station of each point: from the nearest station's frame, then once from its own.
         newton = self.newton
         projected = (points - frames[station, 0]) @ newton[station]
-        j = station + np.rint(projected[:, 0] / ((1.0 - projected[:, 1]) * step)).astype(np.intp)
+        j = station + np.rint(projected[:, 0] / (1.0 - projected[:, 1])).astype(np.intp)
         np.minimum(np.maximum(j, 0, out=j), last, out=j)
         for _ in range(REFINEMENTS):
-            frame = frames[j]
-            projected = np.einsum("nij,ni->nj", newton[j], points - frame[:, 0])
-            j += np.rint(projected[:, 0] / ((1.0 - projected[:, 1]) * step)).astype(np.intp)
+            at = self._steps.take(j, axis=0)                          # (n, 3, 3)
+            projected = np.einsum("nki,ni->nk", at[:, 1:], points - at[:, 0])
+            j += np.rint(projected[:, 0] / (1.0 - projected[:, 1])).astype(np.intp)
             np.minimum(np.maximum(j, 0, out=j), last, out=j)
-        frame = frames[j]
+        frame = frames.take(j, axis=0)
         local = np.einsum("nij,nj->ni", frame[:, 1:], points - frame[:, 0])
         x, y = local[:, 1], local[:, 2]
         rho = np.hypot(x, y)
@@ -204,7 +229,8 @@ class WallTable:
         v = np.arctan2(y, x) * (1.0 / self.dtheta) % self.around
         kv = v.astype(np.intp)
         fv = (v - kv)[:, None]
-        corners = self.flat[(ju * (self.around + 1) + kv)[:, None] + self._corners]   # (n, 4, 3)
+        corners = self.flat.take((ju * (self.around + 1) + kv)[:, None] + self._corners,
+                                 axis=0)                              # (n, 4, 3)
         near_s = corners[:, 0] + fv * (corners[:, 1] - corners[:, 0])
         far_s = corners[:, 2] + fv * (corners[:, 3] - corners[:, 2])
         values = near_s + fu * (far_s - near_s)
@@ -222,17 +248,15 @@ class WallTable:
         depth = (rho - radius) / norm
         # The flat caps closing the tube at its two ends (as its collision mesh's): a point
         # whose station is an end and that lies past the end's plane is that far into it.
-        for end, sign in ((0, -1.0), (last, 1.0)):
-            if abs(station - end) * step > CAP_REACH:
+        for end, sign, at in ((0, -1.0, int(j.min()) == 0), (last, 1.0, int(j.max()) == last)):
+            if not at:
                 continue
             at_end = np.flatnonzero(j == end)
-            if at_end.size:
-                past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
-                deeper = past > depth[at_end]
-                if np.any(deeper):
-                    k = at_end[deeper]
-                    depth[k] = past[deeper]
-                    inward[k] = -sign * frames[end, 1]
+            past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
+            deeper = past > depth[at_end]
+            k = at_end[deeper]
+            depth[k] = past[deeper]
+            inward[k] = -sign * frames[end, 1]
         return depth, inward
 
 
@@ -378,6 +402,7 @@ class FoundationContact(LeafSystem):
             "wall_contact", lambda: AbstractValue.Make(empty_wall_contact()),
             weak_method(self._calc_wall_contact), prerequisites_of_calc=ticket)
         self._memo = (None, None)
+        self._near_memo = None   # (station, p_WB, R, the cells picked with NEAR_SLACK)
 
     def _geometry(self, x, hint: int):
         """The pressed cells at the capsule state x: a dict of their indices, centres'
@@ -388,13 +413,15 @@ class FoundationContact(LeafSystem):
             return self._memo[1]
         # The plant's quaternion drifts off unit length between its own normalisations:
         # its rotation is that of the unit quaternion along it.
-        R = _rotation(*(x[0:4] / math.sqrt(float(x[0:4] @ x[0:4]))))
+        w, i, j, k = x[0:4].tolist()
+        scale = 1.0 / math.sqrt(w * w + i * i + j * j + k * k)
+        R = _rotation(w * scale, i * scale, j * scale, k * scale)
         p_WB, w_W, v_W = x[4:7], x[7:10], x[10:13]
         table = self._table
         offsets = self._p_B @ R.T
         points = offsets + p_WB
         station = table.follow(p_WB, hint)
-        near = table.near_wall(points, station, self._reach)
+        near = self._near(points, station, p_WB, R)
         if near.size == 0:                    # clear of the wall: nothing to look up
             geometry = {"station": station, "pressed": near, "points": np.zeros((0, 3)),
                         "normals": np.zeros((0, 3)), "areas": np.zeros(0),
@@ -422,16 +449,18 @@ class FoundationContact(LeafSystem):
         # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
         # bristle's) mapped by its Jacobian J = [-[r]x, I] onto the capsule's spatial
         # velocity [w; v] (6x6 A); the velocity change over the step with every cell's force
-        # taken at the step's end is dt (M + dt A)^-1 (F + F_other) (`step`).
+        # taken at the step's end is dt (M + dt A)^-1 (F + F_other) (`system`: M + dt A).
         beta = (self._tangential_damping + self._dt * self._tangential_stiffness) * share
         u = np.concatenate([_cross(r, nu), nu], axis=1)              # J^T nu
         gain = (u * (normal_gain - beta)[:, None]).T @ u
         rb = r * beta[:, None]
-        gain[:3, :3] += float(np.einsum("ij,ij->", rb, r)) * np.eye(3) - rb.T @ r
+        gain[:3, :3] -= rb.T @ r
+        diagonal = gain.reshape(-1)               # a view: the diagonals as strided slices
+        diagonal[0:15:7] += float(np.einsum("ij,ij->", rb, r))
+        diagonal[21::7] += float(beta.sum())
         cross = _skew(rb.sum(axis=0))
         gain[:3, 3:] += cross
         gain[3:, :3] -= cross
-        gain[3:, 3:] += float(beta.sum()) * np.eye(3)
         M = self._spatial_inertia(R)
         geometry = {"station": station, "pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
@@ -439,9 +468,24 @@ class FoundationContact(LeafSystem):
                     "bristle_gain": beta, "R": R, "share": share,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
                     "limit": self._mu * pressure * area,
-                    "step": self._dt * np.linalg.inv(M + self._dt * gain) if len(r) else None}
+                    "system": M + self._dt * gain}
         self._memo = (key, geometry)
         return geometry
+
+    def _near(self, points, station: int, p_WB, R) -> np.ndarray:
+        """The cells that may touch the wall (WallTable.near_wall), picked with NEAR_SLACK and
+        kept while the capsule stays on its station and no cell has moved farther than that
+        since (|dp| + |dR|_F times the farthest cell's distance bounds every cell's move)."""
+        memo = self._near_memo
+        if memo is not None and memo[0] == station:
+            dp = p_WB - memo[1]
+            dR = R - memo[2]
+            if (math.sqrt(float(dp @ dp)) + self._reach * math.sqrt(float(np.vdot(dR, dR)))
+                    <= NEAR_SLACK):
+                return memo[3]
+        near = self._table.near_wall(points, station, self._reach, NEAR_SLACK)
+        self._near_memo = (station, np.array(p_WB), R, near)
+        return near
 
     def _geometry_of(self, context):
         """`_geometry` at this context's capsule state, followed from its stored station."""
@@ -449,13 +493,22 @@ class FoundationContact(LeafSystem):
                               int(context.get_discrete_state(self._station).GetAtIndex(0)))
 
     def _bristles_of(self, context, g):
-        """The pressed cells' bristles, in their wall's tangent plane."""
-        z = context.get_discrete_state(self._bristles).value().reshape(-1, 3)[g["pressed"]]
-        return z - np.einsum("ij,ij->i", z, g["normals"])[:, None] * g["normals"]
+        """The pressed cells' bristles, in their wall's tangent plane (kept with the
+        geometry for the bristles' state it was read from: the step's force and its update
+        read it at the same state)."""
+        state = context.get_discrete_state(self._bristles).value()
+        key = state.tobytes()
+        memo = g.get("bristles")
+        if memo is not None and memo[0] == key:
+            return memo[1]
+        z = state.reshape(-1, 3).take(g["pressed"], axis=0)
+        z -= np.einsum("ij,ij->i", z, g["normals"])[:, None] * g["normals"]
+        g["bristles"] = (key, z)
+        return z
 
-    def _solve(self, context):
+    def _solve(self, context, others=None):
         """(the wall's geometry at this state, the net force and torque about the body
-        origin, world)."""
+        origin, world); `others`: the other_forces input's value, if evaluated already."""
         g = self._geometry_of(context)
         if len(g["pressed"]) == 0:
             self._explicit = np.zeros(6)
@@ -465,10 +518,13 @@ class FoundationContact(LeafSystem):
                       + self._tangential_damping * g["slip"]) * g["share"][:, None]
         self._explicit = _wrench(r, g["normal_force"][:, None] * nu - tangential)
         # The velocity change over the step with every cell's force taken at the step's end
-        # (the geometry's `step`: dt (M + dt A)^-1), then each cell's force there: its normal
+        # (dt (M + dt A)^-1 (F + F_other), the geometry's `system` M + dt A), then each
+        # cell's force there: its normal
         # force at least 0, its friction within mu times that (a cell that would need more
         # slips: Coulomb's cone).
-        change = g["step"] @ (self._explicit + self._other_wrench(context, g["R"]))
+        change = self._dt * np.linalg.solve(
+            g["system"], self._explicit + self._other_wrench(
+                g["R"], self._others.Eval(context) if others is None else others))
         dv = change[3:] + r @ _skew(change[:3]).T                   # dv + dw x r
         dv_normal = np.einsum("ij,ij->i", dv, nu)
         normal = np.maximum(g["normal_force"] - g["normal_gain"] * dv_normal, 0.0)
@@ -490,21 +546,25 @@ class FoundationContact(LeafSystem):
         self._solve(context)
         return self._explicit.copy()
 
-    def _other_wrench(self, context, R):
+    def _other_wrench(self, R, others):
         """The other forces on the capsule this step ([torque about the body origin; force],
-        world): gravity and the applied forces given to this system (the magnet's, the
-        fluid's)."""
-        wrench = np.zeros(6)
-        wrench[3:] = self._weight
-        wrench[:3] = _skew(R @ self._p_BoBcm) @ self._weight
-        for force in self._others.Eval(context):
+        world): gravity and the applied forces `others` given to this system (the magnet's,
+        the fluid's)."""
+        tx, ty, tz = (_skew(R @ self._p_BoBcm) @ self._weight).tolist()
+        fx, fy, fz = self._weight.tolist()
+        for force in others:
             if force.body_index != self._index:
                 continue
             F = force.F_Bq_W
-            f = F.translational()
-            wrench[:3] += F.rotational() + _skew(R @ force.p_BoBq_B) @ f
-            wrench[3:] += f
-        return wrench
+            (ax, ay, az), (bx, by, bz) = F.rotational().tolist(), F.translational().tolist()
+            rx, ry, rz = (R @ force.p_BoBq_B).tolist()
+            tx += ax + ry * bz - rz * by
+            ty += ay + rz * bx - rx * bz
+            tz += az + rx * by - ry * bx
+            fx += bx
+            fy += by
+            fz += bz
+        return np.array([tx, ty, tz, fx, fy, fz])
 
     def _spatial_inertia(self, R):
         """The capsule's spatial inertia about its body origin, in world (6x6, [w; v])."""
@@ -513,12 +573,13 @@ class FoundationContact(LeafSystem):
         return rotate @ self._inertia_B @ rotate.T
 
     def _calc_force(self, context, output):
-        _, f, tau = self._solve(context)
+        others = self._others.Eval(context)
+        _, f, tau = self._solve(context, others)
         force = ExternallyAppliedSpatialForce()
         force.body_index = self._index
         force.p_BoBq_B = np.zeros(3)
         force.F_Bq_W = SpatialForce(tau, f)
-        output.set_value(list(self._others.Eval(context)) + [force])
+        output.set_value(others + [force])
 
     def _calc_wall_contact(self, context, output):
         g, f, tau = self._solve(context)
@@ -533,10 +594,10 @@ class FoundationContact(LeafSystem):
         pressed = g["pressed"]
         if len(pressed):
             bristles = self._bristles_of(context, g) + self._dt * g["slip"]
-            size = np.linalg.norm(bristles, axis=1) * self._tangential_stiffness * g["share"]
+            size = (np.sqrt(np.einsum("ij,ij->i", bristles, bristles))
+                    * (self._tangential_stiffness * g["share"]))
             over = size > g["limit"]
-            if np.any(over):
-                bristles[over] *= (g["limit"][over] / size[over])[:, None]
+            bristles[over] *= (g["limit"][over] / size[over])[:, None]
             z[pressed] = bristles
         discrete_state.set_value(self._bristles, z.ravel())
         discrete_state.set_value(self._station, np.array([float(g["station"])]))
@@ -544,7 +605,8 @@ class FoundationContact(LeafSystem):
 
 def _skew(v) -> np.ndarray:
     """[v]x: the matrix of v x (3,)."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    x, y, z = v.tolist()
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def _cross(a, b) -> np.ndarray:
@@ -559,9 +621,9 @@ def _cross(a, b) -> np.ndarray:
 def _wrench(r, forces) -> np.ndarray:
     """[sum r x f; sum f] of forces (N, 3) at offsets r (N, 3): the torque from the
     antisymmetric part of sum f r^T."""
-    S = forces.T @ r
-    return np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1],
-                     *forces.sum(axis=0)])
+    (a, b, c), (d, e, f), (g, h, i) = (forces.T @ r).tolist()
+    x, y, z = forces.sum(axis=0).tolist()
+    return np.array([h - f, c - g, d - b, x, y, z])
 
 
 def _rotation(w, x, y, z) -> np.ndarray:
