@@ -84,6 +84,13 @@ class CompliantWall:
     # shaft on human colonic mucosa at the best lubricant (Watanabe et al., Commun Eng 2024;
     # the lowest reached). On small-bowel mucosa 0.0004-0.054 (Lyle et al. 2013).
     friction: float = 0.09
+    # Adhesion energy between capsule and mucosa (J/m^2): a cell that has touched the wall
+    # stays stuck until pulled sqrt(2 W / k) beyond it (foundation.py). 0.55 J/m^2 is the
+    # peel energy of capsule materials on pig small-bowel mucosa (0.055 +- 0.016 mJ/cm^2;
+    # tack 0.198 +- 0.070 mJ/cm^2), excised, at room temperature (Terry et al., JMBBM 15:24,
+    # 2012): a surrogate (S). The foundation realisation only (Drake's hydroelastic contact
+    # has none).
+    adhesion_energy: float = 0.55
     # Hunt-Crossley dissipation of the contact (s/m): the tissue's viscous loss. No source
     # read gives it for colon (U).
     hunt_crossley_dissipation: float = 5.0
@@ -206,6 +213,8 @@ def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
                    "or 0: the colon's median radius")
     need_range(config.friction, "contact.friction", "[0, 2]", "",
                "measured on mucosa: 0.0004-0.09")
+    need_range(config.adhesion_energy, "contact.adhesion_energy", "[0, 10]", "J/m^2",
+               "measured on mucosa: 0.55 (peel) to 1.98 (tack)")
     need_range(config.hunt_crossley_dissipation, "contact.hunt_crossley_dissipation", ">= 0",
                "s/m")
     need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
@@ -275,7 +284,8 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
         config.hunt_crossley_dissipation, plant.time_step(), body.default_mass(), axial,
         body.default_spatial_inertia().CopyToFullMatrix6(),
         body.default_spatial_inertia().get_com(),
-        plant.gravity_field().gravity_vector(), table.nearest(parts.X_WB0.translation())))
+        plant.gravity_field().gravity_vector(), table.nearest(parts.X_WB0.translation()),
+        config.adhesion_energy))
     builder.Connect(parts.output("capsule.state"), system.GetInputPort("capsule_state"))
     # The other applied forces pass through it (its force is implicit in the wall's own
     # response, exact at rest only with the others known): the applied_forces block.

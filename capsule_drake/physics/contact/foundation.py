@@ -42,6 +42,12 @@ about its axis, `tangential_mass`) turns by half a radian per step, and damped a
 critical. At the default 2 ms step a capsule pressed with 1 N creeps 0.36 mm before it
 slides.
 
+Adhesion. Mucosa sticks to capsule materials (Terry et al. 2012: 0.55 J/m^2 in peel, 1.98
+in tack; compliant.adhesion_energy). A cell that has touched the wall stays stuck to it: it
+pulls back with the same spring, k times how far it is beyond the mucosa, until it is pulled
+the release distance sqrt(2 W / k) off, where it lets go (the springs' energy at release is W
+per area: an adhesive Winkler foundation). A stuck cell in tension carries no friction.
+
 The force is linearly implicit in the wall's own stiffness, damping and friction (the
 velocity change over the step taken with the cells' response at its end, the other applied
 forces passing through this system), so the wall's stiffness sets no step bound; a capsule at
@@ -359,7 +365,8 @@ class FoundationContact(LeafSystem):
                  foundation_modulus: float, friction: float, dissipation: float,
                  time_step: float, mass: float, axial_inertia: float,
                  spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0),
-                 gravity_W=(0.0, 0.0, -9.81), start_station: int = 0):
+                 gravity_W=(0.0, 0.0, -9.81), start_station: int = 0,
+                 adhesion_energy: float = 0.0):
         super().__init__()
         self._index = body_index
         self._table = table
@@ -374,6 +381,11 @@ class FoundationContact(LeafSystem):
         self._mu = friction
         self._dissipation = dissipation
         self._dt = time_step
+        # Adhesion: a cell that has touched the wall stays stuck to it until pulled a
+        # release distance delta beyond the mucosa, with k delta^2 / 2 = the adhesion
+        # energy (module docstring); 0: no adhesion.
+        self._release = (math.sqrt(2.0 * adhesion_energy / foundation_modulus)
+                         if adhesion_energy > 0.0 else 0.0)
         m_t = tangential_mass(mass, radius, axial_inertia)
         # The capsule's spatial inertia about its body origin in its frame (6x6, [w; v]).
         if spatial_inertia is None:
@@ -390,11 +402,14 @@ class FoundationContact(LeafSystem):
         self._bristles = self.DeclareDiscreteState(3 * self._count)
         # The capsule's station on the centreline, followed from step to step (WallTable.follow).
         self._station = self.DeclareDiscreteState(np.array([float(start_station)]))
+        # Each cell: 1 while stuck to the wall (adhesion), else 0.
+        self._stuck = self.DeclareDiscreteState(self._count)
         self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, weak_method(self._update))
         ticket = {self.input_port_ticket(self._state_port.get_index()),
                   self.input_port_ticket(self._others.get_index()),
                   self.discrete_state_ticket(self._bristles),
-                  self.discrete_state_ticket(self._station)}
+                  self.discrete_state_ticket(self._station),
+                  self.discrete_state_ticket(self._stuck)}
         self._force_port = self.DeclareAbstractOutputPort(
             "applied_spatial_force", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             weak_method(self._calc_force), prerequisites_of_calc=ticket)
@@ -404,15 +419,23 @@ class FoundationContact(LeafSystem):
         self._memo = (None, None)
         self._near_memo = None   # (station, p_WB, R, the cells picked with NEAR_SLACK)
 
-    def _geometry(self, x, hint: int):
-        """The pressed cells at the capsule state x: a dict of their indices, centres'
-        offsets from the body origin (world), depths, wall normals, wall areas and velocities
-        (computed once per state: the plant's step and this system's update read it)."""
-        key = x.tobytes()
+    def _geometry(self, x, hint: int, stuck=None):
+        """The pressed cells at the capsule state x (and, with adhesion, the cells stuck to
+        the wall, `stuck` (N,) 1 or 0): a dict of their indices, centres' offsets from the
+        body origin (world), depths, wall normals, wall areas and velocities (computed once
+        per state: the plant's step and this system's update read it)."""
+        release = self._release
+        key = x.tobytes() if not release else x.tobytes() + stuck.tobytes()
         if self._memo[0] == key:
             return self._memo[1]
         # The plant's quaternion drifts off unit length between its own normalisations:
         # its rotation is that of the unit quaternion along it.
+        if not np.isfinite(x).all():   # diverged: the run guard says so and stops the run
+            geometry = {"station": hint, "pressed": np.zeros(0, dtype=np.intp),
+                        "points": np.zeros((0, 3)), "normals": np.zeros((0, 3)),
+                        "areas": np.zeros(0), "pressures": np.zeros(0), "R": np.eye(3)}
+            self._memo = (key, geometry)
+            return geometry
         w, i, j, k = x[0:4].tolist()
         scale = 1.0 / math.sqrt(w * w + i * i + j * j + k * k)
         R = _rotation(w * scale, i * scale, j * scale, k * scale)
@@ -430,7 +453,11 @@ class FoundationContact(LeafSystem):
             return geometry
         depth, inward = table.depth(points[near], station)
         facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
-        touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
+        if release:     # a stuck cell pulls on the wall until it is `release` beyond it
+            holding = (stuck.take(near) > 0.5) & (depth > -release)
+            touching = np.flatnonzero(((depth > 0.0) | holding) & (facing > 0.0))
+        else:
+            touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
         pressed = near[touching]
         depth, facing = depth[touching], facing[touching]
         r = offsets[pressed]
@@ -444,6 +471,10 @@ class FoundationContact(LeafSystem):
         # d f / d v = -k d c A (the dissipation), d f / d x = -k (1 + c d') A (the spring).
         normal_gain = self._k * area * np.where(
             rate > 0.0, depth * self._dissipation + self._dt * rate, 0.0)
+        if release:     # a stuck cell beyond the mucosa: the spring alone, in tension
+            pulling = depth <= 0.0
+            pressure[pulling] = self._k * depth[pulling]
+            normal_gain[pulling] = self._k * self._dt * area[pulling]
         share = area / max(float(np.sum(area)), 1e-300)
         # Linearly implicit in the wall's own response: each cell's 3x3 gain over the step
         # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
@@ -467,7 +498,10 @@ class FoundationContact(LeafSystem):
                     "normal_force": pressure * area, "normal_gain": normal_gain,
                     "bristle_gain": beta, "R": R, "share": share,
                     "slip": velocity + into[:, None] * nu,      # the tangential part
-                    "limit": self._mu * pressure * area,
+                    "limit": self._mu * np.maximum(pressure, 0.0) * area,
+                    # The least normal force a cell can carry: 0, or with adhesion the
+                    # tension at which it lets go.
+                    "floor": -self._k * release * area if release else 0.0,
                     "system": M + self._dt * gain}
         self._memo = (key, geometry)
         return geometry
@@ -483,14 +517,17 @@ class FoundationContact(LeafSystem):
             if (math.sqrt(float(dp @ dp)) + self._reach * math.sqrt(float(np.vdot(dR, dR)))
                     <= NEAR_SLACK):
                 return memo[3]
-        near = self._table.near_wall(points, station, self._reach, NEAR_SLACK)
+        # (a stuck cell pulls from up to its release distance beyond the mucosa)
+        near = self._table.near_wall(points, station, self._reach, NEAR_SLACK + self._release)
         self._near_memo = (station, np.array(p_WB), R, near)
         return near
 
     def _geometry_of(self, context):
         """`_geometry` at this context's capsule state, followed from its stored station."""
-        return self._geometry(self._state_port.Eval(context),
-                              int(context.get_discrete_state(self._station).GetAtIndex(0)))
+        return self._geometry(
+            self._state_port.Eval(context),
+            int(context.get_discrete_state(self._station).GetAtIndex(0)),
+            context.get_discrete_state(self._stuck).value() if self._release else None)
 
     def _bristles_of(self, context, g):
         """The pressed cells' bristles, in their wall's tangent plane (kept with the
@@ -519,18 +556,18 @@ class FoundationContact(LeafSystem):
         self._explicit = _wrench(r, g["normal_force"][:, None] * nu - tangential)
         # The velocity change over the step with every cell's force taken at the step's end
         # (dt (M + dt A)^-1 (F + F_other), the geometry's `system` M + dt A), then each
-        # cell's force there: its normal
-        # force at least 0, its friction within mu times that (a cell that would need more
-        # slips: Coulomb's cone).
+        # cell's force there: its normal force at least 0 (with adhesion, at least the
+        # tension at which it lets go), its friction within mu times its pressing force (a
+        # cell that would need more slips: Coulomb's cone).
         change = self._dt * np.linalg.solve(
             g["system"], self._explicit + self._other_wrench(
                 g["R"], self._others.Eval(context) if others is None else others))
         dv = change[3:] + r @ _skew(change[:3]).T                   # dv + dw x r
         dv_normal = np.einsum("ij,ij->i", dv, nu)
-        normal = np.maximum(g["normal_force"] - g["normal_gain"] * dv_normal, 0.0)
+        normal = np.maximum(g["normal_force"] - g["normal_gain"] * dv_normal, g["floor"])
         tangential += g["bristle_gain"][:, None] * (dv - dv_normal[:, None] * nu)
         size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
-        limit = self._mu * normal
+        limit = self._mu * np.maximum(normal, 0.0)
         over = size > limit
         tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
         applied = _wrench(r, normal[:, None] * nu - tangential)
@@ -588,10 +625,15 @@ class FoundationContact(LeafSystem):
 
     def _update(self, context, discrete_state):
         """Each pressed cell's bristle follows its slip over the step, up to mu times its
-        normal force; a cell out of contact lets go."""
+        normal force; a cell out of contact lets go. With adhesion, every cell in contact
+        (pressed, or stuck and within its release distance) is stuck for the next step."""
         g = self._geometry_of(context)
         z = np.zeros((self._count, 3))
         pressed = g["pressed"]
+        if self._release:
+            stuck = np.zeros(self._count)
+            stuck[pressed] = 1.0
+            discrete_state.set_value(self._stuck, stuck)
         if len(pressed):
             bristles = self._bristles_of(context, g) + self._dt * g["slip"]
             size = (np.sqrt(np.einsum("ij,ij->i", bristles, bristles))
