@@ -5,7 +5,10 @@
 Reads each `runs.csv` or `runs-as-finished.csv` that `capsule-sim benchmark` wrote (the
 latter is appended run by run, so a suite still going can be tabled) and prints, as
 Markdown, per navigator: the cecal intubation rate with its 95 % Wilson interval, the mean
-time to the cecum, wall contact, peak contact force and pressure, and coverage; then the
+time to the cecum, the mean speed to it (the centreline's length over the time, runs that
+reached it), wall contact, peak contact force and pressure, the wall's per-site figures
+(the highest pressure one patch of mucosa felt, the longest one patch spent above 4 kPa and
+above 330 kPa; runs whose contact model has them), and coverage; then the
 breakdown by sigmoid variant, sex and tercile of the colon's length (app/benchmark.py
 `breakdown`), and the runs that did not reach the cecum with where they stopped.
 """
@@ -19,7 +22,8 @@ import numpy as np
 from capsule_drake.app.benchmark import breakdown, wilson_interval
 
 NUMBERS = ("colon_cm", "time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
-           "peak_contact_force_N", "peak_contact_pressure_kPa", "coverage", "sim_time_s")
+           "peak_contact_force_N", "peak_contact_pressure_kPa", "coverage", "sim_time_s",
+           "site_peak_pressure_kPa", "site_injury_s", "site_ischaemia_s")
 
 
 def read_rows(paths):
@@ -43,6 +47,14 @@ def markdown(rows, columns) -> str:
     return "\n".join(lines)
 
 
+def speed(rows) -> str:
+    """Mean speed (mm/s) to the cecum of the runs that reached it: the way along the
+    centreline over the time it took."""
+    values = [10.0 * row["progress_cm"] / row["time_to_cecum_s"] for row in rows
+              if row["reached_cecum"] and row["time_to_cecum_s"] > 0]
+    return f"{np.mean(values):.1f}" if values else "-"
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -61,9 +73,13 @@ def main():
         table.append({"navigator": navigator, "runs": len(mine),
                       "cecum": f"{reached}/{len(mine)}", "95 % interval": f"{low:.2f}-{high:.2f}",
                       "time to cecum (s)": mean("time_to_cecum_s"),
+                      "speed (mm/s)": speed(mine),
                       "wall contact (s)": mean("wall_contact_s"),
                       "peak force (N)": f"{np.nanmean([r['peak_contact_force_N'] for r in mine]):.3f}",
                       "peak pressure (kPa)": mean("peak_contact_pressure_kPa"),
+                      "site peak (kPa)": mean("site_peak_pressure_kPa"),
+                      "site > 4 kPa (s)": mean("site_ischaemia_s"),
+                      "site > 330 kPa (s)": mean("site_injury_s"),
                       "coverage": f"{np.nanmean([r['coverage'] for r in mine]):.2f}"})
     print(markdown(table, list(table[0])))
     print()
