@@ -158,6 +158,22 @@ def paired_factors(name, override, versus, sim_seconds, repeats, chunk=0.5, warm
     return rows
 
 
+def run_child(name, args, env):
+    """One scenario measured in a process of its own (this script with --one): its JSON
+    line, or None after printing the row that says why it failed."""
+    command = [sys.executable, __file__, "--one", name, "--sim-seconds",
+               str(args.sim_seconds), "--repeats", str(args.repeats)]
+    if args.versus is not None:
+        command += ["--versus", args.versus]
+    if args.scenario_text:
+        command += ["--scenario-text", args.scenario_text]
+    done = subprocess.run(command, capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
+        return None
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def cpu_name():
     try:
         with open("/proc/cpuinfo") as cpuinfo:
@@ -205,16 +221,9 @@ def main():
               f"| with {args.versus} | ratio (median; repeats) |")
         print("|---|---|---|---|")
         for name in args.scenarios.split(","):
-            command = [sys.executable, __file__, "--one", name, "--sim-seconds",
-                       str(args.sim_seconds), "--repeats", str(args.repeats),
-                       "--versus", args.versus]
-            if args.scenario_text:
-                command += ["--scenario-text", args.scenario_text]
-            done = subprocess.run(command, capture_output=True, text=True, env=env)
-            if done.returncode != 0:
-                print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
+            rows = run_child(name, args, env)
+            if rows is None:
                 continue
-            rows = json.loads(done.stdout.strip().splitlines()[-1])
             a, b, r = zip(*rows)
             print(f"| `{name}` | {statistics.median(a):.2f} ({', '.join(f'{x:.2f}' for x in a)}) "
                   f"| {statistics.median(b):.2f} ({', '.join(f'{x:.2f}' for x in b)}) "
@@ -226,15 +235,9 @@ def main():
           "| solver, dynamics, rest |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.scenarios.split(","):
-        command = [sys.executable, __file__, "--one", name, "--sim-seconds",
-                   str(args.sim_seconds), "--repeats", str(args.repeats)]
-        if args.scenario_text:
-            command += ["--scenario-text", args.scenario_text]
-        done = subprocess.run(command, capture_output=True, text=True, env=env)
-        if done.returncode != 0:
-            print(f"| {name} | failed: {done.stderr.strip().splitlines()[-1:]} |")
+        f = run_child(name, args, env)
+        if f is None:
             continue
-        f = json.loads(done.stdout.strip().splitlines()[-1])
         factors = f["factors"]
         row = (f"| `{name}` | {f['contact']} | {f['time_step_ms']:g} ms | "
                f"{f['colon_s']:.1f} + {f['build_s']:.1f} s | {f['peak_rss_gb']:.2f} GB | "

@@ -132,13 +132,11 @@ class WallTable:
         # The tangent's rate of turn dT/ds (1/m): a Newton step to a point's foot divides its
         # offset along the tangent by 1 - (offset . dT/ds).
         self.bends = np.gradient(self.tangents, step, axis=0)
-        # (S, 3, 2): the tangent over the table's step and dT/ds as columns, for one product
-        # per Newton step: the step in stations is (d . T / step) / (1 - d . dT/ds).
-        self.newton = np.stack([self.tangents / step, self.bends], axis=2)
         self.curvature = np.linalg.norm(self.bends, axis=1)
         self.radii = radius                       # (S, K)
-        # (S, 3, 3): each station's point, tangent over the step and dT/ds, gathered once per
-        # Newton step.
+        # (S, 3, 3): each station's point P, tangent over the table's step T' and dT/ds B',
+        # gathered once per Newton step: a point p's step in stations from there is
+        # (d . T') / (1 - d . B'), d = p - P.
         self._steps = np.stack([self.points, self.tangents / step, self.bends], axis=1)
         self._tree = cKDTree(self.points)
         self._corners = np.array([0, 1, around + 1, around + 2])
@@ -158,7 +156,7 @@ class WallTable:
         j = min(max(int(station), 0), last)
         for _ in range(8):
             offset = p - self.frames[j, 0]
-            along, bend = (offset @ self.newton[j]).tolist()
+            along, bend = (self._steps[j, 1:] @ offset).tolist()
             step = round(along / (1.0 - bend))
             j = min(max(j + step, 0), last)
             if step == 0:
@@ -215,8 +213,8 @@ class WallTable:
         frames, step = self.frames, self.step
         last = self.count - 1
         # The station of each point: from the nearest station's frame, then once from its own.
-        newton = self.newton
-        projected = (points - frames[station, 0]) @ newton[station]
+        at = self._steps[station]
+        projected = (points - at[0]) @ at[1:].T
         j = station + np.rint(projected[:, 0] / (1.0 - projected[:, 1])).astype(np.intp)
         np.minimum(np.maximum(j, 0, out=j), last, out=j)
         for _ in range(REFINEMENTS):
@@ -254,8 +252,9 @@ class WallTable:
         depth = (rho - radius) / norm
         # The flat caps closing the tube at its two ends (as its collision mesh's): a point
         # whose station is an end and that lies past the end's plane is that far into it.
-        for end, sign, at in ((0, -1.0, int(j.min()) == 0), (last, 1.0, int(j.max()) == last)):
-            if not at:
+        for end, sign, reached in ((0, -1.0, int(j.min()) == 0),
+                                   (last, 1.0, int(j.max()) == last)):
+            if not reached:
                 continue
             at_end = np.flatnonzero(j == end)
             past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
@@ -431,11 +430,7 @@ class FoundationContact(LeafSystem):
         # The plant's quaternion drifts off unit length between its own normalisations:
         # its rotation is that of the unit quaternion along it.
         if not np.isfinite(x).all():   # diverged: the run guard says so and stops the run
-            geometry = {"station": hint, "pressed": np.zeros(0, dtype=np.intp),
-                        "points": np.zeros((0, 3)), "normals": np.zeros((0, 3)),
-                        "areas": np.zeros(0), "pressures": np.zeros(0), "R": np.eye(3)}
-            self._memo = (key, geometry)
-            return geometry
+            return self._no_contact(key, hint, np.zeros(0, dtype=np.intp), np.eye(3))
         w, i, j, k = x[0:4].tolist()
         scale = 1.0 / math.sqrt(w * w + i * i + j * j + k * k)
         R = _rotation(w * scale, i * scale, j * scale, k * scale)
@@ -446,11 +441,7 @@ class FoundationContact(LeafSystem):
         station = table.follow(p_WB, hint)
         near = self._near(points, station, p_WB, R)
         if near.size == 0:                    # clear of the wall: nothing to look up
-            geometry = {"station": station, "pressed": near, "points": np.zeros((0, 3)),
-                        "normals": np.zeros((0, 3)), "areas": np.zeros(0),
-                        "pressures": np.zeros(0), "R": R}
-            self._memo = (key, geometry)
-            return geometry
+            return self._no_contact(key, station, near, R)
         depth, inward = table.depth(points[near], station)
         facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
         if release:     # a stuck cell pulls on the wall until it is `release` beyond it
@@ -503,6 +494,14 @@ class FoundationContact(LeafSystem):
                     # tension at which it lets go.
                     "floor": -self._k * release * area if release else 0.0,
                     "system": M + self._dt * gain}
+        self._memo = (key, geometry)
+        return geometry
+
+    def _no_contact(self, key, station: int, pressed, R) -> dict:
+        """The geometry of a capsule clear of the wall (kept for its state `key`)."""
+        geometry = {"station": station, "pressed": pressed, "points": np.zeros((0, 3)),
+                    "normals": np.zeros((0, 3)), "areas": np.zeros(0),
+                    "pressures": np.zeros(0), "R": R}
         self._memo = (key, geometry)
         return geometry
 
