@@ -99,6 +99,9 @@ class LumenFollowerConfig:
     brake_rate: float = 0.05
     # Time constant of the capsule's speed estimate (s).
     speed_time: float = 1.0
+    # Share of the capsule's weight the pull carries (1: it floats; below 1 the rest
+    # presses it on the tissue below, where friction resists its motion).
+    lift: float = 1.0
     # Time constant with which the heading follows the lumen direction (s).
     heading_time: float = 0.5
     # The heading stays within this angle of the capsule's axis (deg) and of the
@@ -169,6 +172,8 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
     for name in ("min_force", "backoff_force", "coast_force", "search_force"):
         if not getattr(config, name) > 0.0:
             raise ValueError(f"lumen follower {name} must be > 0 N, got {getattr(config, name)}")
+    if not 0.0 <= config.lift <= 1.0:
+        raise ValueError(f"lumen follower lift must be in [0, 1], got {config.lift}")
     if not config.max_force >= config.min_force:
         raise ValueError("lumen follower max_force must be >= min_force")
     if not config.push_force >= config.push_force_low >= 0.0:
@@ -285,7 +290,7 @@ class LumenFollowerController(LeafSystem):
         its floor, moved from `previous` (a command) by at most max_epm_speed * period; its
         moment aligns the field at the magnet with `heading`."""
         c = self._config
-        force = drive * heading + np.array([0.0, 0.0, self._weight])
+        force = drive * heading + np.array([0.0, 0.0, c.lift * self._weight])
         p, m, _ = epm_pose_for_force(p_WM, heading, force, *self._moments)
         if previous is not None:
             move = p - previous[:3]
