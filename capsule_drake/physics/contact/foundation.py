@@ -9,7 +9,8 @@ capsule field's tetrahedra), each a contact of its own for the solver, and the D
 goes at 0.65x real time where the rigid stand-in goes at 2.15x (benchmarks/bench_realtime.py).
 Coarser meshes are cheaper but miss the foundation's closed form by 10-25 % at the shallow
 indentations runs reach. Here the same mechanics are integrated directly, at a cost that does
-not grow with the patch.
+not grow with the patch: the per-cell arithmetic is compiled (foundation_kernels.py, Numba),
+and the compliant wall runs faster than the rigid stand-in (README, Performance).
 
 The wall. The colon is a tube around its centreline: at arc length s and angle theta its
 mucosa lies `colon.wall_radius(s, theta)` from the centreline (the haustral folds and taenia
@@ -75,6 +76,7 @@ from scipy.spatial import cKDTree
 
 from capsule_drake.anatomy.centerline import Centerline
 from capsule_drake.lifetime import weak_method
+from capsule_drake.physics.contact import foundation_kernels as kernels
 
 TABLE_STEP = 0.5e-3
 """Spacing (m) of the wall's table along the centreline: a haustral fold (a few mm wide, up
@@ -94,7 +96,7 @@ looked up afresh: beyond the widest lumen (a caecum of 45 mm) and a capsule pres
 into its wall."""
 REFINEMENTS = 1
 """Steps of each point's station from the capsule's (module docstring): one, then its own."""
-NEAR_SLACK = 1e-3
+NEAR_SLACK = 0.3e-3
 """How far (m) a capsule's surface may move, on the same station, before the cells that may
 touch the wall are picked afresh (`FoundationContact._near`: they are picked with this
 slack, so the pick holds for any pose within it; the result does not depend on it)."""
@@ -139,7 +141,6 @@ class WallTable:
         # (d . T') / (1 - d . B'), d = p - P.
         self._steps = np.stack([self.points, self.tangents / step, self.bends], axis=1)
         self._tree = cKDTree(self.points)
-        self._corners = np.array([0, 1, around + 1, around + 2])
         self._filters = {}
 
     def nearest(self, p) -> int:
@@ -152,20 +153,9 @@ class WallTable:
         in its own tube rather than being handed to a neighbouring loop that lies nearer),
         or the nearest station when that does not settle or ends farther from p than
         FOLLOW_REACH (a capsule placed anew)."""
-        last = self.count - 1
-        j = min(max(int(station), 0), last)
-        for _ in range(8):
-            offset = p - self.frames[j, 0]
-            along, bend = (self._steps[j, 1:] @ offset).tolist()
-            step = round(along / (1.0 - bend))
-            j = min(max(j + step, 0), last)
-            if step == 0:
-                break
-        else:
-            return self.nearest(p)
-        if float(offset @ offset) > FOLLOW_REACH**2:
-            return self.nearest(p)
-        return j
+        j = kernels.follow_station(self._steps, np.asarray(p, dtype=float), int(station),
+                                   FOLLOW_REACH)
+        return j if j >= 0 else self.nearest(p)
 
     def near_wall(self, points, station: int, reach: float, slack: float = 0.0) -> np.ndarray:
         """Indices of the points (N, 3), all within `reach` (m) of the station `station`'s
@@ -207,61 +197,14 @@ class WallTable:
     def depth(self, points, station: int):
         """For world points (N, 3) near the station `station` (a table index near them):
         (depth along the wall's normal beyond the mucosa (N,; negative inside the lumen),
-        the wall's inward unit normal (N, 3)), in m."""
-        if len(points) == 0:
-            return np.zeros(0), np.zeros((0, 3))
-        frames, step = self.frames, self.step
-        last = self.count - 1
-        # The station of each point: from the nearest station's frame, then once from its own.
-        at = self._steps[station]
-        projected = (points - at[0]) @ at[1:].T
-        j = station + np.rint(projected[:, 0] / (1.0 - projected[:, 1])).astype(np.intp)
-        np.minimum(np.maximum(j, 0, out=j), last, out=j)
-        for _ in range(REFINEMENTS):
-            at = self._steps.take(j, axis=0)                          # (n, 3, 3)
-            projected = np.einsum("nki,ni->nk", at[:, 1:], points - at[:, 0])
-            j += np.rint(projected[:, 0] / (1.0 - projected[:, 1])).astype(np.intp)
-            np.minimum(np.maximum(j, 0, out=j), last, out=j)
-        frame = frames.take(j, axis=0)
-        local = np.einsum("nij,nj->ni", frame[:, 1:], points - frame[:, 0])
-        x, y = local[:, 1], local[:, 2]
-        rho = np.hypot(x, y)
-        # Bilinear in (s, theta) over the flattened table.
-        u = np.minimum(np.maximum(j + local[:, 0] / step, 0.0), last - 1e-6)
-        ju = u.astype(np.intp)
-        fu = (u - ju)[:, None]
-        v = np.arctan2(y, x) * (1.0 / self.dtheta) % self.around
-        kv = v.astype(np.intp)
-        fv = (v - kv)[:, None]
-        corners = self.flat.take((ju * (self.around + 1) + kv)[:, None] + self._corners,
-                                 axis=0)                              # (n, 4, 3)
-        near_s = corners[:, 0] + fv * (corners[:, 1] - corners[:, 0])
-        far_s = corners[:, 2] + fv * (corners[:, 3] - corners[:, 2])
-        values = near_s + fu * (far_s - near_s)
-        radius, slope_s, slope_theta = values[:, 0], values[:, 1], values[:, 2]
-        # The inward normal -(e_rho - R_s e_s - R_theta / R e_theta) / |...|, from the frame
-        # (T, N, B): e_rho = (x N + y B) / rho, e_theta = (-y N + x B) / rho.
-        inv = 1.0 / np.maximum(rho, 1e-9)
-        tilt = slope_theta / np.maximum(radius, 1e-9)
-        norm = np.sqrt(1.0 + slope_s * slope_s + tilt * tilt)
-        coefficients = np.empty((len(points), 3))
-        coefficients[:, 0] = slope_s
-        coefficients[:, 1] = -(x + tilt * y) * inv
-        coefficients[:, 2] = -(y - tilt * x) * inv
-        inward = np.einsum("nji,nj->ni", frame[:, 1:], coefficients) / norm[:, None]
-        depth = (rho - radius) / norm
-        # The flat caps closing the tube at its two ends (as its collision mesh's): a point
-        # whose station is an end and that lies past the end's plane is that far into it.
-        for end, sign, reached in ((0, -1.0, int(j.min()) == 0),
-                                   (last, 1.0, int(j.max()) == last)):
-            if not reached:
-                continue
-            at_end = np.flatnonzero(j == end)
-            past = sign * ((points[at_end] - frames[end, 0]) @ frames[end, 1])
-            deeper = past > depth[at_end]
-            k = at_end[deeper]
-            depth[k] = past[deeper]
-            inward[k] = -sign * frames[end, 1]
+        the wall's inward unit normal (N, 3)), in m. Each point's station: one Newton step
+        from `station`'s frame, then REFINEMENTS from its own; the radius and its slopes
+        bilinear in (s, theta); the tube's end caps (a point whose station is an end and
+        that lies past the end's plane is that far into it)."""
+        points = np.ascontiguousarray(points, dtype=float)
+        depth, inward = np.empty(len(points)), np.empty((len(points), 3))
+        kernels.wall_depth(points, int(station), REFINEMENTS, self._steps, self.frames,
+                           self.flat, self.step, self.dtheta, self.around, depth, inward)
         return depth, inward
 
 
@@ -403,6 +346,7 @@ class FoundationContact(LeafSystem):
         self._station = self.DeclareDiscreteState(np.array([float(start_station)]))
         # Each cell: 1 while stuck to the wall (adhesion), else 0.
         self._stuck = self.DeclareDiscreteState(self._count)
+        self._no_stuck = np.zeros(self._count)   # (without adhesion: no cell is stuck)
         self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, weak_method(self._update))
         ticket = {self.input_port_ticket(self._state_port.get_index()),
                   self.input_port_ticket(self._others.get_index()),
@@ -434,7 +378,7 @@ class FoundationContact(LeafSystem):
         w, i, j, k = x[0:4].tolist()
         scale = 1.0 / math.sqrt(w * w + i * i + j * j + k * k)
         R = _rotation(w * scale, i * scale, j * scale, k * scale)
-        p_WB, w_W, v_W = x[4:7], x[7:10], x[10:13]
+        p_WB = x[4:7]
         table = self._table
         offsets = self._p_B @ R.T
         points = offsets + p_WB
@@ -442,58 +386,31 @@ class FoundationContact(LeafSystem):
         near = self._near(points, station, p_WB, R)
         if near.size == 0:                    # clear of the wall: nothing to look up
             return self._no_contact(key, station, near, R)
-        depth, inward = table.depth(points[near], station)
-        facing = -np.einsum("ij,ij->i", self._n_B[near] @ R.T, inward)
-        if release:     # a stuck cell pulls on the wall until it is `release` beyond it
-            holding = (stuck.take(near) > 0.5) & (depth > -release)
-            touching = np.flatnonzero(((depth > 0.0) | holding) & (facing > 0.0))
-        else:
-            touching = np.flatnonzero((depth > 0.0) & (facing > 0.0))
-        pressed = near[touching]
-        depth, facing = depth[touching], facing[touching]
-        r = offsets[pressed]
-        nu = inward[touching]
-        velocity = v_W + r @ _skew(w_W).T                          # v + w x r
-        into = -np.einsum("ij,ij->i", velocity, nu)
-        area = self._areas[pressed] * facing
-        rate = 1.0 + self._dissipation * into
-        pressure = self._k * depth * np.maximum(rate, 0.0)
-        # The normal force's stiffness over a step and its damping, per cell (N s/m):
-        # d f / d v = -k d c A (the dissipation), d f / d x = -k (1 + c d') A (the spring).
-        normal_gain = self._k * area * np.where(
-            rate > 0.0, depth * self._dissipation + self._dt * rate, 0.0)
-        if release:     # a stuck cell beyond the mucosa: the spring alone, in tension
-            pulling = depth <= 0.0
-            pressure[pulling] = self._k * depth[pulling]
-            normal_gain[pulling] = self._k * self._dt * area[pulling]
-        share = area / max(float(np.sum(area)), 1e-300)
-        # Linearly implicit in the wall's own response: each cell's 3x3 gain over the step
-        # (beta I + (alpha - beta) nu nu^T: alpha its normal stiffness dt + damping, beta its
-        # bristle's) mapped by its Jacobian J = [-[r]x, I] onto the capsule's spatial
-        # velocity [w; v] (6x6 A); the velocity change over the step with every cell's force
-        # taken at the step's end is dt (M + dt A)^-1 (F + F_other) (`system`: M + dt A).
-        beta = (self._tangential_damping + self._dt * self._tangential_stiffness) * share
-        u = np.concatenate([_cross(r, nu), nu], axis=1)              # J^T nu
-        gain = (u * (normal_gain - beta)[:, None]).T @ u
-        rb = r * beta[:, None]
-        gain[:3, :3] -= rb.T @ r
-        diagonal = gain.reshape(-1)               # a view: the diagonals as strided slices
-        diagonal[0:15:7] += float(np.einsum("ij,ij->", rb, r))
-        diagonal[21::7] += float(beta.sum())
-        cross = _skew(rb.sum(axis=0))
-        gain[:3, 3:] += cross
-        gain[3:, :3] -= cross
-        M = self._spatial_inertia(R)
+        # The cells in contact and each one's response (foundation_kernels.contact_cells):
+        # its pressure k d (1 + c d') (with adhesion, a stuck cell beyond the mucosa: k d, in
+        # tension), its normal force's stiffness over a step and its damping (N s/m),
+        # d f / d v = -k d c A and d f / d x = -k (1 + c d') A, and its bristle's, mapped by
+        # its Jacobian J = [-[r]x, I] onto the capsule's spatial velocity [w; v] (6x6 gain).
+        # Linearly implicit in the wall's own response: the velocity change over the step
+        # with every cell's force taken at the step's end is dt (M + dt gain)^-1 (F + F_other)
+        # (`system`: M + dt gain, M the capsule's spatial inertia in world).
+        (pressed, r, nu, area, pressure, normal_gain, beta, share, slip, limit, floor,
+         system) = kernels.contact_cells(
+            points, offsets, self._n_B, R, near, self._no_stuck if stuck is None else stuck,
+            release, x[10:13], x[7:10], self._areas, self._k, self._dissipation, self._dt,
+            self._mu, self._tangential_damping + self._dt * self._tangential_stiffness,
+            station, REFINEMENTS, table._steps, table.frames, table.flat, table.step,
+            table.dtheta, table.around, self._inertia_B)
         geometry = {"station": station, "pressed": pressed, "offsets": r, "points": points[pressed],
                     "normals": nu, "areas": area, "pressures": pressure,
                     "normal_force": pressure * area, "normal_gain": normal_gain,
                     "bristle_gain": beta, "R": R, "share": share,
-                    "slip": velocity + into[:, None] * nu,      # the tangential part
-                    "limit": self._mu * np.maximum(pressure, 0.0) * area,
+                    "slip": slip,                  # the cells' velocity's tangential part
+                    "limit": limit,                # mu times the pressing force
                     # The least normal force a cell can carry: 0, or with adhesion the
                     # tension at which it lets go.
-                    "floor": -self._k * release * area if release else 0.0,
-                    "system": M + self._dt * gain}
+                    "floor": floor,
+                    "system": system}
         self._memo = (key, geometry)
         return geometry
 
@@ -528,20 +445,6 @@ class FoundationContact(LeafSystem):
             int(context.get_discrete_state(self._station).GetAtIndex(0)),
             context.get_discrete_state(self._stuck).value() if self._release else None)
 
-    def _bristles_of(self, context, g):
-        """The pressed cells' bristles, in their wall's tangent plane (kept with the
-        geometry for the bristles' state it was read from: the step's force and its update
-        read it at the same state)."""
-        state = context.get_discrete_state(self._bristles).value()
-        key = state.tobytes()
-        memo = g.get("bristles")
-        if memo is not None and memo[0] == key:
-            return memo[1]
-        z = state.reshape(-1, 3).take(g["pressed"], axis=0)
-        z -= np.einsum("ij,ij->i", z, g["normals"])[:, None] * g["normals"]
-        g["bristles"] = (key, z)
-        return z
-
     def _solve(self, context, others=None):
         """(the wall's geometry at this state, the net force and torque about the body
         origin, world); `others`: the other_forces input's value, if evaluated already."""
@@ -549,27 +452,17 @@ class FoundationContact(LeafSystem):
         if len(g["pressed"]) == 0:
             self._explicit = np.zeros(6)
             return g, np.zeros(3), np.zeros(3)
-        r, nu = g["offsets"], g["normals"]
-        tangential = (self._tangential_stiffness * self._bristles_of(context, g)
-                      + self._tangential_damping * g["slip"]) * g["share"][:, None]
-        self._explicit = _wrench(r, g["normal_force"][:, None] * nu - tangential)
         # The velocity change over the step with every cell's force taken at the step's end
         # (dt (M + dt A)^-1 (F + F_other), the geometry's `system` M + dt A), then each
         # cell's force there: its normal force at least 0 (with adhesion, at least the
         # tension at which it lets go), its friction within mu times its pressing force (a
         # cell that would need more slips: Coulomb's cone).
-        change = self._dt * np.linalg.solve(
-            g["system"], self._explicit + self._other_wrench(
-                g["R"], self._others.Eval(context) if others is None else others))
-        dv = change[3:] + r @ _skew(change[:3]).T                   # dv + dw x r
-        dv_normal = np.einsum("ij,ij->i", dv, nu)
-        normal = np.maximum(g["normal_force"] - g["normal_gain"] * dv_normal, g["floor"])
-        tangential += g["bristle_gain"][:, None] * (dv - dv_normal[:, None] * nu)
-        size = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
-        limit = self._mu * np.maximum(normal, 0.0)
-        over = size > limit
-        tangential[over] *= (limit[over] / np.maximum(size[over], 1e-300))[:, None]
-        applied = _wrench(r, normal[:, None] * nu - tangential)
+        self._explicit, applied = kernels.implicit_wrench(
+            g["pressed"], g["offsets"], g["normals"], g["normal_force"], g["normal_gain"],
+            g["bristle_gain"], g["share"], g["slip"], g["floor"],
+            context.get_discrete_state(self._bristles).value(), g["system"],
+            self._other_wrench(g["R"], self._others.Eval(context) if others is None else others),
+            self._dt, self._mu, self._tangential_stiffness, self._tangential_damping)
         return g, applied[3:], applied[:3]
 
     def wall_wrench(self, context) -> np.ndarray:
@@ -602,12 +495,6 @@ class FoundationContact(LeafSystem):
             fz += bz
         return np.array([tx, ty, tz, fx, fy, fz])
 
-    def _spatial_inertia(self, R):
-        """The capsule's spatial inertia about its body origin, in world (6x6, [w; v])."""
-        rotate = np.zeros((6, 6))
-        rotate[:3, :3] = rotate[3:, 3:] = R
-        return rotate @ self._inertia_B @ rotate.T
-
     def _calc_force(self, context, output):
         others = self._others.Eval(context)
         _, f, tau = self._solve(context, others)
@@ -627,20 +514,15 @@ class FoundationContact(LeafSystem):
         normal force; a cell out of contact lets go. With adhesion, every cell in contact
         (pressed, or stuck and within its release distance) is stuck for the next step."""
         g = self._geometry_of(context)
-        z = np.zeros((self._count, 3))
         pressed = g["pressed"]
         if self._release:
             stuck = np.zeros(self._count)
             stuck[pressed] = 1.0
             discrete_state.set_value(self._stuck, stuck)
-        if len(pressed):
-            bristles = self._bristles_of(context, g) + self._dt * g["slip"]
-            size = (np.sqrt(np.einsum("ij,ij->i", bristles, bristles))
-                    * (self._tangential_stiffness * g["share"]))
-            over = size > g["limit"]
-            bristles[over] *= (g["limit"][over] / size[over])[:, None]
-            z[pressed] = bristles
-        discrete_state.set_value(self._bristles, z.ravel())
+        discrete_state.set_value(self._bristles, kernels.next_bristles(
+            self._count, pressed, g["normals"], g["slip"], g["share"], g["limit"],
+            context.get_discrete_state(self._bristles).value(), self._dt,
+            self._tangential_stiffness) if len(pressed) else np.zeros(3 * self._count))
         discrete_state.set_value(self._station, np.array([float(g["station"])]))
 
 
@@ -648,23 +530,6 @@ def _skew(v) -> np.ndarray:
     """[v]x: the matrix of v x (3,)."""
     x, y, z = v.tolist()
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def _cross(a, b) -> np.ndarray:
-    """Row-wise a x b of (N, 3) arrays."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
-
-
-def _wrench(r, forces) -> np.ndarray:
-    """[sum r x f; sum f] of forces (N, 3) at offsets r (N, 3): the torque from the
-    antisymmetric part of sum f r^T."""
-    (a, b, c), (d, e, f), (g, h, i) = (forces.T @ r).tolist()
-    x, y, z = forces.sum(axis=0).tolist()
-    return np.array([h - f, c - g, d - b, x, y, z])
 
 
 def _rotation(w, x, y, z) -> np.ndarray:
