@@ -70,7 +70,8 @@ def test_default_config_passes():
 @pytest.mark.parametrize("field, value", [("period", 0.0), ("target_speed", -0.01),
                                           ("min_force", 0.0), ("overspeed", 1.0),
                                           ("max_lead_deg", 120.0), ("push_force_low", 2.0),
-                                          ("backoff_force", -0.03)])
+                                          ("backoff_force", -0.03), ("lift", 1.2),
+                                          ("lift", -0.1)])
 def test_bad_config_raises_one_line(field, value):
     config = dataclasses.replace(LumenFollowerConfig(), **{field: value})
     with pytest.raises(ValueError) as error:
@@ -161,6 +162,20 @@ def test_command_geometry_follows_a_lumen_to_the_left():
     _check_geometry(command, heading, status)
     # The drive force grows while the (here immobile) capsule does not move.
     assert status[1] > LumenFollowerConfig().min_force
+
+
+@pytest.mark.parametrize("lift", [0.5, 0.8])
+def test_command_with_a_lift_leaves_the_rest_of_the_weight_on_the_tissue(lift):
+    """With lift < 1 the pull carries that share of the weight: the net force on the capsule
+    (pull plus weight, by the dipole formula) is the drive along the heading less the rest
+    of the weight."""
+    follower, simulator, context = _follower(dataclasses.replace(FAST, lift=lift))
+    simulator.AdvanceTo(0.5)
+    command, heading, status = _outputs(follower, context)
+    pull = np.linalg.norm(_net_force(command, heading) + [0.0, 0.0, WEIGHT])
+    np.testing.assert_allclose(_net_force(command, heading),
+                               status[1] * heading - [0.0, 0.0, (1.0 - lift) * WEIGHT],
+                               atol=0.01 * pull)
 
 
 def test_command_on_the_floor_when_the_force_needs_the_epm_lower():
