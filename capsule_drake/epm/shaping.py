@@ -244,7 +244,11 @@ def shape_step(state: np.ndarray, command: np.ndarray, floor, limits: MotionLimi
         x = plan(x, command, floor)
     aim, m_aim = aim_of(x)
     p, v, m = move_toward(x[P], x[V], x[M], aim, m_aim, limits, dt)
-    if not limits.instant and (not np.array_equal(p, x[P]) or not np.array_equal(m, x[M])):
+    arrived = np.array_equal(p, command[:3]) and np.array_equal(m, command[3:])
+    # (the guarded command itself is over the floor by the guard's measure: re-evaluated
+    # there, the floor can differ from it in the last bit)
+    if not limits.instant and not arrived and (not np.array_equal(p, x[P])
+                                               or not np.array_equal(m, x[M])):
         lowest = float(floor(p[:1], p[1:2], unit(m)[None, :])[0])
         if p[2] < lowest:   # never under the floor, whatever the filter did
             v[2] = max(v[2], (lowest - x[P][2]) / dt)
