@@ -288,3 +288,73 @@ def test_the_near_wall_filter_keeps_every_point_beyond_the_wall():
         kept += len(near)
         beyond += len(inside)
     assert beyond > 1000          # the sample did press many cells into the wall
+
+
+# --- the compiled kernels (foundation_kernels.py), each against a second route --------------
+
+def _cells(count, seed):
+    rng = np.random.default_rng(seed)
+    r = rng.normal(scale=0.01, size=(count, 3))
+    nu = rng.normal(size=(count, 3))
+    nu /= np.linalg.norm(nu, axis=1)[:, None]
+    return rng, r, nu, rng.uniform(0.0, 5.0, count), rng.uniform(0.0, 3.0, count)
+
+
+def _jacobian(r):
+    """A cell's velocity v + w x r as J [w; v] (3x6)."""
+    x, y, z = r
+    skew = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.hstack([-skew, np.eye(3)])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_cells_response_is_the_sum_of_their_jacobians_gains(seed):
+    from capsule_drake.physics.contact.foundation_kernels import response_gain
+    _, r, nu, alpha, beta = _cells(40, seed)
+    expected = sum(_jacobian(r[i]).T @ (beta[i] * np.eye(3) + (alpha[i] - beta[i])
+                                        * np.outer(nu[i], nu[i])) @ _jacobian(r[i])
+                   for i in range(len(r)))
+    np.testing.assert_allclose(response_gain(r, nu, alpha, beta), expected, rtol=1e-12,
+                               atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_implicit_step_is_the_dense_solve_then_coulombs_cone(seed):
+    """implicit_wrench against NumPy: the velocity change dt A^-1 (F + other), each cell's
+    force at the step's end, its friction clipped to mu times its pressing force."""
+    from capsule_drake.physics.contact.foundation_kernels import implicit_wrench
+    rng, r, nu, alpha, beta = _cells(30, seed)
+    count, mu, dt, k_t, c_t = 30, 0.3, 2e-3, 50.0, 0.4
+    pressed = rng.permutation(60)[:count]
+    normal = rng.uniform(-0.01, 0.05, count)
+    share = rng.uniform(0.0, 1.0, count)
+    share /= share.sum()
+    slip = rng.normal(scale=0.01, size=(count, 3))
+    slip -= np.einsum("ij,ij->i", slip, nu)[:, None] * nu
+    floor = -rng.uniform(0.0, 0.01, count)
+    bristles = rng.normal(scale=1e-4, size=3 * 60)
+    system = np.diag(rng.uniform(1e-6, 1e-2, 6)) + 1e-7 * np.ones((6, 6))
+    other = rng.normal(scale=0.1, size=6)
+    explicit, applied = implicit_wrench(pressed, r, nu, normal, alpha, beta, share, slip, floor,
+                                        bristles, system, other, dt, mu, k_t, c_t)
+    z = bristles.reshape(-1, 3)[pressed]
+    z -= np.einsum("ij,ij->i", z, nu)[:, None] * nu
+    tangential = (k_t * z + c_t * slip) * share[:, None]
+    forces = normal[:, None] * nu - tangential
+
+    def wrench(f):
+        return np.r_[np.cross(r, f).sum(axis=0), f.sum(axis=0)]
+
+    np.testing.assert_allclose(explicit, wrench(forces), rtol=1e-12, atol=1e-15)
+    change = dt * np.linalg.solve(system, wrench(forces) + other)
+    dv = change[3:] + np.cross(change[:3], r)
+    dv_n = np.einsum("ij,ij->i", dv, nu)
+    normal_end = np.maximum(normal - alpha * dv_n, floor)
+    t_end = tangential + beta[:, None] * (dv - dv_n[:, None] * nu)
+    size = np.linalg.norm(t_end, axis=1)
+    limit = mu * np.maximum(normal_end, 0.0)
+    over = size > limit
+    t_end[over] *= (limit[over] / size[over])[:, None]
+    assert over.any() and not over.all()       # both sides of the cone are exercised
+    np.testing.assert_allclose(applied, wrench(normal_end[:, None] * nu - t_end), rtol=1e-9,
+                               atol=1e-15)

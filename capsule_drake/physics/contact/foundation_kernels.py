@@ -118,6 +118,53 @@ def wall_depth(points, station, refinements, steps, frames, flat, step, dtheta, 
 
 
 @njit(cache=True)
+def response_gain(r, nu, normal_gain, beta):
+    """The cells' response over a step mapped onto the capsule's spatial velocity [w; v]
+    (6x6): sum over cells of J^T (beta I + (alpha - beta) nu nu^T) J, J = [-[r]x, I] (a
+    cell's velocity v + w x r), alpha its normal gain and beta its bristle's."""
+    gain = np.zeros((6, 6))
+    u = np.empty(6)
+    for q in range(r.shape[0]):
+        # beta J^T J + (alpha - beta) u u^T, J = [-[r]x, I], u = J^T nu = [r x nu; nu].
+        rx, ry, rz = r[q, 0], r[q, 1], r[q, 2]
+        nx, ny, nz = nu[q, 0], nu[q, 1], nu[q, 2]
+        u[0], u[1], u[2] = ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx
+        u[3], u[4], u[5] = nx, ny, nz
+        g = normal_gain[q] - beta[q]
+        for a in range(6):
+            ga = g * u[a]
+            for b in range(6):
+                gain[a, b] += ga * u[b]
+        bq = beta[q]
+        rr = rx * rx + ry * ry + rz * rz
+        gain[0, 0] += bq * (rr - rx * rx)
+        gain[1, 1] += bq * (rr - ry * ry)
+        gain[2, 2] += bq * (rr - rz * rz)
+        gain[0, 1] -= bq * rx * ry
+        gain[1, 0] -= bq * rx * ry
+        gain[0, 2] -= bq * rx * rz
+        gain[2, 0] -= bq * rx * rz
+        gain[1, 2] -= bq * ry * rz
+        gain[2, 1] -= bq * ry * rz
+        for a in range(3):
+            gain[3 + a, 3 + a] += bq
+        # beta [r]x in the upper right, -beta [r]x (its transpose) in the lower left.
+        gain[0, 4] -= bq * rz
+        gain[0, 5] += bq * ry
+        gain[1, 3] += bq * rz
+        gain[1, 5] -= bq * rx
+        gain[2, 3] -= bq * ry
+        gain[2, 4] += bq * rx
+        gain[4, 0] -= bq * rz
+        gain[5, 0] += bq * ry
+        gain[3, 1] += bq * rz
+        gain[5, 1] -= bq * rx
+        gain[3, 2] -= bq * ry
+        gain[4, 2] += bq * rx
+    return gain
+
+
+@njit(cache=True)
 def contact_cells(points, offsets, normals_B, R, near, stuck, release, v_W, w_W, areas,
                   k, dissipation, dt, mu, tangential_per_share, station, refinements, steps,
                   frames, flat, step, dtheta, around, inertia_B):
@@ -188,46 +235,9 @@ def contact_cells(points, offsets, normals_B, R, near, stuck, release, v_W, w_W,
     share = area / max(total, 1e-300)
     beta = tangential_per_share * share
     limit = np.empty(m)
-    gain = np.zeros((6, 6))
-    u = np.empty(6)
     for q in range(m):
         limit[q] = mu * max(pressure[q], 0.0) * area[q]
-        # beta_q J^T J + (alpha_q - beta_q) u u^T, J = [-[r]x, I], u = J^T nu = [r x nu; nu].
-        rx, ry, rz = r[q, 0], r[q, 1], r[q, 2]
-        nx, ny, nz = nu[q, 0], nu[q, 1], nu[q, 2]
-        u[0], u[1], u[2] = ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx
-        u[3], u[4], u[5] = nx, ny, nz
-        g = normal_gain[q] - beta[q]
-        for a in range(6):
-            ga = g * u[a]
-            for b in range(6):
-                gain[a, b] += ga * u[b]
-        bq = beta[q]
-        rr = rx * rx + ry * ry + rz * rz
-        gain[0, 0] += bq * (rr - rx * rx)
-        gain[1, 1] += bq * (rr - ry * ry)
-        gain[2, 2] += bq * (rr - rz * rz)
-        gain[0, 1] -= bq * rx * ry
-        gain[1, 0] -= bq * rx * ry
-        gain[0, 2] -= bq * rx * rz
-        gain[2, 0] -= bq * rx * rz
-        gain[1, 2] -= bq * ry * rz
-        gain[2, 1] -= bq * ry * rz
-        for a in range(3):
-            gain[3 + a, 3 + a] += bq
-        # beta [r]x in the upper right, -beta [r]x (its transpose) in the lower left.
-        gain[0, 4] -= bq * rz
-        gain[0, 5] += bq * ry
-        gain[1, 3] += bq * rz
-        gain[1, 5] -= bq * rx
-        gain[2, 3] -= bq * ry
-        gain[2, 4] += bq * rx
-        gain[4, 0] -= bq * rz
-        gain[5, 0] += bq * ry
-        gain[3, 1] += bq * rz
-        gain[5, 1] -= bq * rx
-        gain[3, 2] -= bq * ry
-        gain[4, 2] += bq * rx
+    gain = response_gain(r, nu, normal_gain, beta)
     # M + dt gain, M = diag(R, R) inertia_B diag(R, R)^T.
     system = np.empty((6, 6))
     for bi in range(2):
