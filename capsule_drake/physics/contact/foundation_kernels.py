@@ -16,22 +16,16 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, inline="always")
-def _dot(a, b) -> float:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 @njit(cache=True)
-def _station_step(steps, j, p, last) -> int:
-    """One Newton step of the point p's station from j (WallTable._steps: P, T', B'):
-    (d . T') / (1 - d . B'), d = p - P, rounded and kept on the table."""
+def _newton_step(steps, j, p):
+    """(the point p's step in stations from station j, unclamped; its squared distance from
+    station j's point): (d . T') / (1 - d . B'), d = p - P (WallTable._steps: P, T', B')."""
     dx = p[0] - steps[j, 0, 0]
     dy = p[1] - steps[j, 0, 1]
     dz = p[2] - steps[j, 0, 2]
     along = dx * steps[j, 1, 0] + dy * steps[j, 1, 1] + dz * steps[j, 1, 2]
     bend = dx * steps[j, 2, 0] + dy * steps[j, 2, 1] + dz * steps[j, 2, 2]
-    j = j + int(np.rint(along / (1.0 - bend)))
-    return min(max(j, 0), last)
+    return int(np.rint(along / (1.0 - bend))), dx * dx + dy * dy + dz * dz
 
 
 @njit(cache=True)
@@ -42,15 +36,10 @@ def follow_station(steps, p, station, reach) -> int:
     last = steps.shape[0] - 1
     j = min(max(station, 0), last)
     for _ in range(8):
-        dx = p[0] - steps[j, 0, 0]
-        dy = p[1] - steps[j, 0, 1]
-        dz = p[2] - steps[j, 0, 2]
-        along = dx * steps[j, 1, 0] + dy * steps[j, 1, 1] + dz * steps[j, 1, 2]
-        bend = dx * steps[j, 2, 0] + dy * steps[j, 2, 1] + dz * steps[j, 2, 2]
-        step = int(np.rint(along / (1.0 - bend)))
+        step, distance2 = _newton_step(steps, j, p)
         j = min(max(j + step, 0), last)
         if step == 0:
-            return j if dx * dx + dy * dy + dz * dz <= reach * reach else -1
+            return j if distance2 <= reach * reach else -1
     return -1
 
 
@@ -63,9 +52,9 @@ def wall_depth(points, station, refinements, steps, frames, flat, step, dtheta, 
     row = around + 1
     for n in range(points.shape[0]):
         p = points[n]
-        j = _station_step(steps, station, p, last)
-        for _ in range(refinements):
-            j = _station_step(steps, j, p, last)
+        j = station
+        for _ in range(1 + refinements):   # from the capsule's station, then its own
+            j = min(max(j + _newton_step(steps, j, p)[0], 0), last)
         f = frames[j]
         dx, dy, dz = p[0] - f[0, 0], p[1] - f[0, 1], p[2] - f[0, 2]
         s_local = dx * f[1, 0] + dy * f[1, 1] + dz * f[1, 2]
@@ -97,23 +86,17 @@ def wall_depth(points, station, refinements, steps, frames, flat, step, dtheta, 
         for i in range(3):
             inward[n, i] = (f[1, i] * a + f[2, i] * b + f[3, i] * c) / norm
         d = (rho - radius) / norm
-        # The flat caps closing the tube at its two ends.
-        if j == 0:
-            past = -((p[0] - frames[0, 0, 0]) * frames[0, 1, 0]
-                     + (p[1] - frames[0, 0, 1]) * frames[0, 1, 1]
-                     + (p[2] - frames[0, 0, 2]) * frames[0, 1, 2])
-            if past > d:
-                d = past
-                for i in range(3):
-                    inward[n, i] = frames[0, 1, i]
-        if j == last:
-            past = ((p[0] - frames[last, 0, 0]) * frames[last, 1, 0]
-                    + (p[1] - frames[last, 0, 1]) * frames[last, 1, 1]
-                    + (p[2] - frames[last, 0, 2]) * frames[last, 1, 2])
-            if past > d:
-                d = past
-                for i in range(3):
-                    inward[n, i] = -frames[last, 1, i]
+        # The flat caps closing the tube at its two ends: a point whose station is an end
+        # and that lies past the end's plane (its tangent, outward) is that far into it.
+        for end, sign in ((0, -1.0), (last, 1.0)):
+            if j == end:
+                e = frames[end]
+                past = sign * ((p[0] - e[0, 0]) * e[1, 0] + (p[1] - e[0, 1]) * e[1, 1]
+                               + (p[2] - e[0, 2]) * e[1, 2])
+                if past > d:
+                    d = past
+                    for i in range(3):
+                        inward[n, i] = -sign * e[1, i]
         depth[n] = d
 
 
@@ -148,19 +131,12 @@ def response_gain(r, nu, normal_gain, beta):
         gain[2, 1] -= bq * ry * rz
         for a in range(3):
             gain[3 + a, 3 + a] += bq
-        # beta [r]x in the upper right, -beta [r]x (its transpose) in the lower left.
-        gain[0, 4] -= bq * rz
-        gain[0, 5] += bq * ry
-        gain[1, 3] += bq * rz
-        gain[1, 5] -= bq * rx
-        gain[2, 3] -= bq * ry
-        gain[2, 4] += bq * rx
-        gain[4, 0] -= bq * rz
-        gain[5, 0] += bq * ry
-        gain[3, 1] += bq * rz
-        gain[5, 1] -= bq * rx
-        gain[3, 2] -= bq * ry
-        gain[4, 2] += bq * rx
+        # beta [r]x in the upper right and its transpose, -beta [r]x, in the lower left.
+        skew = ((0.0, -rz, ry), (rz, 0.0, -rx), (-ry, rx, 0.0))
+        for a in range(3):
+            for b in range(3):
+                gain[a, 3 + b] += bq * skew[a][b]
+                gain[3 + b, a] += bq * skew[a][b]
     return gain
 
 
