@@ -100,7 +100,7 @@ class CompliantWall:
     drag_rotational: float = 0.0
     # How the wall's force is computed: "foundation" (the default; foundation.py: the
     # foundation integrated over the capsule's surface against the colon's wall table, its
-    # force k times the capsule's volume beyond the mucosa; 0.8x the rigid stand-in's
+    # force k times the capsule's volume beyond the mucosa; 1.1-1.7x the rigid stand-in's
     # speed) or "hydroelastic" (Drake's hydroelastic contact of the capsule's field mesh
     # against the wall mesh, its pressure k times the depth along the capsule's normal;
     # 0.3x the rigid stand-in's speed, kept for comparison).
