@@ -376,8 +376,10 @@ SMALL_CAMERA = "capsule: {camera: {fps: 5.0, lens: {width: 64, height: 64}}"
 DRIVERS = {
     "along": ("!AlongColon {speed: 0.05}", "", 1.0),
     "hold": ("!HoldAbove {height: 0.3}", "", 0.5),
-    "plugin-sweep": ("!Plugin {factory: 'plugins.sweeper:flanks'}", "", 4.2),
-    "external-sweep": ("!External {}", "", 4.2),
+    # 2.5 s on one flank, then toward the other: 2 s of it is enough for every mount to
+    # cross the top of the belly (the arm, bounding its accelerations, rises over it first).
+    "plugin-sweep": ("!Plugin {factory: 'plugins.sweeper:flanks'}", "", 4.5),
+    "external-sweep": ("!External {}", "", 4.5),
     "follower": ("!LumenFollower {lumen: truth}", SMALL_CAMERA + "},", 1.0),
     "teleop": ("!Teleop {}", SMALL_CAMERA + ", lumen_tracker: {}},", 1.0),
 }

@@ -51,11 +51,14 @@ class Arm:
     base_yaw_deg: float = 180.0
     # Joint servo gains (N m/rad, N m s/rad), per joint; the servos are the plant's implicit
     # PD actuators (an ideal torque-controlled arm with gravity compensation: the arm's own
-    # weight is not simulated, the magnet's force on it is).
+    # weight is not simulated, the magnet's force on it is). Stiff enough that the largest
+    # pull of the magnets (21.4 N at the default clearance) bends the arm by less than the
+    # clearance's 2 mm tolerance (0.075 mm/N at the start posture); the damping keeps the
+    # damping ratios of the halved gains these doubled.
     joint_stiffness: list[float] = dataclasses.field(
-        default_factory=lambda: [8000.0, 8000.0, 5000.0, 5000.0, 2000.0, 1000.0, 500.0])
+        default_factory=lambda: [16000.0, 16000.0, 10000.0, 10000.0, 4000.0, 2000.0, 1000.0])
     joint_damping: list[float] = dataclasses.field(
-        default_factory=lambda: [300.0, 300.0, 150.0, 150.0, 40.0, 20.0, 8.0])
+        default_factory=lambda: [425.0, 425.0, 212.0, 212.0, 57.0, 28.0, 11.3])
     # Controller period (s).
     control_period: float = 0.005
     # Fraction of the datasheet joint speeds the controller may command.
@@ -71,6 +74,16 @@ class Arm:
     # of its moment (rad/s). Commands that move slower are followed exactly.
     max_speed: float = 0.2
     max_turn_rate: float = 1.0
+    # How fast the controller changes the magnet's velocity (m/s^2) and its turn rate
+    # (rad/s^2). A joint servo lags a step in its velocity by ~w / (e wn): a stop from a
+    # turn at the joints' speed limit would swing the magnet ~3 mm (measured), past the
+    # clearance's 2 mm tolerance; a bounded change keeps the servos' lag well under it.
+    max_acceleration: float = 1.0
+    max_turn_acceleration: float = 4.0
+    # Deceleration a joint is allowed toward its position limit (rad/s^2): it slows from
+    # sqrt(2 a d) at a distance d from the limit (with its margin) instead of stopping there
+    # within a period.
+    joint_braking: float = 5.0
     # Descent toward the skin: at most approach_speed (m/s) plus the height above the
     # clearance floor over approach_time (s), so the magnet arrives at the floor slowly.
     approach_speed: float = 0.005
@@ -101,6 +114,10 @@ def check_arm_config(config: Arm) -> None:
         raise ValueError("epm.mount.approach_speed and approach_time must be > 0")
     if not config.max_speed > 0.0 or not config.max_turn_rate > 0.0:
         raise ValueError("epm.mount.max_speed and max_turn_rate must be > 0")
+    if not config.max_acceleration > 0.0 or not config.max_turn_acceleration > 0.0 \
+            or not config.joint_braking > 0.0:
+        raise ValueError("epm.mount.max_acceleration, max_turn_acceleration and "
+                         "joint_braking must be > 0")
     if not config.reach > 0.0 or not config.unreachable_tolerance > 0.0:
         raise ValueError("epm.mount.reach and unreachable_tolerance must be > 0")
     # Beyond the signs: what the arm (models/epm_arm.sdf, ~0.9 m from shoulder to flange)
@@ -122,6 +139,10 @@ def check_arm_config(config: Arm) -> None:
         need_range(config.posture_deg, "epm.mount.posture_deg", "[-360, 360]", "deg")
     need_range(config.max_speed, "epm.mount.max_speed", "[0.001, 2]", "m/s")
     need_range(config.max_turn_rate, "epm.mount.max_turn_rate", "[0.001, 10]", "rad/s")
+    need_range(config.max_acceleration, "epm.mount.max_acceleration", "[0.001, 20]", "m/s^2")
+    need_range(config.max_turn_acceleration, "epm.mount.max_turn_acceleration", "[0.001, 100]",
+               "rad/s^2")
+    need_range(config.joint_braking, "epm.mount.joint_braking", "[0.01, 100]", "rad/s^2")
     need_range(config.approach_speed, "epm.mount.approach_speed", "(0, 1]", "m/s")
     need_range(config.approach_time, "epm.mount.approach_time", "(0, 10]", "s")
     need_range(config.reach, "epm.mount.reach", "[0.1, 1.5]", "m",
@@ -152,6 +173,42 @@ def rotate_axis_onto(R_WE: RotationMatrix, target_W: np.ndarray) -> RotationMatr
                   [-axis[1], axis[0], 0.0]])
     R = np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
     return RotationMatrix(R @ R_WE.matrix())
+
+
+def turn_vector(a, b, across) -> np.ndarray:
+    """The rotation vector of the smallest turn taking unit axis a onto unit axis b; for
+    opposite axes, a half turn about `across` (a unit vector across a)."""
+    turn = np.cross(a, b)
+    sin = np.linalg.norm(turn)
+    angle = np.arctan2(sin, float(np.dot(a, b)))
+    if sin > 1e-12:
+        return turn / sin * angle
+    if angle > 1.0:
+        return np.asarray(across, dtype=float) * angle
+    return np.zeros(3)
+
+
+def clip_norm(x: np.ndarray, limit: float) -> np.ndarray:
+    norm = np.linalg.norm(x)
+    return x * (limit / norm) if norm > limit else x
+
+
+def approach(gap: np.ndarray, acceleration: float, dt: float) -> np.ndarray:
+    """The velocity toward a gap from which a stop at `acceleration` lands on it:
+    sqrt(2 a |gap|), and no faster than closing it in one period dt."""
+    distance = np.linalg.norm(gap)
+    if distance < 1e-15:
+        return np.zeros_like(gap)
+    return gap / distance * min(distance / dt, math.sqrt(2.0 * acceleration * distance))
+
+
+# The controller's state: the joint command at the end of the current step and its
+# velocity, the command at the step's start and the step's time (the servos' ramp between
+# them), the last good EPM command, the status (see EpmArmController), the last guarded
+# target [p, m_hat] and the magnet's last twist [w, v].
+_Q, _V, _Q_START, _STEP_TIME = slice(0, 7), slice(7, 14), slice(14, 21), 21
+_COMMAND, _STATUS, _TARGET, _TWIST = slice(22, 28), slice(28, 35), slice(35, 41), slice(41, 47)
+_STATE_SIZE = 47
 
 
 class EpmArmController(LeafSystem):
@@ -197,51 +254,75 @@ class EpmArmController(LeafSystem):
         self._guard = guard
         self._dt = config.control_period
         self._params = ik_parameters(arm_plant, config, self._dt, q0)
+        self._v_max = self._params.get_joint_velocity_limits()[1].copy()
         self._command_port = self.DeclareVectorInputPort("epm_command", 6)
         self._state_port = self.DeclareVectorInputPort("arm_state", 14)
-        # [q_cmd (7), v_cmd (7), last good command (6), raised, pulled, unreachable,
-        #  position error, axis error, ik failures, bad commands]
-        initial = np.concatenate([q0, np.zeros(7), np.full(6, np.nan), np.zeros(7)])
+        initial = np.zeros(_STATE_SIZE)
+        initial[_Q] = initial[_Q_START] = q0
+        initial[_COMMAND] = initial[_TARGET] = np.nan
         self._state = self.DeclareDiscreteState(BasicVector(initial))
-        self.DeclareVectorOutputPort(
-            "arm_desired_state", 14,
-            lambda context, out: out.SetFromVector(
-                context.get_discrete_state(self._state).value()[:14]),
-            {self.xd_ticket()})
+        self.DeclareVectorOutputPort("arm_desired_state", 14, self._desired_state,
+                                     {self.xd_ticket(), self.time_ticket()})
         self.DeclareVectorOutputPort(
             "status", 7,
             lambda context, out: out.SetFromVector(
-                context.get_discrete_state(self._state).value()[20:27]),
+                context.get_discrete_state(self._state).value()[_STATUS]),
             {self.xd_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
 
-    def place(self, q: np.ndarray, p_target, m_target):
-        """One controller step from joint command q toward the (guarded) target: the
-        velocity that closes the gap in one step, capped at the config's speeds (so the QP
-        can follow its direction), through the differential IK. Returns (q_next, v,
-        solved)."""
-        self._plant.SetPositions(self._context, q)
-        X_WE = self._plant.CalcRelativeTransform(self._context, self._plant.world_frame(),
-                                                 self._frame_E)
+    def place(self, q: np.ndarray, p_target, m_target, previous=None):
+        """One controller step from joint command q toward the (guarded) target, through
+        the differential IK. Returns (q_next, v, solved).
+
+        Offline (`previous` None: `solve_posture`), the twist closes the gap in one step,
+        capped at the config's speeds (so the QP can follow its direction). In the loop,
+        `previous` = (p, m_hat of the last target, the last step's twist [w, v]): the twist
+        is the target's own (its change over a period) plus an approach to the remaining
+        gap that can stop within max_acceleration (speed sqrt(2 a gap)), capped at the
+        speeds, and it changes from the last step's by at most the accelerations times the
+        period. So the joint velocities the servos follow change gradually, and the magnet
+        follows a moving target without lag."""
+        X_WE = self._pose(q)
         axis = X_WE.rotation().col(2)
-        turn = np.cross(axis, m_target)
-        sin = np.linalg.norm(turn)
-        angle = np.arctan2(sin, float(axis @ m_target))
-        if sin > 1e-12:
-            omega = turn / sin * angle / self._dt
-        elif angle > 1.0:  # opposite: turn about any axis across the moment
-            omega = X_WE.rotation().col(0) * angle / self._dt
+        gap_turn = turn_vector(axis, m_target, X_WE.rotation().col(0))
+        # The target's height clears the skin for the target's moment; while the magnet
+        # still turns toward it, it must clear it as it is turned now (a tilted magnet
+        # reaches lower).
+        goal = np.array(p_target, dtype=float)
+        goal[2] = max(goal[2], self._guard.lowest_centre_height(goal[0], goal[1], axis))
+        gap = goal - X_WE.translation()
+        c, dt = self._config, self._dt
+        if previous is None:
+            omega, velocity = gap_turn / dt, gap / dt
         else:
-            omega = np.zeros(3)
-        velocity = (np.asarray(p_target) - X_WE.translation()) / self._dt
-        c = self._config
-        omega *= min(1.0, c.max_turn_rate / max(np.linalg.norm(omega), 1e-12))
-        velocity *= min(1.0, c.max_speed / max(np.linalg.norm(velocity), 1e-12))
+            p_last, m_last, twist = previous
+            omega = approach(gap_turn, c.max_turn_acceleration, dt)
+            velocity = approach(gap, c.max_acceleration, dt)
+            if np.all(np.isfinite(p_last)):
+                omega = omega + turn_vector(m_last, m_target, X_WE.rotation().col(0)) / dt
+                velocity = velocity + (np.asarray(p_target) - p_last) / dt
+        omega = omega * min(1.0, c.max_turn_rate / max(np.linalg.norm(omega), 1e-12))
+        velocity = velocity * min(1.0, c.max_speed / max(np.linalg.norm(velocity), 1e-12))
+        if previous is not None:
+            omega = twist[:3] + clip_norm(omega - twist[:3], c.max_turn_acceleration * dt)
+            velocity = twist[3:] + clip_norm(velocity - twist[3:], c.max_acceleration * dt)
         # Slow down toward the skin: the servos would carry a fast descent past the floor.
+        # Below it (the floor under a turning magnet rises), climb back within a period,
+        # whatever the accelerations: the servos' lag on a climb is away from the skin.
         p = X_WE.translation()
         height = p[2] - self._guard.lowest_centre_height(p[0], p[1], axis)
         descent = c.approach_speed + max(height, 0.0) / c.approach_time
-        velocity[2] = max(velocity[2], -descent)
+        velocity[2] = min(max(velocity[2], -descent, -height / dt), c.max_speed)
+        lower, upper = self._params.get_joint_position_limits()
+        if previous is not None:
+            # Toward a joint's limit no faster than it can stop at joint_braking on the way:
+            # the QP's own bound stops it within a period, a jolt the servos ring from.
+            brake = 2.0 * c.joint_braking
+            self._params.set_joint_velocity_limits((
+                np.maximum(-self._v_max, -np.sqrt(brake * np.maximum(q - lower, 0.0))),
+                np.minimum(self._v_max, np.sqrt(brake * np.maximum(upper - q, 0.0)))))
+        else:
+            self._params.set_joint_velocity_limits((-self._v_max, self._v_max))
         result = DoDifferentialInverseKinematics(self._plant, self._context,
                                                  np.concatenate([omega, velocity]),
                                                  self._frame_E, self._params)
@@ -249,38 +330,63 @@ class EpmArmController(LeafSystem):
                 or result.joint_velocities is None:
             return q.copy(), np.zeros(7), False
         v = np.asarray(result.joint_velocities).ravel()
-        lower, upper = self._params.get_joint_position_limits()
-        return np.clip(q + self._dt * v, lower, upper), v, True
+        return np.clip(q + dt * v, lower, upper), v, True
+
+    def _pose(self, q) -> RigidTransform:
+        self._plant.SetPositions(self._context, q)
+        return self._plant.CalcRelativeTransform(self._context, self._plant.world_frame(),
+                                                 self._frame_E)
+
+    def twist(self, q, q_next) -> np.ndarray:
+        """[w, v] of the magnet from joint command q to q_next over one period (the turn of
+        its moment's axis; the roll about it is free)."""
+        X, X_next = self._pose(q), self._pose(q_next)
+        turn = turn_vector(X.rotation().col(2), X_next.rotation().col(2), X.rotation().col(0))
+        return np.concatenate([turn, X_next.translation() - X.translation()]) / self._dt
 
     def placement_error(self, q, p_target, m_target):
         """(position error (m), axis error (rad)) of the EPM at joint positions q."""
-        self._plant.SetPositions(self._context, q)
-        X_WE = self._plant.CalcRelativeTransform(self._context, self._plant.world_frame(),
-                                                 self._frame_E)
+        X_WE = self._pose(q)
         axis = float(np.arccos(np.clip(X_WE.rotation().col(2) @ m_target, -1.0, 1.0)))
         return float(np.linalg.norm(X_WE.translation() - p_target)), axis
 
+    def _desired_state(self, context, out):
+        """The joint command between controller steps: from the last step's start toward
+        its end, at its velocity (the servos follow a ramp, as an arm's interpolator gives
+        them, not a staircase of 5 ms holds that would shake the magnet)."""
+        values = context.get_discrete_state(self._state).value()
+        share = np.clip((context.get_time() - values[_STEP_TIME]) / self._dt, 0.0, 1.0)
+        q = values[_Q_START] + share * (values[_Q] - values[_Q_START])
+        out.SetFromVector(np.concatenate([q, values[_V]]))
+
     def _update(self, context, discrete_state):
         values = context.get_discrete_state(self._state).value().copy()
-        q = values[:7]
+        q = values[_Q].copy()
+        values[_Q_START], values[_STEP_TIME] = q, context.get_time()
         command = np.asarray(self._command_port.Eval(context), dtype=float)
         norm = np.linalg.norm(command[3:]) if np.all(np.isfinite(command)) else 0.0
+        status = values[_STATUS]
         if norm > 1e-9:
-            values[14:20] = command
+            values[_COMMAND] = command
         else:
-            values[26] += 1.0
-        if not np.all(np.isfinite(values[14:20])):
-            values[7:14] = 0.0  # nothing valid commanded yet: hold
+            status[6] += 1.0
+        if not np.all(np.isfinite(values[_COMMAND])):
+            values[_V] = values[_TWIST] = 0.0  # nothing valid commanded yet: hold
+            values[_STATUS] = status
             discrete_state.set_value(self._state, values)
             return EventStatus.Succeeded()
-        p, m, raised, pulled = self._guard.apply(values[14:17], values[17:20])
-        q_next, v, solved = self.place(q, p, m)
+        p, m, raised, pulled = self._guard.apply(values[_COMMAND][:3], values[_COMMAND][3:])
+        last = values[_TARGET]
+        q_next, v, solved = self.place(q, p, m, (last[:3], last[3:], values[_TWIST]))
         position_error, axis_error = self.placement_error(q_next, p, m)
-        values[:7], values[7:14] = q_next, v
-        values[20], values[21] = float(raised), float(pulled)
-        values[22] = float(position_error > self._config.unreachable_tolerance)
-        values[23], values[24] = position_error, axis_error
-        values[25] += 0.0 if solved else 1.0
+        values[_TARGET] = np.concatenate([p, m])
+        values[_TWIST] = self.twist(q, q_next)
+        values[_Q], values[_V] = q_next, v
+        status[0], status[1] = float(raised), float(pulled)
+        status[2] = float(position_error > self._config.unreachable_tolerance)
+        status[3], status[4] = position_error, axis_error
+        status[5] += 0.0 if solved else 1.0
+        values[_STATUS] = status
         discrete_state.set_value(self._state, values)
         return EventStatus.Succeeded()
 
@@ -354,11 +460,11 @@ class ArmMount:
         return self.instance
 
     def motion_limits(self) -> MotionLimits:
-        """The arm's controller moves the magnet toward its command at max_speed and turns
-        it at max_turn_rate, changing speed at once (its differential IK): the path it is
-        given goes no faster, so that it follows that path, not a line of its own."""
+        """The arm's controller moves the magnet toward its command at up to max_speed and
+        max_acceleration and turns it at up to max_turn_rate: the path it is given goes no
+        faster, so that it follows that path, not a line of its own."""
         c = self.config
-        return MotionLimits(c.max_speed, math.inf, c.max_turn_rate)
+        return MotionLimits(c.max_speed, c.max_acceleration, c.max_turn_rate)
 
     def controller_plant(self):
         """The controller's own model: the arm alone, welded at the same pose."""
