@@ -178,12 +178,13 @@ def test_the_benchmark_honours_the_random_seed():
     # The same seed: the same run, to the last bit.
     assert row(first) == row(again)
     assert first["curve"] == again["curve"]
-    # Another seed: other noise, another run (measured: the capsule 0.6 mm apart along the
-    # centreline after 2 s, the EPM's path 1 mm shorter).
+    # Another seed: other noise, another run (measured on the rigid stand-in: the capsule
+    # 0.6 mm apart along the centreline after 2 s; on the compliant wall, which the capsule
+    # sticks to at first, 0.02 mm).
     assert first["curve"][0] == other["curve"][0]  # the same log times
     s_first, s_other = np.array(first["curve"][1]), np.array(other["curve"][1])
     assert s_first[0] == s_other[0]  # from the same start
-    assert np.abs(s_first - s_other).max() > 1e-4, (s_first, s_other)
+    assert np.abs(s_first - s_other).max() > 5e-6, (s_first, s_other)
 
 
 def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_path):

@@ -301,6 +301,9 @@ class LumenFollowerController(LeafSystem):
             p[2] = max(p[2], self._floor(p[0], p[1], m) + c.height_margin)
             u = p_WM - p
             m = field_aligning_moment_direction(u / np.linalg.norm(u), heading)
+        # On the floor of the moment it is sent with (the last turn may tilt it past the
+        # floor it was raised to: the guard would raise it, and count it).
+        p[2] = max(p[2], self._floor(p[0], p[1], m) + c.height_margin)
         return np.concatenate([p, m])
 
     def _place_on_trail(self, x, crumbs, p):
