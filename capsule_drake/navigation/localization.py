@@ -88,9 +88,9 @@ class LocalizerConfig:
     position_walk: float = 0.015
     orientation_walk: float = 0.015
     gyro_bias_walk: float = 1e-4
-    # A gyroscope sample within this share of its range counts as saturated (a tumble):
-    # the orientation's uncertainty then grows by saturated_turn (rad per update).
-    gyro_range: float = np.radians(250.0)
+    # A gyroscope sample within 1 % of its range (the IMU's `gyro_range`) counts as
+    # saturated (a tumble): the orientation's uncertainty then grows by saturated_turn (rad
+    # per update).
     saturated_turn: float = 0.2
     # The start's uncertainty: position (m), orientation (deg), gyroscope bias (deg/s).
     initial_position_sigma: float = 0.005
@@ -109,7 +109,6 @@ def check_localizer_config(config: LocalizerConfig) -> None:
     need_range(config.accel_noise, "accel_noise", "(0, 100]", "m/s^2")
     need_range(config.accel_motion_factor, "accel_motion_factor", "[0, 100]")
     need_range(config.position_walk, "position_walk", "(0, 10]", "m/sqrt(s)")
-    need_range(config.gyro_range, "gyro_range", "(0, 1000]", "rad/s")
     need_range(config.saturated_turn, "saturated_turn", "[0, 3.2]", "rad")
     need_range(config.orientation_walk, "orientation_walk", "(0, 10]", "rad/sqrt(s)")
     need_range(config.gyro_bias_walk, "gyro_bias_walk", "[0, 1]", "rad/s/sqrt(s)")
@@ -191,9 +190,10 @@ class PoseEstimate:
     """
 
     def __init__(self, config: LocalizerConfig, p_BS, self_field, epm_moment: float,
-                 R_BI=np.eye(3), gravity: float = 9.81):
+                 R_BI=np.eye(3), gravity: float = 9.81, gyro_range: float = np.radians(250.0)):
         check_localizer_config(config)
         self.config = config
+        self.gyro_range = float(gyro_range)   # the IMU's (rad/s): beyond, a sample saturates
         self.p_BS = np.atleast_2d(np.asarray(p_BS, dtype=float))
         self.n = len(self.p_BS)
         self._self_field = np.asarray(self_field, dtype=float).reshape(self.n, 3)
@@ -229,7 +229,7 @@ class PoseEstimate:
         turn = 0.0
         if not np.all(np.isfinite(w)):
             w, turn = self.b.copy(), c.saturated_turn
-        elif np.max(np.abs(gyro_I)) >= 0.99 * c.gyro_range:
+        elif np.max(np.abs(gyro_I)) >= 0.99 * self.gyro_range:
             turn = c.saturated_turn
         step = exp_so3((w - self.b) * dt)
         self.R = self.R @ step
@@ -423,10 +423,11 @@ def add_localizer(builder, parts, config: LocalizerConfig):
     """`capsule.localizer`: the pose estimate from capsule.magnetic_array, capsule.imu and
     epm.pose, started at the capsule's start pose; exports capsule.localizer.{pose,
     covariance, std, sensors_used}."""
+    imu = parts.shared("capsule.imu.config")
     estimate = PoseEstimate(
         config, parts.shared("capsule.magnetic_array.positions"),
         parts.shared("capsule.magnetic_array.self_field"), parts.epm.magnet.moment(),
-        parts.shared("capsule.imu.config").X_BS().rotation().matrix(), parts.gravity)
+        imu.X_BS().rotation().matrix(), parts.gravity, imu.gyro_range)
     localizer = builder.AddNamedSystem("capsule.localizer", MagneticLocalizer(
         estimate, parts.X_WB0))
     builder.Connect(parts.output("capsule.magnetic_array.B"), localizer.GetInputPort("B"))
