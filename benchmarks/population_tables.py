@@ -9,7 +9,7 @@ time to the cecum, the mean speed to it (the centreline's length over the time, 
 reached it), wall contact, peak contact force and pressure, the wall's per-site figures
 (the highest pressure one patch of mucosa felt, the longest one patch spent above 4 kPa and
 above 330 kPa; runs whose contact model has them), and coverage; then the
-breakdown by sigmoid variant, sex and tercile of the colon's length (app/benchmark.py
+breakdown by sigmoid variant, sex and tercile of the colon's length (app/benchmark/tables.py
 `breakdown`), and the runs that did not reach the cecum with where they stopped.
 """
 

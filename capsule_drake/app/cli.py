@@ -163,7 +163,7 @@ def _parser() -> argparse.ArgumentParser:
                     "autonomy-detected, autonomy-sensors, teleop-guided, teleop-unguided, or "
                     "a user's "
                     "'package.module:function' (the plug-in interface in "
-                    "capsule_drake/app/benchmark.py).")
+                    "capsule_drake/navigation/plugin.py).")
     bench.add_argument("--tier", choices=tuple(TIERS), default="standard",
                        help="standard: the ten procedural colons (seeds 0-9); population: "
                             "30 patients drawn from the population model (seeds 1000-1029)")

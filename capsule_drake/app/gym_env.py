@@ -5,7 +5,7 @@
 
 Registered when `capsule_drake` is imported (or with gymnasium's "module:id" form,
 `gymnasium.make("capsule_drake:capsule_drake/ColonNavigation-v0")`). The task is the
-navigation benchmark's (app/benchmark.py): the capsule starts in the rectum of a
+navigation benchmark's (app/benchmark/): the capsule starts in the rectum of a
 seeded procedural colon (the scenario `Navigation` of diagrams/default.yaml, its
 `capsule.start_s`), and the episode ends at the cecum. The agent takes the place of the
 benchmark's navigators: the station's EPM driver is `!External`, and every step the
