@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsule_drake.app.cli import parse_seeds
+from capsule_drake.app.commands.benchmark import parse_seeds
 from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.perception import lumen_net, photometry
 from capsule_drake.perception.evaluation import IMAGE_CONDITIONS, _vtk_renderer, seeded_poses

@@ -188,15 +188,15 @@ def test_the_benchmark_honours_the_random_seed():
 
 
 def test_benchmark_command_line_errors_are_one_line(capsys, monkeypatch, tmp_path):
-    from capsule_drake.app import cli
     from capsule_drake.app.cli import main
+    from capsule_drake.app.commands import benchmark as command
 
     def no_runs(*args, **kwargs):
         raise AssertionError("a bad command line must fail before any run starts")
 
     # A command line that got through would start the whole suite (10 colons x 600 s):
     # fail at once instead, writing nothing into the repository.
-    monkeypatch.setattr(cli, "run_suite", no_runs)
+    monkeypatch.setattr(command, "run_suite", no_runs)
     monkeypatch.chdir(tmp_path)
     for argv, message in ((["--seeds", "x"], "--seeds 'x': expected"),
                           (["--navigators", "wander"], "navigator 'wander' is not one of"),

@@ -189,7 +189,7 @@ def test_impossible_tissue_is_one_line_at_load_naming_the_key(text, key):
 def test_every_printed_contact_line_names_its_model():
     # The default run's contact figures came from the stand-in and read as the patient's; a
     # printed line now names the model, and the stand-in's says it is not a tissue figure.
-    from capsule_drake.app.cli import contact_words, pressure_summary
+    from capsule_drake.app.commands.common import contact_words, pressure_summary
     rigid = {"contact_model": RigidWall().label(), "wall_pressure_field": True,
              "wall_patch_length_m": 0.01, "wall_patch_angle_deg": 30.0,
              "site_peak_pressure_kPa": 375.0, "site_peak_at_s_m": 0.155,

@@ -7,7 +7,7 @@ import pytest
 from pydrake.math import RigidTransform, RotationMatrix
 from scipy import ndimage
 
-from capsule_drake.app.cli import parse_seeds
+from capsule_drake.app.commands.benchmark import parse_seeds
 from capsule_drake.perception import lumen_net
 from capsule_drake.perception.lens import LensConfig
 from capsule_drake.perception.lumen import load_detector

@@ -40,9 +40,10 @@ def test_notebook_runs(path, tmp_path):
 
 def test_the_notebooks_verb_opens_jupyterlab_on_the_notebooks(monkeypatch):
     from capsule_drake.app import cli
+    from capsule_drake.app.commands import notebooks
     started = []
-    monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: object())
-    monkeypatch.setattr(cli.os, "execv", lambda path, argv: started.append(argv))
+    monkeypatch.setattr(notebooks.importlib.util, "find_spec", lambda name: object())
+    monkeypatch.setattr(notebooks.os, "execv", lambda path, argv: started.append(argv))
     assert cli.main(["notebooks", "--no-browser", "--port", "8890"]) == 0
     argv, = started
     assert argv[:3] == [sys.executable, "-m", "jupyterlab"]
@@ -52,8 +53,9 @@ def test_the_notebooks_verb_opens_jupyterlab_on_the_notebooks(monkeypatch):
 
 def test_without_jupyterlab_the_notebooks_verb_says_how_to_install_it(monkeypatch, capsys):
     from capsule_drake.app import cli
-    monkeypatch.setattr(cli.importlib.util, "find_spec", lambda name: None)
-    monkeypatch.setattr(cli.os, "execv", lambda *a: pytest.fail("nothing to start"))
+    from capsule_drake.app.commands import notebooks
+    monkeypatch.setattr(notebooks.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(notebooks.os, "execv", lambda *a: pytest.fail("nothing to start"))
     assert cli.main(["notebooks"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "pip install -e '.[notebooks]'" in err, err

@@ -179,7 +179,7 @@ def _check_without_running(block: Block) -> None:
         return
     done = subprocess.run(["bash", "-n"], input=block.code, capture_output=True, text=True)
     assert done.returncode == 0, f"{block.name}: {done.stderr}"
-    from capsule_drake.app.cli import _parser
+    from capsule_drake.app.cli_parser import _parser
 
     for command in _commands(block.code):
         words = shlex.split(command, comments=True)

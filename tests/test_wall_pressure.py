@@ -18,7 +18,7 @@ from pydrake.systems.analysis import Simulator
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.anatomy.centerline import Centerline, rotation_minimising_frame
-from capsule_drake.app.cli import pressure_summary
+from capsule_drake.app.commands.common import pressure_summary
 from capsule_drake.app.run import simulate
 from capsule_drake.io.metrics import SITE_OUTCOMES, site_pressure_metrics
 from capsule_drake.io.replay import replay_page, wall_map_panel
