@@ -53,12 +53,13 @@ class Arm:
     # PD actuators (an ideal torque-controlled arm with gravity compensation: the arm's own
     # weight is not simulated, the magnet's force on it is). Stiff enough that the largest
     # pull of the magnets (21.4 N at the default clearance) bends the arm by less than the
-    # clearance's 2 mm tolerance (0.075 mm/N at the start posture); the damping keeps the
-    # damping ratios of the halved gains these doubled.
+    # clearance's 2 mm tolerance (0.075 mm/N at the start posture); damped 2x the halved
+    # gains' damping (ratios ~1.06 for ~0.75): at ~0.75 a joint stopped at its speed limit
+    # rang the magnet +-3.5 mm (teleoperation, population patient 1001, 132 s).
     joint_stiffness: list[float] = dataclasses.field(
         default_factory=lambda: [16000.0, 16000.0, 10000.0, 10000.0, 4000.0, 2000.0, 1000.0])
     joint_damping: list[float] = dataclasses.field(
-        default_factory=lambda: [425.0, 425.0, 212.0, 212.0, 57.0, 28.0, 11.3])
+        default_factory=lambda: [600.0, 600.0, 300.0, 300.0, 80.0, 40.0, 16.0])
     # Controller period (s).
     control_period: float = 0.005
     # Fraction of the datasheet joint speeds the controller may command.
