@@ -189,6 +189,12 @@ def turn_vector(a, b, across) -> np.ndarray:
     return np.zeros(3)
 
 
+def pose_error(X_WE: RigidTransform, p_target, m_target) -> tuple[float, float]:
+    """(position error (m), axis error (rad)) of the magnet at X_WE from a target."""
+    axis = float(np.arccos(np.clip(X_WE.rotation().col(2) @ m_target, -1.0, 1.0)))
+    return float(np.linalg.norm(X_WE.translation() - p_target)), axis
+
+
 def clip_norm(x: np.ndarray, limit: float) -> np.ndarray:
     norm = np.linalg.norm(x)
     return x * (limit / norm) if norm > limit else x
@@ -338,18 +344,16 @@ class EpmArmController(LeafSystem):
         return self._plant.CalcRelativeTransform(self._context, self._plant.world_frame(),
                                                  self._frame_E)
 
-    def twist(self, q, q_next) -> np.ndarray:
-        """[w, v] of the magnet from joint command q to q_next over one period (the turn of
+    def twist(self, X_before: RigidTransform, X_after: RigidTransform) -> np.ndarray:
+        """[w, v] of the magnet from pose X_before to X_after over one period (the turn of
         its moment's axis; the roll about it is free)."""
-        X, X_next = self._pose(q), self._pose(q_next)
-        turn = turn_vector(X.rotation().col(2), X_next.rotation().col(2), X.rotation().col(0))
-        return np.concatenate([turn, X_next.translation() - X.translation()]) / self._dt
+        turn = turn_vector(X_before.rotation().col(2), X_after.rotation().col(2),
+                           X_before.rotation().col(0))
+        return np.concatenate([turn, X_after.translation() - X_before.translation()]) / self._dt
 
     def placement_error(self, q, p_target, m_target):
         """(position error (m), axis error (rad)) of the EPM at joint positions q."""
-        X_WE = self._pose(q)
-        axis = float(np.arccos(np.clip(X_WE.rotation().col(2) @ m_target, -1.0, 1.0)))
-        return float(np.linalg.norm(X_WE.translation() - p_target)), axis
+        return pose_error(self._pose(q), p_target, m_target)
 
     def _desired_state(self, context, out):
         """The joint command between controller steps: from the last step's start toward
@@ -379,9 +383,10 @@ class EpmArmController(LeafSystem):
         p, m, raised, pulled = self._guard.apply(values[_COMMAND][:3], values[_COMMAND][3:])
         last = values[_TARGET]
         q_next, v, solved = self.place(q, p, m, (last[:3], last[3:], values[_TWIST]))
-        position_error, axis_error = self.placement_error(q_next, p, m)
+        X_before, X_after = self._pose(q), self._pose(q_next)
+        position_error, axis_error = pose_error(X_after, p, m)
         values[_TARGET] = np.concatenate([p, m])
-        values[_TWIST] = self.twist(q, q_next)
+        values[_TWIST] = self.twist(X_before, X_after)
         values[_Q], values[_V] = q_next, v
         status[0], status[1] = float(raised), float(pulled)
         status[2] = float(position_error > self._config.unreachable_tolerance)
