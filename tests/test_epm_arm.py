@@ -2,6 +2,8 @@
 tracking slow EPM trajectories in the plant within 1 mm and 1 degree without leaving the
 joint limits; unreachable and corrupt commands; the arm in the station."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.math import RotationMatrix
@@ -13,8 +15,8 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from capsule_drake.anatomy import load_colon
 from capsule_drake.epm.arm import (ARM_JOINTS, SHOULDER_HEIGHT, Arm, ArmMount,
-                                   EpmArmController, arm_base_pose, rotate_axis_onto,
-                                   solve_posture)
+                                   EpmArmController, arm_base_pose, blend,
+                                   rotate_axis_onto, solve_posture)
 from capsule_drake.epm.clearance import CLEARANCE_TOLERANCE
 from capsule_drake.epm.guard import EpmGuard
 from capsule_drake.epm.mount import MagnetPose
@@ -110,7 +112,7 @@ class _Waypoints(LeafSystem):
         output.SetFromVector(self.command(t))
 
 
-def _arm_diagram(colon, waypoints, config=Arm(), **waypoint_args):
+def _arm_diagram(colon, waypoints, config=Arm(), desired_period=None, **waypoint_args):
     """The arm alone in a plant (its PD servos, no gravity on it) with the controller
     following `waypoints`; logs the EPM pose, the command and the arm state."""
     builder = DiagramBuilder()
@@ -138,6 +140,9 @@ def _arm_diagram(colon, waypoints, config=Arm(), **waypoint_args):
             "command": LogVectorOutput(source.get_output_port(), builder, 0.01),
             "state": LogVectorOutput(plant.get_state_output_port(instance), builder, 0.01),
             "status": LogVectorOutput(controller.GetOutputPort("status"), builder, 0.01)}
+    if desired_period:
+        logs["desired"] = LogVectorOutput(controller.GetOutputPort("arm_desired_state"),
+                                          builder, desired_period)
     diagram = builder.Build()
     return diagram, plant, source, logs, guard
 
@@ -255,6 +260,42 @@ def test_the_magnet_keeps_its_clearance_on_commands_faster_than_the_arm(colon, s
                      for k in range(pose.shape[1])])
     print(f"lowest gap {1000 * gaps.min():.2f} mm (clearance {1000 * CLEARANCE:g} mm)")
     assert gaps.min() > CLEARANCE - CLEARANCE_TOLERANCE
+
+
+def _command_velocity_steps(colon, config, seed=21):
+    """The largest change of any joint's commanded velocity between controller steps, on
+    abrupt floor-skimming commands (3 waypoints, 0.1 m/s, 3 rad/s)."""
+    guard = _guard(colon, config)
+    waypoints = _floor_waypoints(colon, guard, 3, np.random.default_rng(seed))
+    diagram, plant, source, logs, guard = _arm_diagram(
+        colon, waypoints, config, speed=0.1, turn_rate=3.0, pause=0.15, smooth=False,
+        desired_period=config.control_period)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(source.end)
+    v = logs["desired"].FindLog(simulator.get_context()).data()[7:]
+    return np.abs(np.diff(v, axis=1)).max()
+
+
+def test_joint_velocity_commands_change_by_at_most_the_joint_acceleration(colon):
+    """The differential IK's joint velocities jump when its active constraints switch; the
+    controller reaches them at joint_acceleration (all joints by one share). Joints slowed
+    to a fifth of their datasheet speeds reach their limits on these commands (the QP then
+    scales the whole twist down within a period): without the bound the commands jump by
+    ~4 times as much (so this test can fail)."""
+    config = Arm(velocity_scale=0.2)
+    bound = config.joint_acceleration * config.control_period
+    assert _command_velocity_steps(colon, config) <= bound * (1.0 + 1e-9)
+    unbounded = _command_velocity_steps(
+        colon, dataclasses.replace(config, joint_acceleration=1000.0))
+    print(f"largest step {unbounded:.3f} rad/s unbounded, bound {bound:.3f}")
+    assert unbounded > 2.0 * bound
+
+
+def test_blend_moves_every_joint_by_one_share():
+    last, new = np.array([0.0, 1.0, -1.0]), np.array([1.0, 0.5, -1.0])
+    out = blend(last, new, 0.25)
+    np.testing.assert_allclose(out, last + 0.25 * (new - last))
+    np.testing.assert_array_equal(blend(last, new, 2.0), new)
 
 
 def test_a_lost_command_link_holds_the_epm(colon):

@@ -85,6 +85,14 @@ class Arm:
     # sqrt(2 a d) at a distance d from the limit (with its margin) instead of stopping there
     # within a period.
     joint_braking: float = 5.0
+    # Largest change of a joint's commanded velocity (rad/s^2). The differential IK's
+    # joint velocities jump when its active constraints switch (a joint reaching its speed
+    # limit, a braking bound), even while the magnet's twist changes gradually; the servos
+    # ring from a jump (+-3.5 mm at the magnet, teleoperation, population patient 1001,
+    # 132 s). The step's joint velocities go from the last ones toward the IK's by at most
+    # this times the period, all joints by the same share (the magnet's twist blends from
+    # the last toward the new). Twice joint_braking, so the braking is followed.
+    joint_acceleration: float = 10.0
     # Descent toward the skin: at most approach_speed (m/s) plus the height above the
     # clearance floor over approach_time (s), so the magnet arrives at the floor slowly.
     approach_speed: float = 0.005
@@ -116,9 +124,9 @@ def check_arm_config(config: Arm) -> None:
     if not config.max_speed > 0.0 or not config.max_turn_rate > 0.0:
         raise ValueError("epm.mount.max_speed and max_turn_rate must be > 0")
     if not config.max_acceleration > 0.0 or not config.max_turn_acceleration > 0.0 \
-            or not config.joint_braking > 0.0:
-        raise ValueError("epm.mount.max_acceleration, max_turn_acceleration and "
-                         "joint_braking must be > 0")
+            or not config.joint_braking > 0.0 or not config.joint_acceleration > 0.0:
+        raise ValueError("epm.mount.max_acceleration, max_turn_acceleration, joint_braking "
+                         "and joint_acceleration must be > 0")
     if not config.reach > 0.0 or not config.unreachable_tolerance > 0.0:
         raise ValueError("epm.mount.reach and unreachable_tolerance must be > 0")
     # Beyond the signs: what the arm (models/epm_arm.sdf, ~0.9 m from shoulder to flange)
@@ -144,6 +152,8 @@ def check_arm_config(config: Arm) -> None:
     need_range(config.max_turn_acceleration, "epm.mount.max_turn_acceleration", "[0.001, 100]",
                "rad/s^2")
     need_range(config.joint_braking, "epm.mount.joint_braking", "[0.01, 100]", "rad/s^2")
+    need_range(config.joint_acceleration, "epm.mount.joint_acceleration", "[0.01, 1000]",
+               "rad/s^2")
     need_range(config.approach_speed, "epm.mount.approach_speed", "(0, 1]", "m/s")
     need_range(config.approach_time, "epm.mount.approach_time", "(0, 10]", "s")
     need_range(config.reach, "epm.mount.reach", "[0.1, 1.5]", "m",
@@ -207,6 +217,16 @@ def approach(gap: np.ndarray, acceleration: float, dt: float) -> np.ndarray:
     if distance < 1e-15:
         return np.zeros_like(gap)
     return gap / distance * min(distance / dt, math.sqrt(2.0 * acceleration * distance))
+
+
+def blend(v_last: np.ndarray, v_new: np.ndarray, largest_change: float) -> np.ndarray:
+    """From v_last toward v_new, every component by the same share, so that none changes
+    by more than largest_change (the joints keep their coordination: the twist they give
+    lies between the last one and the new one)."""
+    change = np.max(np.abs(v_new - v_last))
+    if change <= largest_change:
+        return v_new
+    return v_last + (largest_change / change) * (v_new - v_last)
 
 
 # The controller's state: the joint command at the end of the current step and its
@@ -283,12 +303,14 @@ class EpmArmController(LeafSystem):
 
         Offline (`previous` None: `solve_posture`), the twist closes the gap in one step,
         capped at the config's speeds (so the QP can follow its direction). In the loop,
-        `previous` = (p, m_hat of the last target, the last step's twist [w, v]): the twist
-        is the target's own (its change over a period) plus an approach to the remaining
-        gap that can stop within max_acceleration (speed sqrt(2 a gap)), capped at the
-        speeds, and it changes from the last step's by at most the accelerations times the
-        period. So the joint velocities the servos follow change gradually, and the magnet
-        follows a moving target without lag."""
+        `previous` = (p, m_hat of the last target, the last step's twist [w, v], the last
+        step's joint velocities): the twist is the target's own (its change over a period)
+        plus an approach to the remaining gap that can stop within max_acceleration (speed
+        sqrt(2 a gap)), capped at the speeds, and it changes from the last step's by at most
+        the accelerations times the period; the IK's joint velocities are then reached from
+        the last ones at most joint_acceleration times the period a step (`blend`). So the
+        joint velocities the servos follow change gradually, and the magnet follows a
+        moving target without lag."""
         X_WE = self._pose(q)
         axis = X_WE.rotation().col(2)
         gap_turn = turn_vector(axis, m_target, X_WE.rotation().col(0))
@@ -302,7 +324,7 @@ class EpmArmController(LeafSystem):
         if previous is None:
             omega, velocity = gap_turn / dt, gap / dt
         else:
-            p_last, m_last, twist = previous
+            p_last, m_last, twist, _ = previous
             omega = approach(gap_turn, c.max_turn_acceleration, dt)
             velocity = approach(gap, c.max_acceleration, dt)
             if np.all(np.isfinite(p_last)):
@@ -337,6 +359,8 @@ class EpmArmController(LeafSystem):
                 or result.joint_velocities is None:
             return q.copy(), np.zeros(7), False
         v = np.asarray(result.joint_velocities).ravel()
+        if previous is not None:
+            v = blend(previous[3], v, c.joint_acceleration * dt)
         return np.clip(q + dt * v, lower, upper), v, True
 
     def _pose(self, q) -> RigidTransform:
@@ -382,7 +406,8 @@ class EpmArmController(LeafSystem):
             return EventStatus.Succeeded()
         p, m, raised, pulled = self._guard.apply(values[_COMMAND][:3], values[_COMMAND][3:])
         last = values[_TARGET]
-        q_next, v, solved = self.place(q, p, m, (last[:3], last[3:], values[_TWIST]))
+        q_next, v, solved = self.place(q, p, m,
+                                       (last[:3], last[3:], values[_TWIST], values[_V]))
         X_before, X_after = self._pose(q), self._pose(q_next)
         position_error, axis_error = pose_error(X_after, p, m)
         values[_TARGET] = np.concatenate([p, m])
