@@ -193,13 +193,77 @@ class EpmConfig:
 
 
 @dataclass
+class McapOutput:
+    """The run's channels (app/channels.py) as ROS 2 messages in an MCAP file."""
+
+    # The file (relative to the working directory). The CLI's --mcap FILE sets it.
+    path: str = ""
+    # Chunk compression: "zstd", "lz4" or "none".
+    compression: str = "zstd"
+
+
+@dataclass
+class MeshcatOutput:
+    """A live Meshcat page of the run (the CLI's --meshcat)."""
+
+    # Address and port the page is served on (the loopback unless told otherwise).
+    host: str = "127.0.0.1"
+    port: int = 7000
+
+
+@dataclass
+class FoxgloveOutput:
+    """The run's channels live on a Foxglove WebSocket server (foxglove-sdk): open
+    Foxglove, "Open connection", ws://host:port (the CLI's --foxglove)."""
+
+    host: str = "127.0.0.1"
+    # 0: any free port (the run prints which).
+    port: int = 8765
+    # Seconds the run waits, at its first message, for a viewer to subscribe (0: none).
+    wait_for_client: float = 0.0
+
+
+@dataclass
+class Ros2Output:
+    """The run's channels as ROS 2 topics over DDS (Cyclone DDS, no ROS installation
+    needed here; the CLI's --ros2), and the EPM's goal from a ROS 2 topic."""
+
+    # The DDS domain (ROS_DOMAIN_ID of the ROS 2 machines that should see it).
+    domain_id: int = 0
+    # Only this machine (the loopback); false: Cyclone DDS's own configuration
+    # ($CYCLONEDDS_URI, else every interface).
+    loopback: bool = True
+    # The EPM follows geometry_msgs/PoseStamped goals on /epm/goal (world: the magnet's
+    # centre, its moment along the pose's z), through the EPM's guard as every driver's
+    # command; needs epm.driver !External.
+    epm_goal: bool = False
+    # A goal older than this (s, wall clock) is a lost link: the EPM holds.
+    hold_after: float = 0.5
+
+
+@dataclass
 class OutputsConfig:
-    """What a run records."""
+    """What a run records and where it is shown. The live ones (meshcat, foxglove, ros2)
+    pace the run to simulator.target_realtime_rate (1, real time, when that is 0)."""
 
     # Period at which the run records poses and contact forces for its metrics (s).
     log_period: float = 0.01
     # Period at which Meshcat is updated, when it is used (s).
     visual_period: float = 1.0 / 32.0
+    # The Meshcat replay, recording.html (the CLI's --no-recording: false).
+    recording: bool = True
+    # The MCAP file of the run's channels. Null: none.
+    mcap: McapOutput | None = None
+    # A live Meshcat page. Null: none.
+    meshcat: MeshcatOutput | None = None
+    # A live Foxglove server. Null: none.
+    foxglove: FoxgloveOutput | None = None
+    # ROS 2 topics. Null: none.
+    ros2: Ros2Output | None = None
+
+    def live(self) -> bool:
+        """Whether any output is watched as the run goes (it is then paced)."""
+        return any(o is not None for o in (self.meshcat, self.foxglove, self.ros2))
 
 
 def _plant_config() -> MultibodyPlantConfig:
@@ -422,6 +486,32 @@ def _check_finite(scenario: Scenario) -> None:
             raise ScenarioError(f"scenario: {key} must be finite, got {value!r}")
 
 
+def _check_outputs(outputs: OutputsConfig, scenario: Scenario, bound) -> None:
+    need = blocks.need
+    if outputs.mcap is not None:
+        need(outputs.mcap.path.strip() != "", "outputs.mcap.path: the file to write is empty")
+        need(outputs.mcap.compression in ("zstd", "lz4", "none"),
+             f"outputs.mcap.compression must be zstd, lz4 or none, got "
+             f"{outputs.mcap.compression!r}")
+    for name in ("meshcat", "foxglove"):
+        server = getattr(outputs, name)
+        if server is not None:
+            need(isinstance(server.host, str) and server.host.strip() != "",
+                 f"outputs.{name}.host: the address to listen on is empty")
+            bound(server.port, f"outputs.{name}.port", "[0, 65535]", "",
+                  "0: any free port" if name == "foxglove" else "")
+    if outputs.foxglove is not None:
+        bound(outputs.foxglove.wait_for_client, "outputs.foxglove.wait_for_client",
+              "[0, 3600]", "s")
+    if outputs.ros2 is not None:
+        bound(outputs.ros2.domain_id, "outputs.ros2.domain_id", "[0, 232]", "",
+              "DDS maps domains 0-232 to UDP ports")
+        bound(outputs.ros2.hold_after, "outputs.ros2.hold_after", "(0, 60]", "s")
+        need(not outputs.ros2.epm_goal or type(scenario.epm.driver).__name__ == "External",
+             "outputs.ros2.epm_goal needs epm.driver !External (the goal topic drives the "
+             f"EPM), got !{type(scenario.epm.driver).__name__}")
+
+
 def _check_run(scenario: Scenario) -> None:
     """The run's own settings, which are no block of the station: its duration and seed,
     what it records, its simulator and its guard."""
@@ -444,6 +534,7 @@ def _check_run(scenario: Scenario) -> None:
          f"{outputs.log_period:g} s = {samples:,.0f}")
     bound(outputs.visual_period, "outputs.visual_period", f">= {MIN_VISUAL_PERIOD:g}", "s",
           "a screen shows 60 frames per second")
+    _check_outputs(outputs, scenario, bound)
     simulator = scenario.simulator
     bound(simulator.max_step_size, "simulator.max_step_size", "> 0", "s")
     bound(simulator.accuracy, "simulator.accuracy", "(0, 1]")

@@ -39,6 +39,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="skip the Meshcat recording (a little faster; with --meshcat the "
                           "page is drawn live only)")
     _mcap_argument(run)
+    _live_arguments(run)
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
     rec = verbs.add_parser(
@@ -84,6 +85,7 @@ def _parser() -> argparse.ArgumentParser:
     _host_argument(tel, "Meshcat and the UDP bridge")
     _out_arguments(tel, "runs/teleop-<operator>-<date-time>", mcap=True)
     _mcap_argument(tel)
+    _live_arguments(tel)
     tel.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = verbs.add_parser(
@@ -240,6 +242,17 @@ def _mcap_argument(parser):
                              "magnetic field, tf, contact wrench, lumen) into an MCAP file, "
                              "as it goes, for Foxglove or `ros2 bag` (README, \"ROS 2 and "
                              "Foxglove: MCAP logs\")")
+
+
+def _live_arguments(parser):
+    parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, metavar="PORT",
+                        help="stream the run's channels live to Foxglove (a WebSocket server "
+                             "on --host, port 8765 unless given; 0: any free port), paced "
+                             "to real time: outputs.foxglove")
+    parser.add_argument("--ros2", type=int, nargs="?", const=0, metavar="DOMAIN",
+                        help="publish the run's channels as ROS 2 topics over DDS (domain 0 "
+                             "unless given; this machine only unless --host 0.0.0.0), paced "
+                             "to real time: outputs.ros2")
 
 
 def _out_arguments(parser, default: str, force: bool = True, mcap: bool = False):

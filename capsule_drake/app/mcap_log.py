@@ -72,6 +72,7 @@ import stat
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 # mcap_ros2's own Writer uses this to encode; it has no public encoder and registers its
@@ -94,6 +95,10 @@ from capsule_drake.lifetime import id_values
 from capsule_drake.app.dataset import READ_DELAY, PlantTiming, sample_tick
 from capsule_drake.app.lesion_dataset import box_of
 from capsule_drake.app.outputs import MCAP_LIBRARY, check_file_output, is_capsule_mcap
+from capsule_drake.app.channels import ChannelWriter
+from capsule_drake.app.scene_markers import scene_markers, wall_triangles
+from capsule_drake.anatomy.source import load_colon
+from capsule_drake.capsule.model import capsule_model
 from capsule_drake.app.ros2_messages import (NANOSECONDS, header, offered_qos_profiles,
                                             quaternion_wxyz, schema_text, transform_stamped,
                                             vector3)
@@ -217,9 +222,23 @@ class Ros2McapFile:
         self._channels[topic] = (channel_id, encoder, type_name)
         return self._channels[topic]
 
+    # As an output of a ChannelWriter (app/channels.py): a failure stops the run.
+    fatal = True
+
+    @property
+    def name(self) -> str:
+        return f"the MCAP log {self.path}"
+
     def write(self, topic: str, type_name: str, message: dict, log_time_ns: int,
               latched: bool = False):
         """Encodes `message` (a dict of the type's fields) and adds it to `topic`."""
+        self._add(topic, type_name, latched, message, None, log_time_ns)
+
+    def publish(self, topic: str, spec, message: dict, data: bytes, log_time_ns: int):
+        """Adds a message the ChannelWriter encoded (`data`, CDR) to `topic`."""
+        self._add(topic, spec.type_name, spec.latched, message, data, log_time_ns)
+
+    def _add(self, topic, type_name, latched, message, data, log_time_ns):
         if self.closed or self.error is not None:
             raise RuntimeError(f"{self.path}: the MCAP log is closed")
         try:
@@ -227,7 +246,8 @@ class Ros2McapFile:
             channel_id, encoder, known_type = channel
             if known_type != type_name:
                 raise ValueError(f"topic {topic} carries {known_type}, not {type_name}")
-            self._writer.add_message(channel_id, log_time=log_time_ns, data=encoder(message),
+            self._writer.add_message(channel_id, log_time=log_time_ns,
+                                     data=encoder(message) if data is None else data,
                                      publish_time=log_time_ns, sequence=self.messages)
         except OSError as e:
             raise self._failed(e) from None
@@ -691,30 +711,34 @@ class _CameraStream(_Stream):
         self.frames += 1
 
 
-class McapLogger(LeafSystem):
-    """Writes the station's signals as ROS 2 messages into an MCAP file as the simulation
-    runs (module docstring: topics, frames, times).
+class ChannelLogger(LeafSystem):
+    """Writes the station's signals as ROS 2 messages to the run's outputs (the MCAP file,
+    the live Foxglove server, ROS 2 topics: a ChannelWriter of app/channels.py) as the
+    simulation runs (module docstring: topics, frames, times).
 
     .. pydrake_system::
 
-        name: McapLogger
+        name: ChannelLogger
         input_ports:
         - <station output> (one per output a stream reads, named as it)
 
-    Each stream reads its inputs in a periodic publish event of its own; the static
-    transforms (/tf_static) are written with the first message.
+    Each stream reads its inputs in a periodic publish event of its own; the latched
+    messages (/tf_static, the scene) are written with the first message.
 
     Args:
-        log: the Ros2McapFile to write (closed by `close()`).
+        log: what the messages are written to: a ChannelWriter, or a Ros2McapFile alone
+            (closed by `close()`).
         streams: the _Stream objects of what the scenario has.
         static_transforms: (parent, child, X_PC) written once on /tf_static.
+        scene: the /scene/markers MarkerArray (app/scene_markers.py), or None.
     """
 
-    def __init__(self, log: Ros2McapFile, streams, static_transforms=()):
+    def __init__(self, log, streams, static_transforms=(), scene: dict | None = None):
         super().__init__()
         self._log = log
         self._streams = list(streams)
         self._static = list(static_transforms)
+        self._scene = scene
         self._started = False
         self._ports = {}
         for stream in self._streams:
@@ -730,7 +754,12 @@ class McapLogger(LeafSystem):
                 lambda context, stream=stream: self._on_event(context, stream))
 
     @property
-    def log(self) -> Ros2McapFile:
+    def log(self):
+        """The MCAP file the run reports on (a ChannelWriter's fatal output), or None."""
+        return self._log.log if isinstance(self._log, ChannelWriter) else self._log
+
+    @property
+    def writer(self):
         return self._log
 
     def stream_inputs(self) -> list[str]:
@@ -747,11 +776,14 @@ class McapLogger(LeafSystem):
                     transform_stamped(0, parent, child, X.translation(),
                                       _quaternion_of(X.rotation()))
                     for parent, child, X in self._static]}, 0, latched=True)
+                if self._scene is not None:
+                    self._log.write("/scene/markers", "visualization_msgs/msg/MarkerArray",
+                                    self._scene, 0, latched=True)
             stream.write(self._log, t, values)
         return EventStatus.Succeeded()
 
     def close(self):
-        """Finishes the file (the run loop's close hook)."""
+        """Finishes every output (the run loop's close hook)."""
         with signals_held():
             self._log.close()
 
@@ -781,12 +813,31 @@ def expected_mcap_bytes(scenario) -> float:
     return total
 
 
-def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd") -> McapLogger:
-    """Adds an McapLogger for `scenario` beside a built `station` (in `builder`), writing
-    `path`, with a stream for each source the station has and, when `builder` holds the
-    run's map of the wall's pressure with a pressure field (app/run.py
-    `add_wall_pressure`), one of its images; connects it. Call `close()` on the result when
-    the run ends (it is what `simulate`'s extend returns)."""
+def add_mcap_logger(builder, station, scenario, path,
+                    compression: str = "zstd") -> ChannelLogger:
+    """`add_channel_logger` with the MCAP file at `path` as its one output."""
+    return add_channel_logger(builder, station, scenario, [Ros2McapFile(path, compression)])
+
+
+def scene_of(scenario) -> dict:
+    """The /scene/markers MarkerArray of `scenario`'s colon, capsule and EPM."""
+    model = capsule_model()
+    wall = wall_triangles(trimesh.load(load_colon(scenario.colon)[1].visual_obj,
+                                       force="mesh", process=False))
+    geometry = scenario.epm.magnet   # a sphere or a cuboid drawn as its bounding cylinder
+    dims = list(geometry.dimensions)
+    diameter, length = {"cylinder": dims[:2], "sphere": dims[:1] * 2}.get(
+        geometry.shape, [max(dims[:2]), dims[-1]])
+    return scene_markers(wall, model.radius, model.length, diameter, length)
+
+
+def add_channel_logger(builder, station, scenario, sinks, scene: bool = True) -> ChannelLogger:
+    """Adds a ChannelLogger for `scenario` beside a built `station` (in `builder`), writing
+    to `sinks` (the MCAP file, live outputs: app/channels.py), with a stream for each source
+    the station has and, when `builder` holds the run's map of the wall's pressure with a
+    pressure field (app/run.py `add_wall_pressure`), one of its images, and the scene
+    (unless `scene` is False); connects it. Call `close()` on the result when the run ends
+    (it is what `simulate`'s extend returns)."""
     capsule = scenario.capsule
     outputs = {station.get_output_port(i).get_name() for i in range(station.num_output_ports())}
     plant = station.GetSubsystemByName("plant")
@@ -835,8 +886,8 @@ def add_mcap_logger(builder, station, scenario, path, compression: str = "zstd")
         if wall.layout.pressure_field:
             streams.append(_WallPressureStream(wall.layout, timing=timing))
             sources[f"{WALL_PRESSURE_SYSTEM}.map"] = wall.GetOutputPort("map")
-    logger = builder.AddNamedSystem("mcap_logger", McapLogger(
-        Ros2McapFile(path, compression), streams, static))
+    logger = builder.AddNamedSystem("channel_logger", ChannelLogger(
+        ChannelWriter(sinks), streams, static, scene_of(scenario) if scene else None))
     for name in logger.stream_inputs():
         builder.Connect(sources[name] if name in sources else station.GetOutputPort(name),
                         logger.GetInputPort(name))

@@ -11,9 +11,8 @@ from capsule_drake.app.dataset_docs import (SPLIT_RULE, DatasetDescription, came
                                            dataset_readme, sensors_yaml, split_counts,
                                            split_of_seed, splits_readme)
 from capsule_drake.app.outputs import SEED_PREFIX, write_atomic
-from capsule_drake.app.mcap_log import add_mcap_logger
-from capsule_drake.app.run import RunResult, chain_extends, simulate
-from capsule_drake.scenario import Scenario, ScenarioError
+from capsule_drake.app.run import RunResult, simulate
+from capsule_drake.scenario import McapOutput, Scenario, ScenarioError
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.anatomy.source import lesion_scene
 from capsule_drake.capsule.camera_config import CameraConfig, camera_tick
@@ -136,11 +135,10 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
             builder.Connect(mux.get_output_port(), writer.GetInputPort(name))
         return writer.close
 
-    def extend_mcap(builder, station):
-        return add_mcap_logger(builder, station, scenario, mcap).close
-
-    return simulate(scenario, out_dir=out_dir, progress=progress,
-                    extend=chain_extends(extend, extend_mcap if mcap is not None else None))
+    if mcap is not None:   # the scenario's outputs.mcap, at this path
+        scenario = dataclasses.replace(scenario, outputs=dataclasses.replace(
+            scenario.outputs, mcap=McapOutput(path=str(mcap))))
+    return simulate(scenario, out_dir=out_dir, progress=progress, extend=extend)
 
 
 @dataclasses.dataclass

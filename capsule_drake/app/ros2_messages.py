@@ -156,6 +156,71 @@ builtin_interfaces/Duration lifetime
 geometry_msgs/Point[] points
 std_msgs/ColorRGBA[] outline_colors
 """,
+    "sensor_msgs/msg/CompressedImage": """
+std_msgs/Header header
+string format
+uint8[] data
+""",
+    "visualization_msgs/msg/UVCoordinate": """
+float32 u
+float32 v
+""",
+    "visualization_msgs/msg/MeshFile": """
+string filename
+uint8[] data
+""",
+    "visualization_msgs/msg/Marker": """
+int32 ARROW=0
+int32 CUBE=1
+int32 SPHERE=2
+int32 CYLINDER=3
+int32 LINE_STRIP=4
+int32 LINE_LIST=5
+int32 CUBE_LIST=6
+int32 SPHERE_LIST=7
+int32 POINTS=8
+int32 TEXT_VIEW_FACING=9
+int32 MESH_RESOURCE=10
+int32 TRIANGLE_LIST=11
+int32 ADD=0
+int32 MODIFY=0
+int32 DELETE=2
+int32 DELETEALL=3
+std_msgs/Header header
+string ns
+int32 id
+int32 type
+int32 action
+geometry_msgs/Pose pose
+geometry_msgs/Vector3 scale
+std_msgs/ColorRGBA color
+builtin_interfaces/Duration lifetime
+bool frame_locked
+geometry_msgs/Point[] points
+std_msgs/ColorRGBA[] colors
+string texture_resource
+sensor_msgs/CompressedImage texture
+UVCoordinate[] uv_coordinates
+string text
+string mesh_resource
+MeshFile mesh_file
+bool mesh_use_embedded_materials
+""",
+    "visualization_msgs/msg/MarkerArray": """
+Marker[] markers
+""",
+    "geometry_msgs/msg/PoseStamped": """
+std_msgs/Header header
+Pose pose
+""",
+    "geometry_msgs/msg/Twist": """
+Vector3 linear
+Vector3 angular
+""",
+    "geometry_msgs/msg/TwistStamped": """
+std_msgs/Header header
+Twist twist
+""",
 }
 
 _PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16",

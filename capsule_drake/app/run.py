@@ -32,6 +32,8 @@ from capsule_drake.epm.poses import stage_to_pose
 from capsule_drake.epm.stage import Stage
 from capsule_drake.io.guard import ENDING_OF_KIND, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
+from capsule_drake.app.live.outputs import channel_outputs_extend
+from capsule_drake.app.live.pacing import PaceWatch
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
                                       run_output_bytes, save_npz, write_atomic)
@@ -159,6 +161,16 @@ def simulator_for(diagram, config: SimulatorConfig | None = None, random_seed: i
     if random_seed is not None:
         diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(random_seed))
     return simulator
+
+
+def paced(scenario: Scenario) -> SimulatorConfig:
+    """The scenario's SimulatorConfig, paced to real time when an output is watched live
+    (outputs.meshcat, foxglove, ros2) and the scenario set no pace of its own."""
+    config = scenario.simulator
+    if scenario.outputs.live() and config.target_realtime_rate == 0.0:
+        config = copy.copy(config)
+        config.target_realtime_rate = 1.0
+    return config
 
 
 def settled_start(scenario: Scenario) -> RigidTransform:
@@ -324,9 +336,12 @@ class Run:
                 self._wall_map = (add_wall_pressure(builder, station, colon,
                                                     scenario.contact.pressure_field)
                                   if log else None)
+                # The scenario's channel outputs (MCAP, Foxglove, ROS 2: app/live/outputs.py)
+                # first, then the caller's.
+                extend = chain_extends(channel_outputs_extend(scenario), extend)
                 self._finish = extend(builder, station) if extend is not None else None
                 diagram = builder.Build()
-                simulator = simulator_for(diagram, scenario.simulator, scenario.random_seed)
+                simulator = simulator_for(diagram, paced(scenario), scenario.random_seed)
             except BaseException:
                 _close_quietly(self._finish)
                 close_render_worker(station)
@@ -528,6 +543,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                                        set_visualizations_while_recording=live_meshcat)
             spool = LogSpool(out)
             bar = Progress(scenario.duration, enabled=progress)
+            pace = PaceWatch(paced(scenario).target_realtime_rate if scenario.outputs.live()
+                             else 0.0)
             wall_start = time.perf_counter()
             run.initialize()
             chunk = max(scenario.duration / 200.0, 0.05)
@@ -541,6 +558,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                     t = scenario.duration
                 ending = run.advance_to(t)
                 bar.update(run.time)
+                pace.update(run.time)
                 spool.add(run.drain(), run.time)
     except KeyboardInterrupt as e:  # a second signal: Ctrl-C, or the CLI's `Interrupted`
         if not built:
@@ -589,6 +607,9 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             diverged=status == "diverged", epm_guard_counts=run.epm_guard_counts(),
             contact_pressure=result.contact_pressure, wall_pressure=wall_pressure)
         result.metrics["status"] = status
+        if pace.target > 0.0:   # a paced run: how far from its pace it fell
+            result.metrics["pace_target"] = pace.target
+            result.metrics["pace_slowest"] = pace.slowest
         # The model every contact figure comes from (physics/contact/): printed with them.
         result.metrics["contact_model"] = scenario.contact.label()
         # The patient's wall (physics/contact/tissue.py): its figures and how they were chosen.

@@ -4,6 +4,7 @@ run's stop and exit status, and the contact and EPM lines a run prints."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import signal
 import sys
@@ -12,7 +13,7 @@ from pathlib import Path
 import yaml
 from pydrake.geometry import Meshcat, MeshcatParams
 
-from capsule_drake.app.mcap_log import add_mcap_logger
+from capsule_drake.app.cli_parser import DEFAULT_PORT, LOOPBACK
 from capsule_drake.app.outputs import RUN_OUTPUTS, plan_outputs, release_claims
 from capsule_drake.physics.tissue import INJURY_PRESSURE, ISCHAEMIA_PRESSURE
 from capsule_drake.scenario import ScenarioError, load_scenario
@@ -30,20 +31,28 @@ IMPORT_OUTPUTS = ("wall.obj", "centerline.npz", "wall_radius.npz", "import.json"
 COLON_VERBS = ("run", "record", "teleop", "benchmark", "eval-lumen")
 
 
-def _mcap_extend(path, scenario):
-    """simulate's `extend` that adds the MCAP logger, or None."""
-    if path is None:
-        return None
-    return lambda builder, station: add_mcap_logger(builder, station, scenario, path).close
+def planned_mcap(scenario, plan):
+    """`scenario` writing its MCAP file where the plan checked it would go (the plan's
+    resolved path of outputs.mcap.path), or unchanged when it writes none."""
+    if plan.mcap is None or scenario.outputs.mcap is None:
+        return scenario
+    mcap = dataclasses.replace(scenario.outputs.mcap, path=str(plan.mcap))
+    return dataclasses.replace(scenario, outputs=dataclasses.replace(scenario.outputs,
+                                                                     mcap=mcap))
 
 
 def _report_mcap(result) -> str | None:
     """Prints where the MCAP log is; or, when writing it failed, prints nothing and returns
     the failure (one line: `_finish` reports it)."""
     diagram = result.diagram
-    if diagram is None or not diagram.HasSubsystemNamed("mcap_logger"):
+    if diagram is None or not diagram.HasSubsystemNamed("channel_logger"):
         return None
-    log = diagram.GetSubsystemByName("mcap_logger").log
+    logger = diagram.GetSubsystemByName("channel_logger")
+    for line in logger.writer.dropped:   # a live output that stopped (said as it did)
+        print(f"note: {line}", file=sys.stderr)
+    log = logger.log
+    if log is None:  # live outputs only, no MCAP file
+        return None
     if log.error is not None:
         return f"--mcap {log.error}"
     print(f"MCAP log: {log.messages} ROS 2 messages in {log.path} (open it in Foxglove, "
@@ -90,12 +99,15 @@ def _check_flag_combinations(args) -> None:
 
 
 def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: float = 0.0,
-          prefixes=(), inputs=()):
+          prefixes=(), inputs=(), mcap=None):
     """Every output path of the command, checked together before anything is built or run
     (app/outputs.py's `plan_outputs`): --out (refused if it holds files, unless --force) or
-    a new folder parent/name-<date-time>, the --mcap file, and the `inputs` it reads."""
+    a new folder parent/name-<date-time>, the MCAP file (`mcap`: the scenario's
+    outputs.mcap.path; else --mcap), and the `inputs` it reads."""
+    if mcap is None:
+        mcap = getattr(args, "mcap", None)
     return plan_outputs(args.out, getattr(args, "force", None), parent=parent, name=name,
-                        outputs=outputs, prefixes=prefixes, mcap=getattr(args, "mcap", None),
+                        outputs=outputs, prefixes=prefixes, mcap=mcap,
                         mcap_bytes=mcap_bytes, inputs=inputs)
 
 
@@ -171,11 +183,34 @@ def _flags(**values) -> str:
 
 def _load(args, *flags: str):
     """The scenario of the command line: the file's named scenario, the user's
-    --scenario-text over it, then the command's own flags (YAML texts), then checked once."""
+    --scenario-text over it, then the command's own flags (YAML texts, the output flags
+    among them: `output_flags`), then checked once."""
     overrides = [args.scenario_text]
     if args.duration is not None:
         overrides.append(_flags(duration=args.duration))
-    return load_scenario(args.scenario_file, args.scenario, overrides + list(flags))
+    return load_scenario(args.scenario_file, args.scenario,
+                         overrides + output_flags(args) + list(flags))
+
+
+def output_flags(args) -> list[str]:
+    """The output flags a command has, as what they spell in the scenario's `outputs`:
+    --mcap FILE (outputs.mcap.path), --meshcat with --host/--port (outputs.meshcat),
+    --no-recording (outputs.recording false), --foxglove [PORT] (outputs.foxglove),
+    --ros2 [DOMAIN] (outputs.ros2)."""
+    outputs = {}
+    host = getattr(args, "host", None)
+    if getattr(args, "mcap", None) is not None:
+        outputs["mcap"] = {"path": str(args.mcap)}
+    if getattr(args, "meshcat", False):
+        outputs["meshcat"] = {"host": host or LOOPBACK,
+                              "port": DEFAULT_PORT if args.port is None else args.port}
+    if getattr(args, "no_recording", False):
+        outputs["recording"] = False
+    if getattr(args, "foxglove", None) is not None:
+        outputs["foxglove"] = {"host": host or LOOPBACK, "port": args.foxglove}
+    if getattr(args, "ros2", None) is not None:
+        outputs["ros2"] = {"domain_id": args.ros2, "loopback": host in (None, LOOPBACK)}
+    return [_flags(outputs=outputs)] if outputs else []
 
 
 def contact_words(m: dict) -> str:

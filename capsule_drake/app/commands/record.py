@@ -10,7 +10,8 @@ from capsule_drake.app.outputs import DATASET_OUTPUTS, SEED_PREFIX, SEEDS_OUTPUT
 from capsule_drake.scenario import ScenarioError, load_scenario
 from capsule_drake.app.commands.benchmark import parse_seeds
 from capsule_drake.app.commands.common import (_claim, _exit_code, _finish, _flags, _load,
-                                               _plan, _report_mcap, _report_stop)
+                                               _plan, _report_mcap, _report_stop,
+                                               planned_mcap)
 
 
 def _record(args) -> int:
@@ -21,9 +22,10 @@ def _record(args) -> int:
     scenario = _load(args)
     plan = _plan(args, "datasets", args.scenario or "Default", DATASET_OUTPUTS,
                  mcap_bytes=expected_mcap_bytes(with_all_sensors(scenario)),
-                 inputs=[args.scenario_file])
+                 inputs=[args.scenario_file],
+                 mcap=scenario.outputs.mcap.path if scenario.outputs.mcap else None)
     out_dir = _claim(plan)
-    result = record(scenario, out_dir, progress=not args.quiet, mcap=plan.mcap,
+    result = record(planned_mcap(scenario, plan), out_dir, progress=not args.quiet,
                     scenario_name=args.scenario or "Default")
     frames = len(list((out_dir / "Frames").glob("FrameBuffer_*.png")))
     m = result.metrics
@@ -46,7 +48,7 @@ def _split_fractions(text: str) -> tuple[float, float, float]:
 
 def _record_seeds(args) -> int:
     """One dataset per colon seed into --out/seed_XXXX/, with splits.csv and README.md."""
-    if args.mcap is not None:
+    if args.mcap is not None or "mcap:" in (args.scenario_text or ""):
         raise ScenarioError("--mcap: not with --seeds (an MCAP log holds one recording; "
                             "record a seed on its own to log it)")
     seeds = parse_seeds(args.seeds, "--seeds")

@@ -7,28 +7,30 @@ import time
 
 from capsule_drake.app.mcap_log import expected_mcap_bytes
 from capsule_drake.app.run import simulate
-from capsule_drake.app.cli_parser import DEFAULT_PORT, LOOPBACK
-from capsule_drake.app.commands.common import (_claim, _finish, _load, _mcap_extend, _meshcat,
-                                               _plan, _report_epm_guard, _report_mcap,
-                                               _report_pressure, contact_words)
+from capsule_drake.app.commands.common import (_claim, _finish, _load, _meshcat, _plan,
+                                               _report_epm_guard, _report_mcap,
+                                               _report_pressure, contact_words,
+                                               planned_mcap)
 
 
 def _run(args) -> int:
-    # A live page is paced to the wall clock.
-    scenario = _load(args, *(["{simulator: {target_realtime_rate: 1.0}}"] if args.meshcat else []))
+    # The flags are spellings of the scenario's outputs (common.output_flags); from here on
+    # only the scenario says what the run writes and shows.
+    scenario = _load(args)
+    outputs = scenario.outputs
     plan = _plan(args, "runs", args.scenario or "Default",
-                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file])
+                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file],
+                 mcap=outputs.mcap.path if outputs.mcap is not None else None)
     out_dir = _claim(plan)
+    scenario = planned_mcap(scenario, plan)
     meshcat = None
-    if args.meshcat:
-        meshcat = _meshcat(args.host or LOOPBACK,
-                           DEFAULT_PORT if args.port is None else args.port, announce=True)
-    elif not args.no_recording:  # only for the recording
-        meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
+    if outputs.meshcat is not None:
+        meshcat = _meshcat(outputs.meshcat.host, outputs.meshcat.port, announce=True)
+    elif outputs.recording:  # only for the recording
+        meshcat = _meshcat(args.host or "127.0.0.1", 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
-                      progress=not args.quiet, live_meshcat=args.meshcat,
-                      extend=_mcap_extend(plan.mcap, scenario),
-                      recording=not args.no_recording)
+                      progress=not args.quiet, live_meshcat=outputs.meshcat is not None,
+                      recording=outputs.recording)
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline, from s = "
@@ -44,9 +46,9 @@ def _run(args) -> int:
     mcap_failure = _report_mcap(result)
     print(f"outputs in {out_dir}/ (metrics.json"
           f"{', wall_pressure.png' if (out_dir / 'wall_pressure.png').is_file() else ''}"
-          f"{', recording.html' if not args.no_recording else ''})")
+          f"{', recording.html' if outputs.recording else ''})")
     code = _finish(result, mcap_failure)
-    if args.meshcat:
+    if outputs.meshcat is not None:
         print("serving Meshcat; Ctrl-C to quit", file=sys.stderr)
         try:
             while True:

@@ -6,11 +6,11 @@ from __future__ import annotations
 import sys
 
 from capsule_drake.app.mcap_log import expected_mcap_bytes
-from capsule_drake.app.run import chain_extends, simulate
+from capsule_drake.app.run import simulate
 from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError
 from capsule_drake.app.cli_parser import DEFAULT_PORT, LOOPBACK
-from capsule_drake.app.commands.common import (_claim, _finish, _flags, _load, _mcap_extend,
-                                               _meshcat, _plan, _report_mcap)
+from capsule_drake.app.commands.common import (_claim, _finish, _flags, _load, _meshcat,
+                                               _plan, _report_mcap, planned_mcap)
 
 
 def _teleop(args) -> int:
@@ -39,8 +39,10 @@ def _teleop(args) -> int:
         # A person at the device: paced to the wall clock.
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
     plan = _plan(args, "runs", f"teleop-{teleop.operator}",
-                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file])
+                 mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file],
+                 mcap=scenario.outputs.mcap.path if scenario.outputs.mcap else None)
     out_dir = _claim(plan)
+    scenario = planned_mcap(scenario, plan)
     meshcat = _meshcat(args.host or LOOPBACK, port if teleop.operator == "browser" else 0,
                        announce=live)
 
@@ -53,7 +55,7 @@ def _teleop(args) -> int:
 
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,
                       live_meshcat=live,
-                      extend=chain_extends(announce, _mcap_extend(plan.mcap, scenario)))
+                      extend=announce)
     m = result.metrics
     if m.get("advance_m") is not None:
         print(f"advanced {m['advance_m'] * 100:.1f} cm along the centerline in "

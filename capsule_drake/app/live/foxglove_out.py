@@ -1,0 +1,91 @@
+"""The run's channels live in Foxglove: a WebSocket server (foxglove-sdk) on the loopback.
+
+Each channel of app/channels.py is advertised at its first message, with its ROS 2 type as a
+`ros2msg` schema and its payload in CDR (the bytes the MCAP file holds), so Foxglove decodes
+it as it decodes the MCAP file. A latched channel (/tf_static, the scene) is sent again to a
+client that subscribes to it later. The server is an output a run may lose: a failure is one
+line and the run goes on (app/channels.py).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import foxglove
+from foxglove.websocket import ServerListener
+
+from capsule_drake.app.ros2_messages import schema_text
+
+
+class _Listener(ServerListener):
+    def __init__(self, live: "FoxgloveLive"):
+        self._live = live
+
+    def on_subscribe(self, client, channel) -> None:
+        self._live.subscribed(channel.topic)
+
+
+class FoxgloveLive:
+    """A Foxglove WebSocket server streaming the channels given to `publish`.
+
+    Args:
+        host: the address to listen on (the loopback unless told otherwise).
+        port: the port (0: any free one; `port` then says which).
+        wait_for_client: seconds the first message waits for a client to subscribe (0: it
+            does not wait), so that a viewer started with the run sees it from the start.
+    """
+
+    fatal = False
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 8765, wait_for_client: float = 0.0):
+        self._context = foxglove.Context()
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._latched: dict[str, tuple[bytes, int]] = {}
+        self._lock = threading.Lock()
+        self._subscribed = threading.Event()
+        self._wait = float(wait_for_client)
+        self.host = host
+        self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
+                                            context=self._context,
+                                            server_listener=_Listener(self))
+        self.port = self.server.port
+        self.messages = 0
+
+    @property
+    def name(self) -> str:
+        return f"the Foxglove server ws://{self.host}:{self.port}"
+
+    def subscribed(self, topic: str) -> None:
+        """A client subscribed to `topic`: a latched channel's last message is sent again."""
+        with self._lock:
+            latched = self._latched.get(topic)
+            channel = self._channels.get(topic)
+        if latched is not None and channel is not None:
+            channel.log(latched[0], log_time=latched[1])
+        self._subscribed.set()
+
+    def _channel(self, topic: str, type_name: str) -> foxglove.Channel:
+        schema = foxglove.Schema(name=type_name, encoding="ros2msg",
+                                 data=schema_text(type_name).encode())
+        channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr",
+                                   context=self._context)
+        with self._lock:
+            self._channels[topic] = channel
+        return channel
+
+    def publish(self, topic: str, spec, message: dict, data: bytes, log_time_ns: int) -> None:
+        channel = self._channels.get(topic) or self._channel(topic, spec.type_name)
+        if spec.latched:
+            with self._lock:
+                self._latched[topic] = (data, log_time_ns)
+        channel.log(data, log_time=log_time_ns)
+        self.messages += 1
+        if self._wait > 0.0:
+            wait, self._wait = self._wait, 0.0
+            deadline = time.monotonic() + wait
+            while not self._subscribed.wait(0.05) and time.monotonic() < deadline:
+                pass
+
+    def close(self) -> None:
+        self.server.stop()
