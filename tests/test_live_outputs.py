@@ -156,6 +156,13 @@ def test_the_output_flags_are_spellings_of_the_scenarios_outputs(tmp_path):
     assert outputs.meshcat.port == 7123 and outputs.live()
     plain = _load(_parser().parse_args(["run"])).outputs
     assert plain.mcap is None and plain.recording and not plain.live()
+    # The MCAP output as the run makes it (its file is created at its first message).
+    from mcap.writer import CompressionType
+    from capsule_drake.app.live.outputs import channel_sinks
+    text = "{outputs: {mcap: {path: " + str(tmp_path / "b.mcap") + ", compression: lz4}}}"
+    sink, = channel_sinks(_load(_parser().parse_args(["run", "--scenario-text", text])).outputs)
+    assert sink.fatal and sink._compression == CompressionType.LZ4
+    assert not (tmp_path / "b.mcap").exists()
 
 
 # --- Live, against other people's clients ----------------------------------------------------

@@ -242,6 +242,26 @@ EXCEPTIONS = {
         "read only with operator: udp (above)",
         ("test_teleop.py::test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it",)),
 }
+# The run's outputs: files outside the run's folder, servers and network topics, which a
+# scenario the tests simulate in-process must not open; each is exercised by the tests that
+# run them.
+_LIVE = ("test_live_outputs.py::test_a_foxglove_client_decodes_every_channel_of_a_running_simulation",
+         "test_live_outputs.py::test_ros2_topics_reach_cyclone_dds_and_a_goal_moves_the_epm_held_at_the_clearance",
+         "test_live_outputs.py::test_the_output_flags_are_spellings_of_the_scenarios_outputs")
+EXCEPTIONS.update({
+    "outputs.recording": ("the Meshcat replay: the CLI's --no-recording", _LIVE[1:]),
+    "outputs.mcap": ("a file the run writes where it is told, outside its folder",
+                     ("test_mcap.py::test_messages_have_the_right_sizes_and_times",)),
+    "outputs.mcap.path": ("as outputs.mcap", _LIVE[2:]),
+    "outputs.mcap.compression": ("as outputs.mcap", _LIVE[2:]),
+    "outputs.meshcat": ("a live page, served until Ctrl-C", _LIVE[2:]),
+    "outputs.meshcat.host": ("as outputs.meshcat", _LIVE[2:]),
+    "outputs.foxglove": ("a WebSocket server", _LIVE[:1]),
+    "outputs.foxglove.host": ("as outputs.foxglove", _LIVE[:1]),
+    "outputs.ros2": ("DDS topics on the network", _LIVE[1:2]),
+    "outputs.ros2.loopback": ("as outputs.ros2", _LIVE[1:2]),
+    "outputs.ros2.epm_goal": ("as outputs.ros2, with epm.driver[External]", _LIVE[1:2]),
+})
 
 
 def _alternatives(hint):

@@ -6,7 +6,7 @@ A ROS 2 node on Cyclone DDS (rmw_cyclonedds) publishes a topic `/a/b` as the DDS
 `T[]` a sequence, `T[N]` an array, a nested message its own struct. The structs here are
 made at run time from `ros2_messages.DEFINITIONS` (no ROS installation, no generated code)
 for cyclonedds's Python binding; their CDR (XCDR1, as ROS 2 exchanges) is byte for byte what
-the MCAP writer encodes (tests/test_live_ros2.py checks it).
+the MCAP writer encodes (tests/test_live_outputs.py checks it).
 """
 
 from __future__ import annotations
