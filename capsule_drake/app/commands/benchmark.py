@@ -68,10 +68,16 @@ def _benchmark(args) -> int:
                             f"{DEFAULT_SCENARIO_FILE.name} (it has: {', '.join(names)})")
     for navigator in navigators:
         try:
-            task_scenario(Task(navigator, seeds[0], args.duration, scenario,
-                               args.scenario_text, tier_text=tier_text))
+            first = task_scenario(Task(navigator, seeds[0], args.duration, scenario,
+                                       args.scenario_text, tier_text=tier_text))
         except ValueError as e:
             raise ScenarioError(str(e)) from None
+        outputs = first.outputs
+        taken = [name for name in ("mcap", "meshcat", "foxglove", "ros2")
+                 if getattr(outputs, name) is not None]
+        if taken:   # every run would write one file, or open one port
+            raise ScenarioError(f"--scenario-text: outputs.{taken[0]} is for one run, not a "
+                                "benchmark's many (run one seed with `capsule-sim run`)")
     if args.scenario is not None and all(n in NAVIGATORS for n in navigators):
         raise ScenarioError("--scenario: only with a user's navigator (package.module:function); "
                             f"the built-in ones ({', '.join(navigators)}) are named scenarios "
