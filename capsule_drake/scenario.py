@@ -234,9 +234,10 @@ class Ros2Output:
     # ($CYCLONEDDS_URI, else every interface).
     loopback: bool = True
     # The EPM follows geometry_msgs/PoseStamped goals on /epm/goal (world: the magnet's
-    # centre, its moment along the pose's z), through the EPM's guard as every driver's
-    # command; needs epm.driver !External.
-    epm_goal: bool = False
+    # centre, its moment along the pose's z) and geometry_msgs/TwistStamped velocities on
+    # /epm/velocity (world: the centre's velocity, the moment's turn), through the EPM's
+    # guard as every driver's command; needs epm.driver !External.
+    epm_command: bool = False
     # A goal older than this (s, wall clock) is a lost link: the EPM holds.
     hold_after: float = 0.5
 
@@ -507,8 +508,8 @@ def _check_outputs(outputs: OutputsConfig, scenario: Scenario, bound) -> None:
         bound(outputs.ros2.domain_id, "outputs.ros2.domain_id", "[0, 232]", "",
               "DDS maps domains 0-232 to UDP ports")
         bound(outputs.ros2.hold_after, "outputs.ros2.hold_after", "(0, 60]", "s")
-        need(not outputs.ros2.epm_goal or type(scenario.epm.driver).__name__ == "External",
-             "outputs.ros2.epm_goal needs epm.driver !External (the goal topic drives the "
+        need(not outputs.ros2.epm_command or type(scenario.epm.driver).__name__ == "External",
+             "outputs.ros2.epm_command needs epm.driver !External (the goal topic drives the "
              f"EPM), got !{type(scenario.epm.driver).__name__}")
 
 

@@ -20,7 +20,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 from capsule_drake.app.channels import CHANNELS, ChannelWriter, channel_of
 from capsule_drake.app.live.dds_types import dds_topic_name, dds_type_name, idl_type, to_idl
 from capsule_drake.app.live.pacing import PaceWatch
-from capsule_drake.app.live.ros2_out import LOOPBACK_CONFIG, goal_command
+from capsule_drake.app.live.ros2_out import LOOPBACK_CONFIG, goal_command, twist_command
 from capsule_drake.app.outputs import load_logs
 from capsule_drake.app.ros2_messages import DEFINITIONS, header, schema_text, vector3
 from capsule_drake.app.scene_markers import scene_markers
@@ -128,6 +128,61 @@ def test_a_goal_pose_is_its_position_and_z_axis_and_a_bad_one_holds():
     for bad in ({"x": 0.0, "y": 0.0, "z": 0.0, "w": 0.0}, {"x": np.nan, "y": 0, "z": 0, "w": 1}):
         assert np.all(np.isnan(goal_command({"pose": {"position": vector3([0, 0, 0]),
                                                       "orientation": bad}})))
+
+
+class _Inbox:
+    def __init__(self):
+        self.message = (None, np.full(6, np.nan))
+
+    def latest(self):
+        return self.message
+
+
+def test_the_command_topics_make_the_epm_command_a_goal_a_velocity_or_a_hold():
+    """EpmGoalSource: nothing received holds (NaN); a velocity moves the EPM's pose by v t
+    and turns its moment at w (checked against the closed form of a constant twist); a goal
+    is the command; a lost link holds again, and a velocity after it goes on from the
+    last command."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+    from capsule_drake.app.live.outputs import EpmGoalSource
+    inbox = _Inbox()
+    builder = DiagramBuilder()
+    source = builder.AddSystem(EpmGoalSource(inbox, period=0.01))
+    start = np.array([0.1, 0.0, 0.3, 1.0, 0.0, 0.0])
+    pose = builder.AddSystem(ConstantVectorSource(start))
+    builder.Connect(pose.get_output_port(), source.GetInputPort("epm_pose"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = source.GetMyContextFromRoot(simulator.get_mutable_context())
+    command = lambda: source.GetOutputPort("epm_command").Eval(context)   # noqa: E731
+    simulator.AdvanceTo(0.05)
+    assert np.all(np.isnan(command()))
+    w = 0.5   # rad/s about z: the moment turns from x toward y
+    inbox.message = ("velocity", np.array([0.0, 0.02, 0.0, 0.0, 0.0, w]))
+    simulator.AdvanceTo(1.0)
+    steps = round((1.0 - 0.05) / 0.01)   # updates at 0.06 ... 1.0 s
+    now = command()
+    np.testing.assert_allclose(now[:3], start[:3] + [0.0, 0.02 * steps * 0.01, 0.0], atol=1e-9)
+    angle = np.arctan2(now[4], now[3])
+    assert angle == pytest.approx(w * steps * 0.01, rel=2e-3)   # explicit steps: O(dt)
+    inbox.message = ("goal", np.array([0.0, 0.1, 0.35, 0.0, 0.0, 1.0]))
+    simulator.AdvanceTo(1.1)
+    np.testing.assert_allclose(command(), [0.0, 0.1, 0.35, 0.0, 0.0, 1.0])
+    inbox.message = (None, np.full(6, np.nan))   # the link is lost
+    simulator.AdvanceTo(1.2)
+    assert np.all(np.isnan(command()))
+    inbox.message = ("velocity", np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    simulator.AdvanceTo(1.3)
+    np.testing.assert_allclose(command()[:3], [0.01 * 10 * 0.01, 0.1, 0.35], atol=1e-9)
+
+
+def test_a_twist_is_its_velocities_and_a_bad_one_holds():
+    twist = {"twist": {"linear": vector3([1, 2, 3]), "angular": vector3([4, 5, 6])}}
+    np.testing.assert_array_equal(twist_command(twist), [1, 2, 3, 4, 5, 6])
+    twist["twist"]["linear"]["y"] = np.inf
+    assert np.all(np.isnan(twist_command(twist)))
 
 
 def test_the_pace_watch_says_when_a_run_falls_behind_and_when_it_is_back():
@@ -254,6 +309,7 @@ def test_ros2_topics_reach_cyclone_dds_and_a_goal_moves_the_epm_held_at_the_clea
     image, IMU and tf topics under ROS 2's names and types; a goal published on /epm/goal
     under the skin moves the EPM over it and the guard holds it at the clearance."""
     from cyclonedds.pub import DataWriter
+    from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
     from capsule_drake.app.live.ros2_out import participant
     domain = 40 + os.getpid() % 150
@@ -262,17 +318,29 @@ def test_ros2_topics_reach_cyclone_dds_and_a_goal_moves_the_epm_held_at_the_clea
     run = _start_run(["--scenario", "WithSensors", "--duration", "8", "--ros2", str(domain),
                       "--scenario-text",
                       # a small image: the command line prints each of its bytes
-                      "{epm: {driver: !External {}}, outputs: {ros2: {epm_goal: true}}, "
+                      "{epm: {driver: !External {}}, outputs: {ros2: {epm_command: true}}, "
                       "capsule: {camera: {lens: {width: 24, height: 24}}}}"], out)
     _wait_for_line(run, r"live: the ROS 2 topics")
     topics = {"/tf": "TFMessage_(", "/capsule/imu/data": "Imu_(",
               "/capsule/camera/image_raw": "Image_("}
+    # The run's writers appear with their first messages, after its build: the command line
+    # scans for a topic's type only for a while, so it is started once a reader here has had
+    # a sample of each of the three.
+    dds, keep = participant(domain, loopback=True)
+    types = {"/tf": "tf2_msgs/msg/TFMessage", "/capsule/imu/data": "sensor_msgs/msg/Imu",
+             "/capsule/camera/image_raw": "sensor_msgs/msg/Image"}
+    readers = {t: DataReader(dds, Topic(dds, dds_topic_name(t), idl_type(types[t])))
+               for t in topics}
+    waiting, deadline = set(topics), time.monotonic() + 300
+    while waiting:
+        assert time.monotonic() < deadline and run.poll() is None, sorted(waiting)
+        waiting -= {t for t in waiting if readers[t].take(N=10)}
+        time.sleep(0.2)
     listeners = {topic: subprocess.Popen(
-        [_cyclonedds_cli(), "subscribe", dds_topic_name(topic), "-i", str(domain), "-r", "10s",
+        [_cyclonedds_cli(), "subscribe", dds_topic_name(topic), "-i", str(domain), "-r", "5s",
          "--suppress-progress-bar", "--qos", "scan-random", "--color", "none"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         for topic in topics}
-    dds, keep = participant(domain, loopback=True)
     writer = DataWriter(dds, Topic(dds, "rt/epm/goal", idl_type("geometry_msgs/msg/PoseStamped")))
     goal = {"header": header(0, "world"), "pose": {           # 5 cm off, below the skin
         "position": vector3([0.05, 0.0, 0.0]), "orientation": {"x": 0.0, "y": 0.0, "z": 0.0,

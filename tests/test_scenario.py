@@ -260,7 +260,7 @@ EXCEPTIONS.update({
     "outputs.foxglove.host": ("as outputs.foxglove", _LIVE[:1]),
     "outputs.ros2": ("DDS topics on the network", _LIVE[1:2]),
     "outputs.ros2.loopback": ("as outputs.ros2", _LIVE[1:2]),
-    "outputs.ros2.epm_goal": ("as outputs.ros2, with epm.driver[External]", _LIVE[1:2]),
+    "outputs.ros2.epm_command": ("as outputs.ros2, with epm.driver[External]", _LIVE[1:2]),
 })
 
 

@@ -88,6 +88,9 @@ CHANNELS: tuple[ChannelSpec, ...] = (
 COMMAND_CHANNELS: tuple[ChannelSpec, ...] = (
     ChannelSpec("/epm/goal", "geometry_msgs/msg/PoseStamped",
                 "as the node sends it; world: the magnet's centre, its moment along z"),
+    ChannelSpec("/epm/velocity", "geometry_msgs/msg/TwistStamped",
+                "as the node sends it; world: the centre's velocity (m/s), the moment's "
+                "turn (rad/s)"),
 )
 
 

@@ -15,15 +15,25 @@ import dataclasses
 import functools
 import types as pytypes
 
-import cyclonedds.idl.types as idl
-from cyclonedds.idl import IdlStruct
-
 from capsule_drake.app.ros2_messages import DEFINITIONS, field_lines, _dependency
 
-_PRIMITIVE = {"bool": bool, "byte": idl.uint8, "char": idl.uint8, "float32": idl.float32,
-              "float64": idl.float64, "int8": idl.int8, "uint8": idl.uint8,
-              "int16": idl.int16, "uint16": idl.uint16, "int32": idl.int32,
-              "uint32": idl.uint32, "int64": idl.int64, "uint64": idl.uint64, "string": str}
+
+@functools.cache
+def _cyclonedds():
+    """(cyclonedds.idl.types, IdlStruct, the ROS 2 primitives' IDL types), imported at the
+    first use: a run without ROS 2 topics does not load Cyclone DDS."""
+    import cyclonedds.idl.types as idl
+    from cyclonedds.idl import IdlStruct
+    primitive = {"bool": bool, "byte": idl.uint8, "char": idl.uint8, "float32": idl.float32,
+                 "float64": idl.float64, "int8": idl.int8, "uint8": idl.uint8,
+                 "int16": idl.int16, "uint16": idl.uint16, "int32": idl.int32,
+                 "uint32": idl.uint32, "int64": idl.int64, "uint64": idl.uint64, "string": str}
+    return idl, IdlStruct, primitive
+
+
+_FLOATS = ("float32", "float64")
+_INTEGERS = ("byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64",
+             "uint64")
 
 
 def dds_type_name(type_name: str) -> str:
@@ -49,9 +59,10 @@ def _fields(type_name: str) -> list[tuple[str, str]]:
 
 
 def _annotation(type_name: str, field_type: str):
+    idl, _, primitive = _cyclonedds()
     base, _, rest = field_type.partition("[")
     used = _dependency(type_name, base)
-    element = _PRIMITIVE[base] if used is None else idl_type(used)
+    element = primitive[base] if used is None else idl_type(used)
     if not rest:
         return element
     size = rest.rstrip("]")
@@ -70,9 +81,14 @@ def idl_type(type_name: str) -> type:
         namespace["__annotations__"] = annotations
         namespace["__module__"] = __name__
 
-    cls = pytypes.new_class(type_name.split("/")[-1] + "_", (IdlStruct,),
+    cls = pytypes.new_class(type_name.split("/")[-1] + "_", (_cyclonedds()[1],),
                             {"typename": dds_type_name(type_name)}, body)
     return dataclasses.dataclass(cls)
+
+
+def _cast(base: str):
+    return float if base in _FLOATS else (int if base in _INTEGERS else
+                                          (bool if base == "bool" else str))
 
 
 def _convert(type_name: str, field_type: str, value):
@@ -82,14 +98,8 @@ def _convert(type_name: str, field_type: str, value):
         if rest and base in ("uint8", "byte", "char") and isinstance(value, (bytes, bytearray)):
             return value
         if rest:
-            cast = _PRIMITIVE[base]
-            cast = float if cast in (idl.float32, idl.float64) else (
-                int if cast not in (bool, str) else cast)
-            return [cast(v) for v in value]
-        cast = _PRIMITIVE[base]
-        if cast in (idl.float32, idl.float64):
-            return float(value)
-        return cast(value) if cast in (bool, str) else int(value)
+            return [_cast(base)(v) for v in value]
+        return _cast(base)(value)
     if rest:
         return [to_idl(used, v) for v in value]
     return to_idl(used, value)
@@ -118,9 +128,7 @@ def _zero(type_name: str, field_type: str):
         return [_zero(type_name, base) for _ in range(int(size))]
     if used is not None:
         return to_idl(used, {})
-    cast = _PRIMITIVE[base]
-    return "" if cast is str else (False if cast is bool else (
-        0.0 if cast in (idl.float32, idl.float64) else 0))
+    return _cast(base)()
 
 
 def from_idl(sample) -> dict:

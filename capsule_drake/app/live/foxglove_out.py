@@ -12,18 +12,19 @@ from __future__ import annotations
 import threading
 import time
 
-import foxglove
-from foxglove.websocket import ServerListener
-
 from capsule_drake.app.ros2_messages import schema_text
 
 
-class _Listener(ServerListener):
-    def __init__(self, live: "FoxgloveLive"):
-        self._live = live
+def _listener(live: "FoxgloveLive"):
+    """A foxglove ServerListener that tells `live` of each subscription (foxglove-sdk is
+    imported when a server is made: a run without one does not load it)."""
+    from foxglove.websocket import ServerListener
 
-    def on_subscribe(self, client, channel) -> None:
-        self._live.subscribed(channel.topic)
+    class Listener(ServerListener):
+        def on_subscribe(self, client, channel) -> None:
+            live.subscribed(channel.topic)
+
+    return Listener()
 
 
 class FoxgloveLive:
@@ -39,8 +40,10 @@ class FoxgloveLive:
     fatal = False
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, wait_for_client: float = 0.0):
+        import foxglove
+        self._foxglove = foxglove
         self._context = foxglove.Context()
-        self._channels: dict[str, foxglove.Channel] = {}
+        self._channels: dict = {}
         self._latched: dict[str, tuple[bytes, int]] = {}
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
@@ -48,7 +51,7 @@ class FoxgloveLive:
         self.host = host
         self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
                                             context=self._context,
-                                            server_listener=_Listener(self))
+                                            server_listener=_listener(self))
         self.port = self.server.port
         self.messages = 0
 
@@ -65,11 +68,11 @@ class FoxgloveLive:
             channel.log(latched[0], log_time=latched[1])
         self._subscribed.set()
 
-    def _channel(self, topic: str, type_name: str) -> foxglove.Channel:
-        schema = foxglove.Schema(name=type_name, encoding="ros2msg",
-                                 data=schema_text(type_name).encode())
-        channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr",
-                                   context=self._context)
+    def _channel(self, topic: str, type_name: str):
+        schema = self._foxglove.Schema(name=type_name, encoding="ros2msg",
+                                       data=schema_text(type_name).encode())
+        channel = self._foxglove.Channel(topic, schema=schema, message_encoding="cdr",
+                                         context=self._context)
         with self._lock:
             self._channels[topic] = channel
         return channel
