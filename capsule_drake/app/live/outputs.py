@@ -8,6 +8,8 @@ has none); its close hook closes every output.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
@@ -85,7 +87,11 @@ def channel_sinks(outputs):
     return sinks
 
 
-def channel_outputs_extend(scenario, announce=print):
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def channel_outputs_extend(scenario, announce=_to_stderr):
     """`simulate`'s extend that connects the scenario's channel outputs (and the EPM's goal
     topic) to the run, or None when it has none. `announce` gets one line per live server."""
     outputs = scenario.outputs
