@@ -17,6 +17,7 @@ on stderr and the run goes on.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 import sys
 
@@ -94,8 +95,10 @@ COMMAND_CHANNELS: tuple[ChannelSpec, ...] = (
 )
 
 
+@functools.cache
 def channel_of(topic: str) -> ChannelSpec:
-    """The channel `topic` belongs to; KeyError (naming it) for a topic not in the table."""
+    """The channel `topic` belongs to (looked up once per topic: every message asks);
+    KeyError (naming it) for a topic not in the table."""
     for spec in CHANNELS:
         if spec.matches(topic):
             return spec

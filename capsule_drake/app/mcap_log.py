@@ -1,11 +1,15 @@
-"""McapLogger: a run's signals as ROS 2 messages in an MCAP file, written as the run goes.
+"""ChannelLogger: a run's signals as ROS 2 messages, written as the run goes to its channel
+outputs (the MCAP file, Foxglove, ROS 2 topics: app/channels.py, whose table they follow).
 
-`capsule-sim run|record|teleop --mcap FILE` adds one McapLogger beside the station. It
-writes, for whatever the scenario has (a topic whose source is switched off is absent):
+A scenario with any of `outputs.mcap`, `foxglove`, `ros2` (`capsule-sim run|record|teleop
+--mcap FILE`, `--foxglove`, `--ros2`) has one ChannelLogger beside the station. It writes,
+for whatever the scenario has (a topic whose source is switched off is absent):
 
     topic                              type (package/msg/...)       when; frame_id
     /tf                                tf2_msgs TFMessage           log_period; world -> capsule,epm
     /tf_static                         tf2_msgs TFMessage           once; capsule -> camera, sensors
+    /scene/markers                     visualization_msgs MarkerArray   once (latched); the colon's
+                                       wall (world), capsule and EPM (app/scene_markers.py)
     /capsule/contact/wrench            geometry_msgs WrenchStamped  log_period; capsule
     /capsule/contact/peak_pressure     sensor_msgs FluidPressure Pa log_period; capsule
     /capsule/contact/wall_pressure/peak            sensor_msgs Image, 32FC1 kPa  every 1 s
@@ -726,14 +730,14 @@ class ChannelLogger(LeafSystem):
     messages (/tf_static, the scene) are written with the first message.
 
     Args:
-        log: what the messages are written to: a ChannelWriter, or a Ros2McapFile alone
-            (closed by `close()`).
+        log: the ChannelWriter the messages are written to (closed by `close()`).
         streams: the _Stream objects of what the scenario has.
         static_transforms: (parent, child, X_PC) written once on /tf_static.
         scene: the /scene/markers MarkerArray (app/scene_markers.py), or None.
     """
 
-    def __init__(self, log, streams, static_transforms=(), scene: dict | None = None):
+    def __init__(self, log: ChannelWriter, streams, static_transforms=(),
+                 scene: dict | None = None):
         super().__init__()
         self._log = log
         self._streams = list(streams)
@@ -756,7 +760,7 @@ class ChannelLogger(LeafSystem):
     @property
     def log(self):
         """The MCAP file the run reports on (a ChannelWriter's fatal output), or None."""
-        return self._log.log if isinstance(self._log, ChannelWriter) else self._log
+        return self._log.log
 
     @property
     def writer(self):

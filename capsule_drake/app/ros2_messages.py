@@ -234,7 +234,13 @@ def field_lines(type_name: str) -> list[str]:
             if line.strip()]
 
 
-def _dependency(type_name: str, field_type: str) -> str | None:
+def fields(type_name: str) -> list[tuple[str, str]]:
+    """(field type text, field name) of a type's fields, in order, constants left out."""
+    return [(line.split()[0], line.split()[1]) for line in field_lines(type_name)
+            if "=" not in line.split()[1]]
+
+
+def dependency(type_name: str, field_type: str) -> str | None:
     """The full name (`pkg/msg/Type`) of a field's type, or None for a primitive."""
     base = field_type.split("[")[0]
     if base in _PRIMITIVES or "<=" in base:
@@ -251,10 +257,8 @@ def dependencies(type_name: str) -> list[str]:
     found: list[str] = []
 
     def visit(name):
-        for line in field_lines(name):
-            if "=" in line.split()[1]:  # a constant
-                continue
-            used = _dependency(name, line.split()[0])
+        for field_type, _ in fields(name):
+            used = dependency(name, field_type)
             if used is not None and used not in found:
                 if used not in DEFINITIONS:
                     raise KeyError(f"{name} uses {used}, which has no definition here")

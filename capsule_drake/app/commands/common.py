@@ -99,12 +99,14 @@ def _check_flag_combinations(args) -> None:
 
 
 def _plan(args, parent: str, name: str, outputs=RUN_OUTPUTS, *, mcap_bytes: float = 0.0,
-          prefixes=(), inputs=(), mcap=None):
+          prefixes=(), inputs=(), scenario=None):
     """Every output path of the command, checked together before anything is built or run
     (app/outputs.py's `plan_outputs`): --out (refused if it holds files, unless --force) or
-    a new folder parent/name-<date-time>, the MCAP file (`mcap`: the scenario's
-    outputs.mcap.path; else --mcap), and the `inputs` it reads."""
-    if mcap is None:
+    a new folder parent/name-<date-time>, the MCAP file (`scenario`'s outputs.mcap.path,
+    which --mcap spells; without a scenario, --mcap), and the `inputs` it reads."""
+    if scenario is not None:
+        mcap = scenario.outputs.mcap.path if scenario.outputs.mcap is not None else None
+    else:
         mcap = getattr(args, "mcap", None)
     return plan_outputs(args.out, getattr(args, "force", None), parent=parent, name=name,
                         outputs=outputs, prefixes=prefixes, mcap=mcap,

@@ -22,8 +22,7 @@ def _record(args) -> int:
     scenario = _load(args)
     plan = _plan(args, "datasets", args.scenario or "Default", DATASET_OUTPUTS,
                  mcap_bytes=expected_mcap_bytes(with_all_sensors(scenario)),
-                 inputs=[args.scenario_file],
-                 mcap=scenario.outputs.mcap.path if scenario.outputs.mcap else None)
+                 inputs=[args.scenario_file], scenario=scenario)
     out_dir = _claim(plan)
     result = record(planned_mcap(scenario, plan), out_dir, progress=not args.quiet,
                     scenario_name=args.scenario or "Default")
@@ -48,7 +47,7 @@ def _split_fractions(text: str) -> tuple[float, float, float]:
 
 def _record_seeds(args) -> int:
     """One dataset per colon seed into --out/seed_XXXX/, with splits.csv and README.md."""
-    if args.mcap is not None or "mcap:" in (args.scenario_text or ""):
+    if args.mcap is not None:
         raise ScenarioError("--mcap: not with --seeds (an MCAP log holds one recording; "
                             "record a seed on its own to log it)")
     seeds = parse_seeds(args.seeds, "--seeds")
@@ -65,7 +64,10 @@ def _record_seeds(args) -> int:
                                 "for each recording")
         return scenario
 
-    scenario_of(seeds[0])  # a bad scenario: one line before anything is written
+    # A bad scenario: one line before anything is written.
+    if scenario_of(seeds[0]).outputs.mcap is not None:
+        raise ScenarioError("outputs.mcap: not with --seeds (an MCAP log holds one recording; "
+                            "record a seed on its own to log it)")
     out_dir = _claim(_plan(args, "datasets", f"{name}-seeds", SEEDS_OUTPUTS,
                            prefixes=(SEED_PREFIX,), inputs=[args.scenario_file]))
     batch = record_seeds(scenario_of, seeds, fractions, out_dir, name, quiet=args.quiet,

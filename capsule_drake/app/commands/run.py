@@ -6,6 +6,7 @@ import sys
 import time
 
 from capsule_drake.app.mcap_log import expected_mcap_bytes
+from capsule_drake.app.cli_parser import LOOPBACK
 from capsule_drake.app.run import simulate
 from capsule_drake.app.commands.common import (_claim, _finish, _load, _meshcat, _plan,
                                                _report_epm_guard, _report_mcap,
@@ -20,14 +21,14 @@ def _run(args) -> int:
     outputs = scenario.outputs
     plan = _plan(args, "runs", args.scenario or "Default",
                  mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file],
-                 mcap=outputs.mcap.path if outputs.mcap is not None else None)
+                 scenario=scenario)
     out_dir = _claim(plan)
     scenario = planned_mcap(scenario, plan)
     meshcat = None
     if outputs.meshcat is not None:
         meshcat = _meshcat(outputs.meshcat.host, outputs.meshcat.port, announce=True)
     elif outputs.recording:  # only for the recording
-        meshcat = _meshcat(args.host or "127.0.0.1", 0, announce=False)
+        meshcat = _meshcat(args.host or LOOPBACK, 0, announce=False)
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir,
                       progress=not args.quiet, live_meshcat=outputs.meshcat is not None,
                       recording=outputs.recording)

@@ -40,7 +40,7 @@ def _teleop(args) -> int:
         scenario = _load(args, *flags, "{simulator: {target_realtime_rate: 1.0}}")
     plan = _plan(args, "runs", f"teleop-{teleop.operator}",
                  mcap_bytes=expected_mcap_bytes(scenario), inputs=[args.scenario_file],
-                 mcap=scenario.outputs.mcap.path if scenario.outputs.mcap else None)
+                 scenario=scenario)
     out_dir = _claim(plan)
     scenario = planned_mcap(scenario, plan)
     meshcat = _meshcat(args.host or LOOPBACK, port if teleop.operator == "browser" else 0,

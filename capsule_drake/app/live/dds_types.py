@@ -15,7 +15,7 @@ import dataclasses
 import functools
 import types as pytypes
 
-from capsule_drake.app.ros2_messages import DEFINITIONS, field_lines, _dependency
+from capsule_drake.app.ros2_messages import DEFINITIONS, dependency, fields
 
 
 @functools.cache
@@ -47,21 +47,10 @@ def dds_topic_name(topic: str) -> str:
     return "rt" + (topic if topic.startswith("/") else "/" + topic)
 
 
-def _fields(type_name: str) -> list[tuple[str, str]]:
-    """(field type text, field name) of a type's fields, constants left out."""
-    out = []
-    for line in field_lines(type_name):
-        parts = line.split()
-        if "=" in parts[1]:
-            continue
-        out.append((parts[0], parts[1]))
-    return out
-
-
 def _annotation(type_name: str, field_type: str):
     idl, _, primitive = _cyclonedds()
     base, _, rest = field_type.partition("[")
-    used = _dependency(type_name, base)
+    used = dependency(type_name, base)
     element = primitive[base] if used is None else idl_type(used)
     if not rest:
         return element
@@ -75,7 +64,7 @@ def idl_type(type_name: str) -> type:
     if type_name not in DEFINITIONS:
         raise KeyError(f"{type_name}: no definition in ros2_messages.DEFINITIONS")
     annotations = {name: _annotation(type_name, field_type)
-                   for field_type, name in _fields(type_name)}
+                   for field_type, name in fields(type_name)}
 
     def body(namespace):
         namespace["__annotations__"] = annotations
@@ -93,7 +82,7 @@ def _cast(base: str):
 
 def _convert(type_name: str, field_type: str, value):
     base, _, rest = field_type.partition("[")
-    used = _dependency(type_name, base)
+    used = dependency(type_name, base)
     if used is None:
         if rest and base in ("uint8", "byte", "char") and isinstance(value, (bytes, bytearray)):
             return value
@@ -110,7 +99,7 @@ def to_idl(type_name: str, message: dict):
     fields take their type's zero, as in the CDR encoder)."""
     cls = idl_type(type_name)
     values = {}
-    for field_type, name in _fields(type_name):
+    for field_type, name in fields(type_name):
         if name in message:
             values[name] = _convert(type_name, field_type, message[name])
         else:
@@ -120,7 +109,7 @@ def to_idl(type_name: str, message: dict):
 
 def _zero(type_name: str, field_type: str):
     base, _, rest = field_type.partition("[")
-    used = _dependency(type_name, base)
+    used = dependency(type_name, base)
     if rest:
         size = rest.rstrip("]")
         if not size:
