@@ -132,6 +132,10 @@ class StationParts:
             return default
         return self._shared[name]
 
+    def shared_values(self) -> dict:
+        """Every value the blocks shared (the built station carries them: station.py)."""
+        return dict(self._shared)
+
 
 # --- scene: the plant, the colon, the capsule ----------------------------------------------
 

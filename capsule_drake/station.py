@@ -26,9 +26,20 @@ Exported in every station:
 and with some drivers epm.command (the pose command, an output; an input with !External)
 and epm.status (the arm's controller's report); on the compliant wall's foundation route,
 contact.wall (its own contact, physics/contact/foundation.py WallContact).
+
+Besides its ports, a built station carries the build-time values its blocks shared
+(`parts.share`), for the application beside it to read with `station_value(station, name)`:
+    scene.plant                  the MultibodyPlant (bodies, frames, time step)
+    capsule.camera.lens|config|tick|latency|render_worker   with a camera
+    capsule.lumen.truth_at|far_at                            the lumen truth's functions
+    teleop.device.address        a network device's (host, port)
+    meshcat.flush_trail|replay_frames                        with Meshcat
+The application never looks a system up by its name (tests/test_blocks.py).
 """
 
 from __future__ import annotations
+
+from types import MappingProxyType
 
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import DiagramBuilder
@@ -67,6 +78,19 @@ def make_station(scenario, meshcat=None, capsule_start: RigidTransform | None = 
     each("models", parts)     # models and geometry, before the plant is finalised
     parts.plant.Finalize()
     each("add", builder, parts)
+    parts.share("scene.plant", parts.plant)
     diagram = builder.Build()
     diagram.set_name("capsule_station")
+    diagram.shared_values = MappingProxyType(dict(parts.shared_values()))
     return diagram
+
+
+def station_value(station, name: str, default=KeyError):
+    """The build-time value the station's blocks shared as `name` (module docstring), or
+    `default` when none did (KeyError when no default is given)."""
+    values = station.shared_values
+    if name in values:
+        return values[name]
+    if default is KeyError:
+        raise KeyError(f"the station shared no {name!r} (has: {', '.join(values)})")
+    return default

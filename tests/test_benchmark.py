@@ -241,7 +241,7 @@ def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
     from types import SimpleNamespace
 
     from capsule_drake.app.benchmark import _detection_scores
-    camera = SimpleNamespace(lens=SimpleNamespace(width=300, height=400))  # diagonal 500 px
+    lens = SimpleNamespace(width=300, height=400)  # diagonal 500 px
     truth = [[100, 100]] * 5 + [[np.nan, np.nan]]
     truth_visible = [[1]] * 5 + [[0]]
     # The truth is the image-side one (far_pixel, far_visible). Off by 5, 10, 15 px where
@@ -251,11 +251,11 @@ def test_detection_scores_compare_the_tracker_with_the_truth_sample_by_sample():
     found_visible = [[1], [1], [1], [0], [0], [1]]
     data = {"far_pixel": _Log(truth), "far_visible": _Log(truth_visible),
             "tracker_lumen_pixel": _Log(found), "tracker_lumen_visible": _Log(found_visible)}
-    error, rate, false_positives = _detection_scores(camera, data)
+    error, rate, false_positives = _detection_scores(lens, data)
     assert error == pytest.approx(100 * 10 / 500)
     assert rate == pytest.approx(3 / 5) and false_positives == pytest.approx(1.0)
     assert all(np.isnan(_detection_scores(None, data)))
-    assert all(np.isnan(_detection_scores(camera, {k: data[k] for k in list(data)[:2]})))
+    assert all(np.isnan(_detection_scores(lens, {k: data[k] for k in list(data)[:2]})))
 
 
 # ---- A suite that survives its runs: a run whose process crashes or hangs, a signal, a

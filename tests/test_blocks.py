@@ -52,6 +52,40 @@ def test_blocks_reach_each_other_only_through_the_station_names():
     assert seen >= 25
 
 
+def test_the_application_reads_the_station_by_its_ports_and_shared_values_only():
+    """The app layer (app/) never looks a system up by name: it connects to the station's
+    exported ports and reads its build-time values (station.py `station_value`), and keeps
+    the systems it adds itself."""
+    import pathlib
+
+    import capsule_drake.app as app
+    files = sorted(pathlib.Path(app.__file__).parent.rglob("*.py"))
+    assert len(files) >= 30
+    for path in files:
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute):
+                assert node.attr not in ("GetSubsystemByName", "HasSubsystemNamed"), (
+                    f"{path.name}:{node.lineno} calls {node.attr}: use the station's ports "
+                    "or station_value")
+
+
+def test_a_built_station_carries_the_values_its_blocks_shared():
+    from capsule_drake.station import station_value
+    station = make_station(load_scenario(name="WithSensors"))
+    try:
+        plant = station_value(station, "scene.plant")
+        assert plant.HasBodyNamed("capsule")
+        lens = station_value(station, "capsule.camera.lens")
+        assert lens.width > 0 and station_value(station, "capsule.camera.tick") > 0
+        assert callable(station_value(station, "capsule.lumen.truth_at"))
+        assert station_value(station, "teleop.device.address", None) is None
+        with pytest.raises(KeyError, match="shared no 'no.such'"):
+            station_value(station, "no.such")
+    finally:
+        close_render_worker(station)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["OneOfEverything", "OneOfEverythingElse"])
 def test_every_system_of_a_station_belongs_to_one_registered_block(name):

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from capsule_drake.anatomy.importer import MeshImportError
 from capsule_drake.anatomy.start_check import REST_SETTLE
-from capsule_drake.app.run import settled_state
+from capsule_drake.app.start import settled_state
 from capsule_drake.scenario import load_scenario
 from tube_set import (TUBES, centreline_errors, densify, make_tube, perturbed, y_branch)
 

@@ -168,7 +168,7 @@ def test_no_block_imports_a_layer_above_it():
     assert not upward, "imports from a lower layer to a higher one:\n" + "\n".join(upward)
 
 
-SIMULATOR_MAKER = "capsule_drake.app.run"
+SIMULATOR_MAKER = "capsule_drake.app.start"
 """The one module that constructs a Simulator (`simulator_for`): every run, the settling of a
 start and the teleoperation bench step their diagram through it."""
 

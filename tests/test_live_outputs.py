@@ -280,7 +280,9 @@ def test_a_foxglove_client_decodes_every_channel_of_a_running_simulation(tmp_pat
     rest, _ = run.communicate(timeout=600)
     assert run.returncode == 0, rest
     seen = json.loads(viewer.stdout)
-    assert seen["errors"] == [] and viewer.returncode == 0, seen["errors"]
+    assert seen["errors"] == [], seen["errors"]
+    assert viewer.returncode == 0, ("advertised, none decoded:",
+                                    set(seen["advertised"]) - set(seen["decoded"]))
     decoded = seen["decoded"]
     assert set(LIVE_TOPICS) <= set(decoded), sorted(set(LIVE_TOPICS) - set(decoded))
     for topic, entry in decoded.items():

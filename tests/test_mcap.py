@@ -22,8 +22,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app.dataset import read_depth_png
-from capsule_drake.app import mcap_log
-from capsule_drake.app.mcap_log import Ros2McapFile, add_mcap_logger, check_mcap_path
+from capsule_drake.app import mcap_file
+from capsule_drake.app.mcap_file import Ros2McapFile, check_mcap_path
+from capsule_drake.app.mcap_log import add_mcap_logger
 from capsule_drake.app.outputs import OutputError
 from capsule_drake.app.ros2_messages import DEFINITIONS, schema_text
 from capsule_drake.app.run import chain_extends, simulate
@@ -492,7 +493,7 @@ class _FailingWriter:
         raise OSError(28, "No space left on device")
 
 
-class _WriterFailingAtFinish(mcap_log.Writer):
+class _WriterFailingAtFinish(mcap_file.Writer):
     def finish(self):
         raise OSError(5, "Input/output error")
 
@@ -501,7 +502,7 @@ def test_the_file_is_closed_on_every_path(tmp_path):
     # Writer.start raising (disk full at the header): the stream opened for it is closed.
     log = Ros2McapFile(tmp_path / "a.mcap")
     tf = {"transforms": []}
-    with mock.patch.object(mcap_log, "Writer", _FailingWriter):
+    with mock.patch.object(mcap_file, "Writer", _FailingWriter):
         with pytest.raises(OSError, match="No space"):
             log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 0)
     stream, = _FailingWriter.streams
@@ -510,7 +511,7 @@ def test_the_file_is_closed_on_every_path(tmp_path):
     log.close()  # idempotent
     # Writer.finish raising: the file is closed all the same, and the error comes out once.
     log = Ros2McapFile(tmp_path / "b.mcap")
-    with mock.patch.object(mcap_log, "Writer", _WriterFailingAtFinish):
+    with mock.patch.object(mcap_file, "Writer", _WriterFailingAtFinish):
         log.write("/tf", "tf2_msgs/msg/TFMessage", tf, 0)
     stream = log._stream
     with pytest.raises(OSError, match="Input/output"):

@@ -24,11 +24,12 @@ from pydrake.systems.sensors import ImageRgba8U
 
 from browser import chromium
 from capsule_drake.io.headless import HeadlessPage
-from capsule_drake.io.replay import (PANEL_WIDTH, STREAM_SYSTEM, CameraStream, decimate,
-                                     encode_frame, replay_page)
+from capsule_drake.io.replay import (PANEL_WIDTH, CameraStream, decimate, encode_frame,
+                                     replay_page)
 from capsule_drake.app.run import simulate
 from capsule_drake.io.visualization import tube_mesh
 from capsule_drake.scenario import load_scenario
+from capsule_drake.station import station_value
 
 
 def _replay_data(page: str) -> dict:
@@ -175,7 +176,7 @@ def test_the_replay_shows_the_capsule_and_the_camera_stream_at_the_replays_time(
     result = simulate(scenario, meshcat=Meshcat(MeshcatParams(port=0)),
                       out_dir=tmp_path / "run", progress=False)
     html = tmp_path / "run" / "recording.html"
-    frames = result.station.GetSubsystemByName(STREAM_SYSTEM).frames()
+    frames = station_value(result.station, "meshcat.replay_frames")()
     instant = 0.9
     i = int(np.argmin(np.abs(result.times - instant)))
     p_WB = result.capsule_state[4:7, i]

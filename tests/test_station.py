@@ -13,7 +13,8 @@ from capsule_drake.capsule.model import capsule_model
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.io.metrics import capsule_poses, capsule_surface_points_C, wall_excursion
 from capsule_drake.scenario import Scenario, ScenarioError, load_scenario
-from capsule_drake.app.run import settled_start, settled_state, simulate
+from capsule_drake.app.run import simulate
+from capsule_drake.app.start import settled_start, settled_state
 from capsule_drake.station import make_station
 
 
@@ -235,15 +236,15 @@ def test_fast_contact_model_drags_the_capsule_inside_the_wall():
 
 
 def test_a_failing_simulation_still_writes_what_it_logged(tmp_path, monkeypatch):
-    import capsule_drake.app.run as run_module
+    import capsule_drake.app.start as start_module   # where the run's Simulator is made
 
-    class FailingSimulator(run_module.Simulator):
+    class FailingSimulator(start_module.Simulator):
         def AdvanceTo(self, t):
             if t > 0.2:
                 raise RuntimeError("solver diverged (injected)\nsecond line")
             return super().AdvanceTo(t)
 
-    monkeypatch.setattr(run_module, "Simulator", FailingSimulator)
+    monkeypatch.setattr(start_module, "Simulator", FailingSimulator)
     scenario = dataclasses.replace(load_scenario(), duration=1.0)
     result = simulate(scenario, progress=False, out_dir=tmp_path)
     m = json.loads((tmp_path / "metrics.json").read_text())

@@ -18,7 +18,8 @@ from capsule_drake.app.commands import (benchmark, eval_lumen, import_colon, not
 from capsule_drake.app.commands.common import (COLON_VERBS, _check_flag_combinations,
                                                _created_folders, _remove_unused_folders)
 from capsule_drake.app.outputs import OutputError, release_claims
-from capsule_drake.app.run import Interrupted, WriteError
+from capsule_drake.app.run import Interrupted
+from capsule_drake.app.run_outputs import WriteError
 from capsule_drake.scenario import ScenarioError
 
 

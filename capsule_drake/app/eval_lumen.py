@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 
 from capsule_drake.app.outputs import write_atomic
-from capsule_drake.app.run import WriteError
+from capsule_drake.app.run_outputs import WriteError
 from capsule_drake.capsule.camera_config import CameraConfig
 from capsule_drake.perception.evaluation import (IMAGE_CONDITIONS, DetectorError,
                                                  condition_frames, condition_table, evaluate,

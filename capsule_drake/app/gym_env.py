@@ -93,7 +93,8 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from capsule_drake.epm.guard import floor_guard
 from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.app.run import CONTACT_MONITOR, Run
+from capsule_drake.app.run import Run
+from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.app.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
 from capsule_drake.perception import Lens
 from capsule_drake.scenario import load_scenario
@@ -230,6 +231,8 @@ class _Colon:
     guard: object            # EpmGuard: the clearance floor
     start_command: np.ndarray
     start_s: float
+    monitor: object = None   # the episode's contact monitor and statistics (added to the run)
+    stats: object = None
 
     @property
     def station(self):
@@ -393,18 +396,28 @@ class ColonNavigationEnv(gymnasium.Env):
             gc.collect()
         scenario = self._scenario_for(colon_seed)
 
+        added = {}
+
         def add_contact_stats(builder, station):
+            # The environment's own monitor: the run's is not evaluated without its loggers.
+            wall = station.HasOutputPort("contact.wall")
+            monitor = builder.AddNamedSystem("gym.contact_monitor", ContactMonitor(wall=wall))
+            builder.Connect(station.GetOutputPort("contact_results"),
+                            monitor.GetInputPort("contact_results"))
+            if wall:
+                builder.Connect(station.GetOutputPort("contact.wall"),
+                                monitor.GetInputPort("wall_contact"))
             stats = builder.AddNamedSystem(CONTACT_STATS, ContactStats(CONTACT_SAMPLE_PERIOD,
                                                                        CONTACT_THRESHOLD))
-            builder.Connect(builder.GetSubsystemByName(CONTACT_MONITOR).GetOutputPort(
-                "contact_load"), stats.get_input_port())
+            builder.Connect(monitor.GetOutputPort("contact_load"), stats.get_input_port())
+            added.update(monitor=monitor, stats=stats)
 
         run = Run(scenario, extend=add_contact_stats, log=False)
         epm = scenario.epm
         start = stage_to_pose(epm_start(epm, run.colon, scenario.capsule.start_s))
         entry = _Colon(colon_seed, run, floor_guard(run.colon.abdomen, epm.magnet,
                                                     epm.clearance),
-                       start, scenario.capsule.start_s)
+                       start, scenario.capsule.start_s, **added)
         self._runs[colon_seed] = entry
         self.build_count += 1
         return entry
@@ -425,8 +438,7 @@ class ColonNavigationEnv(gymnasium.Env):
         run.run.reset(self._noise_seed)
         context = run.run.context
         self._station_context = run.station.GetMyMutableContextFromRoot(context)
-        self._stats_context = run.run.diagram.GetSubsystemByName(
-            CONTACT_STATS).GetMyMutableContextFromRoot(context)
+        self._stats_context = run.stats.GetMyMutableContextFromRoot(context)
         self._command = self._safe(run.start_command[:3], run.start_command[3:])[:2]
         self._set_command(np.concatenate(self._command))
         run.run.initialize()
@@ -602,7 +614,7 @@ class ColonNavigationEnv(gymnasium.Env):
                 "ended": ended, "reason": reason}
 
     def _output_load(self) -> float:
-        monitor = self._run.run.contact_monitor
+        monitor = self._run.monitor
         context = monitor.GetMyContextFromRoot(self._run.run.context)
         load = float(monitor.GetOutputPort("contact_load").Eval(context)[0])
         return load if math.isfinite(load) else 0.0

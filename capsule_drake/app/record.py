@@ -12,6 +12,7 @@ from capsule_drake.app.dataset_docs import (SPLIT_RULE, DatasetDescription, came
                                            split_of_seed, splits_readme)
 from capsule_drake.app.outputs import SEED_PREFIX, write_atomic
 from capsule_drake.app.run import RunResult, simulate
+from capsule_drake.station import station_value
 from capsule_drake.scenario import McapOutput, Scenario, ScenarioError
 from capsule_drake.capsule.ahrs import AhrsConfig
 from capsule_drake.anatomy.source import lesion_scene
@@ -68,8 +69,8 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
     tick = camera_tick(camera_config)
 
     def extend(builder, station):
-        camera = station.GetSubsystemByName("capsule.camera")
-        plant = station.GetSubsystemByName("plant")
+        lens = station_value(station, "capsule.camera.lens")
+        plant = station_value(station, "scene.plant")
         X_BC = plant.GetFrameByName("camera").GetFixedPoseInBodyFrame()
         imu_period = 1.0 / scenario.capsule.imu.sample_rate
         periods = {"imu": imu_period, "ahrs": imu_period,
@@ -98,18 +99,17 @@ def record(scenario: Scenario, out_dir: Path | str, *, progress: bool = True,
         polyps = lesion_scene(scenario.colon).lesions if station.HasOutputPort(
             "capsule.camera.label_image") else []
         description = DatasetDescription(
-            lens=camera.lens, camera=camera_config, X_BC=X_BC, streams=streams,
+            lens=lens, camera=camera_config, X_BC=X_BC, streams=streams,
             imu=scenario.capsule.imu, magnetometer=scenario.capsule.magnetometer,
             ahrs=scenario.capsule.ahrs, scenario_name=scenario_name,
             colon_seed=getattr(scenario.colon, "seed", 0), random_seed=scenario.random_seed,
             duration=scenario.duration, depth_full_scale=camera_config.far,
             sensor_lag=sensor_lag, polyps=len(polyps))
-        lumen = station.GetSubsystemByName("capsule.lumen")
         writer = builder.AddNamedSystem("dataset_writer", DatasetWriter(
             out_dir, frame_check_period=tick, frame_check_offset=camera_config.latency,
-            streams=streams, mask=camera.lens.pixel_rays()[1],
-            depth_full_scale=camera_config.far, lumen_truth=lumen.truth_at,
-            far_truth=lumen.far_at,
+            streams=streams, mask=lens.pixel_rays()[1],
+            depth_full_scale=camera_config.far, lumen_truth=station_value(station, "capsule.lumen.truth_at"),
+            far_truth=station_value(station, "capsule.lumen.far_at"),
             plant_step=plant_step, plant_step_first=plant_step_first, polyps=polyps,
             texts={"README.md": dataset_readme(description),
                    "camera.yaml": camera_yaml(description),

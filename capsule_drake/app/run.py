@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import dataclasses
-import json
 import signal
 import sys
 import time
@@ -17,36 +15,29 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common import RandomGenerator
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
-from pydrake.systems.analysis import (ApplySimulatorConfig, Simulator, SimulatorConfig,
-                                      SimulatorStatus)
+from pydrake.systems.analysis import SimulatorConfig, SimulatorStatus
 from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
-from capsule_drake.anatomy import ColonSourceError, load_colon
-from capsule_drake.anatomy.start_check import REST_SETTLE, check_start, pick_start
+from capsule_drake.anatomy import load_colon
+from capsule_drake.anatomy.start_check import check_start
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.epm.paths import External, epm_start
-from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.epm.stage import Stage
 from capsule_drake.io.guard import ENDING_OF_KIND, RunGuard, parse_guard_reason
 from capsule_drake.io.metrics import run_metrics
-from capsule_drake.app.live.outputs import channel_outputs_extend
+from capsule_drake.app.live.outputs import add_channel_outputs
 from capsule_drake.app.live.pacing import PaceWatch
 from capsule_drake.app.signals import DeferredSignals
-from capsule_drake.app.outputs import (LOG_KEYS, LogSpool, OutputError, check_room,
-                                      run_output_bytes, save_npz, write_atomic)
-from capsule_drake.io.replay import STREAM_SYSTEM, replay_page, run_plots, wall_map_panel
-from capsule_drake.io.visualization import MARKER_SYSTEM
-from capsule_drake.io.wall_map import wall_map_png, write_wall_map
+from capsule_drake.app.outputs import LOG_KEYS, LogSpool
 from capsule_drake.physics.contact.tissue import tissue_metrics
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,
                                                  WallPressureMap)
 from capsule_drake.plugins import FAILURES, culprit, failure_text, noting_loads, what_it_did
-from capsule_drake.scenario import CapsuleConfig, Scenario, ScenarioError, dump_scenario
-from capsule_drake.station import make_station
+from capsule_drake.scenario import Scenario, ScenarioError
+from capsule_drake.station import make_station, station_value
+from capsule_drake.app.start import settled_start, simulator_for, start_where_it_rests
+from capsule_drake.app.run_outputs import _write_outputs, prepare_folder
 
 
 @dataclass
@@ -66,6 +57,7 @@ class RunResult:
     diagram: object = None     # the simulated diagram ("station" inside), its final
     context: object = None     # context (for the loggers an `extend` added), and the
     station: object = None     # station
+    channel_logger: object = None   # the MCAP file's and live outputs' (app/mcap_log.py)
     # How the run ended: "completed" (its duration), "goal" (stop_when), "diverged" or
     # "left_colon" (the run guard), "epm_clearance" (the EPM's clearance watch), "error"
     # (inside the simulation), "interrupted".
@@ -80,11 +72,6 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signal.Signals(signal_number).name)
         self.signal_number = signal_number
         self.signal_name = signal.Signals(signal_number).name
-
-
-class WriteError(OutputError):
-    """A run's outputs could not be written after the run (one line; what had been written
-    as the run went stays on disk)."""
 
 
 class Progress:
@@ -144,23 +131,8 @@ class StepBar:
             self.stream.flush()
 
 
-SETTLE_STEP = 5e-4
-"""Plant step of the settling (s): where the capsule's first snap onto the wall, at
-0.5-0.6 m/s, stays within 0.6 mm of it (README, Performance)."""
-
 CONTACT_MONITOR = "contact_monitor"
 """The run's contact monitor (the capsule's contact load), beside the station."""
-
-
-def simulator_for(diagram, config: SimulatorConfig | None = None, random_seed: int | None = None):
-    """A Simulator of `diagram` with Drake's SimulatorConfig applied and, if given, the
-    diagram's random context seeded: the one place a Simulator is made."""
-    simulator = Simulator(diagram)
-    if config is not None:
-        ApplySimulatorConfig(config, simulator)
-    if random_seed is not None:
-        diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(random_seed))
-    return simulator
 
 
 def paced(scenario: Scenario) -> SimulatorConfig:
@@ -171,82 +143,6 @@ def paced(scenario: Scenario) -> SimulatorConfig:
         config = copy.copy(config)
         config.target_realtime_rate = 1.0
     return config
-
-
-def settled_start(scenario: Scenario) -> RigidTransform:
-    """Where the capsule comes to rest when let settle (capsule.settle): the pose of
-    `settled_state`. The run then starts there, at rest."""
-    state = settled_state(scenario)
-    return RigidTransform(Quaternion(state[:4] / np.linalg.norm(state[:4])), state[4:7])
-
-
-def settled_state(scenario: Scenario) -> np.ndarray:
-    """The capsule's state [q_WB (wxyz), p_WB, w_WB, v_WB] after it was let settle
-    (capsule.settle), the first stage of such a run: the scenario's physics alone (its
-    colon, contact, magnets; no sensors, no driver) simulated for `capsule.settle` seconds
-    at SETTLE_STEP, the capsule starting on the centreline and the EPM held, on the
-    kinematic stage, at the pose the run starts it at. Cached: runs of the same physics
-    settle once per process."""
-    physics = copy.deepcopy(scenario)
-    physics.capsule = CapsuleConfig(start_s=scenario.capsule.start_s,
-                                    ipm=scenario.capsule.ipm)
-    physics.pseudo_force = None
-    physics.epm.mount, physics.epm.driver = Stage(), External()
-    physics.plant.time_step = SETTLE_STEP
-    colon, _ = load_colon(scenario.colon)
-    epm_pose = stage_to_pose(epm_start(scenario.epm, colon, scenario.capsule.start_s))
-    key = (repr(physics), scenario.capsule.settle, tuple(epm_pose))
-    if key not in _SETTLED:
-        diagram = make_station(physics)
-        simulator = simulator_for(diagram)
-        context = simulator.get_mutable_context()
-        diagram.GetInputPort("epm.command").FixValue(context, epm_pose)
-        simulator.AdvanceTo(scenario.capsule.settle)
-        if len(_SETTLED) >= 16:
-            _SETTLED.clear()
-        _SETTLED[key] = np.array(diagram.GetOutputPort("capsule.state").Eval(context))
-    return _SETTLED[key].copy()
-
-
-def start_where_it_rests(scenario: Scenario) -> Scenario:
-    """The scenario with the capsule starting where it rests, on a colon that is not the
-    procedural one (an imported mesh, the ex vivo segment): such a colon lies as its mesh
-    was made, and the centreline at capsule.start_s may be no place to start (the README's
-    imported tube: the EPM 11 cm above its axis threw the capsule onto the roof at 2.2 m/s).
-    The import's start check (anatomy/start_check.py `pick_start`) lets the capsule settle
-    at capsule.start_s and, if it does not rest there, at up to five other starts, and
-    keeps the first where it rests; the run then starts settled there (capsule.settle at
-    least REST_SETTLE). A procedural colon's scenario is returned as it is.
-
-    Raises:
-        ScenarioError: the capsule rests at none of the starts (one line, what happened at
-            each).
-    """
-    if scenario.colon.procedural:
-        return scenario
-    try:
-        colon, _ = load_colon(scenario.colon)
-    except ColonSourceError as e:
-        raise ScenarioError(f"scenario: {e}") from None
-    model = capsule_model()
-    settle = max(scenario.capsule.settle, REST_SETTLE)
-
-    def settled(start_s):
-        capsule = dataclasses.replace(scenario.capsule, start_s=start_s, settle=settle)
-        return settled_state(dataclasses.replace(scenario, capsule=capsule))
-
-    try:
-        start_s, note = pick_start(colon, scenario.capsule.start_s, model.radius,
-                                   model.length + 2.0 * model.radius, settled)
-    except ValueError as e:
-        raise ScenarioError(f"scenario: {e}") from None
-    if note:
-        print(f"capsule-sim: note: {note}", file=sys.stderr)
-    capsule = dataclasses.replace(scenario.capsule, start_s=start_s, settle=settle)
-    return dataclasses.replace(scenario, capsule=capsule)
-
-
-_SETTLED: dict = {}
 
 
 @dataclass
@@ -320,7 +216,7 @@ class Run:
         self.scenario = scenario
         capsule_start = settled_start(scenario) if scenario.capsule.settle > 0.0 else None
         builder = DiagramBuilder()
-        self._finish = None
+        self._finish = self.channel_logger = None
         # The plug-ins the station and the extensions load: an error they raise names them.
         with noting_loads() as self.plugins, _plugins_as_bad_input(self.plugins):
             station, colon, monitor = add_guarded_station(builder, scenario, meshcat,
@@ -338,7 +234,10 @@ class Run:
                                   if log else None)
                 # The scenario's channel outputs (MCAP, Foxglove, ROS 2: app/live/outputs.py)
                 # first, then the caller's.
-                extend = chain_extends(channel_outputs_extend(scenario), extend)
+                logger = add_channel_outputs(builder, station, scenario, self._wall_map)
+                self.channel_logger = logger
+                extend = chain_extends(None if logger is None else lambda b, s: logger.close,
+                                       extend)
                 self._finish = extend(builder, station) if extend is not None else None
                 diagram = builder.Build()
                 simulator = simulator_for(diagram, paced(scenario), scenario.random_seed)
@@ -504,7 +403,7 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
             see app/outputs.py), and at the end metrics.json, logs.npz,
             wall_pressure.npz and (when the contact has a pressure field)
             wall_pressure.png (the map of the wall's pressure: `add_wall_pressure`), (with
-            meshcat) recording.html (the replay page: `replay_html`) and (after an error)
+            meshcat) recording.html (the replay page: run_outputs.py `replay_html`) and (after an error)
             error.txt with the traceback.
         progress: show a progress bar on stderr.
         live_meshcat: keep drawing while recording (for a user watching the live page).
@@ -597,7 +496,8 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
                            contact_load=logs["contact_load"],
                            contact_pressure=logs["contact_pressure"], epm_pose=logs["epm_pose"],
                            out_dir=out, wall_pressure=wall_pressure, diagram=run.diagram,
-                           context=run.context, station=run.station, status=status)
+                           context=run.context, station=run.station, status=status,
+                           channel_logger=run.channel_logger)
         model = capsule_model()
         result.metrics = run_metrics(
             run.colon, result.times, result.capsule_state, result.contact_load,
@@ -619,8 +519,9 @@ def simulate(scenario: Scenario, *, meshcat=None, out_dir: Path | str | None = N
         if stopped_at:
             result.metrics["stopped_at"] = stopped_at
         if recorded is not None:
-            if run.station.HasSubsystemNamed(MARKER_SYSTEM):  # the trail up to the end
-                run.station.GetSubsystemByName(MARKER_SYSTEM).flush(run.time)
+            flush_trail = station_value(run.station, "meshcat.flush_trail", None)
+            if flush_trail is not None:  # the trail up to the end
+                flush_trail(run.time)
             meshcat.StopRecording()
             meshcat.PublishRecording()
         if out is not None:
@@ -727,80 +628,6 @@ def close_render_worker(station) -> None:
     """Ends the station camera's render worker, if it has one. The worker is a process: end
     it with the run, not when a pool process that runs the next run gets round to
     collecting the diagram."""
-    if station.HasSubsystemNamed("capsule.camera"):
-        worker = station.GetSubsystemByName("capsule.camera").worker
-        if worker is not None:
-            worker.close()
-
-
-def prepare_folder(out: Path, scenario: Scenario, recording: bool) -> None:
-    """Creates `out` if need be, checks it can take the run's outputs, writes scenario.yaml
-    (removed again if the station cannot be built: see `simulate`)."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"{out}: cannot create the output folder "
-                          f"({e.strerror or e})") from None
-    check_room(out, run_output_bytes(scenario.duration, scenario.outputs.log_period, recording))
-    try:
-        write_atomic(out / "scenario.yaml", dump_scenario(scenario))
-    except OSError as e:
-        raise OutputError(f"{out}: cannot write scenario.yaml ({e.strerror or e})") from None
-
-
-def _write_outputs(result: RunResult, spool: LogSpool, meshcat, error: str | None, colon):
-    """The run's outputs, each written whole or not at all; WriteError names the first
-    that could not be written (what is on disk already stays)."""
-    out = result.out_dir
-    wall = result.wall_pressure
-    steps = [("logs.npz", spool.finish),
-             ("metrics.json", lambda: write_atomic(
-                 out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n"))]
-    if wall is not None:  # the map of the wall's pressure, and its picture when it has one
-        steps.append(("wall_pressure.npz", lambda: save_npz(out / "wall_pressure.npz",
-                                                            wall.arrays())))
-        if wall.has_pressure:
-            steps.append(("wall_pressure.png", lambda: write_atomic(
-                out / "wall_pressure.png",
-                writer=lambda path: write_wall_map(path, wall, colon.centerline))))
-    if error is not None:
-        steps.append(("error.txt", lambda: write_atomic(out / "error.txt", error)))
-    if meshcat is not None:
-        steps.append(("recording.html", lambda: write_atomic(
-            out / "recording.html", replay_html(result, meshcat, colon))))
-    for name, write in steps:
-        try:
-            write()
-        except OSError as e:
-            kept = ("; the logs written during the run are in logs.parts/"
-                    if (out / "logs.parts").is_dir() else "")
-            raise WriteError(f"{out}: could not write {name} ({e.strerror or e}){kept}") from None
-
-
-def replay_html(result: RunResult, meshcat, colon) -> str:
-    """recording.html: Meshcat's replay of the run with, beside it, the capsule camera's
-    frames (when the station has a camera) and the run's progress and contact load
-    (io/replay.py)."""
-    station = result.station
-    frames = (station.GetSubsystemByName(STREAM_SYSTEM).frames()
-              if station is not None and station.HasSubsystemNamed(STREAM_SYSTEM) else [])
-    plots = run_plots(colon, result.times, result.capsule_state, result.contact_load)
-    return replay_page(meshcat.StaticHtml(), frames, plots,
-                       replay_wall_map(result.wall_pressure, colon, plots))
-
-
-def replay_wall_map(wall, colon, plots) -> dict | None:
-    """The replay's section of the wall's pressure map (io/replay.py `wall_map_panel`: the
-    compact picture of io/wall_map.py, the capsule's track from the plot of its place along
-    the colon), or None for a map without pressures."""
-    if wall is None or not wall.has_pressure:
-        return None
-    png, boxes = wall_map_png(wall, colon.centerline, width=3.2, height=2.7, dpi=100,
-                              compact=True)
-    track = next((p for p in plots if p["unit"] == "cm"), {"t": [], "y": []})
-    longest = wall.longest_above.get("ischaemia")
-    title = (f"wall pressure per patch: peak {wall.peak.max() / 1000:.0f} kPa"
-             + (f"; longest above {wall.thresholds['ischaemia'] / 1000:.1f} kPa "
-                f"{longest.max():.1f} s" if longest is not None else ""))
-    return wall_map_panel(png, boxes, (0.0, 100.0 * wall.grid.s_edges[-1]), track["t"],
-                          track["y"], title)
+    worker = station_value(station, "capsule.camera.render_worker", None)
+    if worker is not None:
+        worker.close()

@@ -394,7 +394,8 @@ def add_camera(builder, parts, config: CameraConfig):
         if camera.HasOutputPort(name):
             parts.export(camera.GetOutputPort(name), f"capsule.camera.{name}")
     for name, value in (("lens", camera.lens), ("config", camera.config),
-                        ("tick", camera.tick()), ("latency", camera.latency())):
+                        ("tick", camera.tick()), ("latency", camera.latency()),
+                        ("render_worker", camera.worker)):
         parts.share(f"capsule.camera.{name}", value)
     add_lumen_truth(builder, parts, camera)
     return camera

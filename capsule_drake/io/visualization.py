@@ -67,12 +67,14 @@ def add_meshcat(builder, parts, period: float):
     meshcat.SetProperty("/Axes", "visible", False)
     marker = builder.AddNamedSystem(MARKER_SYSTEM, CapsuleMarker(meshcat, period))
     builder.Connect(parts.capsule_state, marker.get_input_port())
+    parts.share("meshcat.flush_trail", marker.flush)
     if parts.has("capsule.camera.rgb_image"):
         stream = builder.AddNamedSystem(STREAM_SYSTEM, CameraStream())
         builder.Connect(parts.output("capsule.camera.rgb_image"),
                         stream.GetInputPort("rgb_image"))
         builder.Connect(parts.output("capsule.camera.frame_info"),
                         stream.GetInputPort("frame_info"))
+        parts.share("meshcat.replay_frames", stream.frames)
     if parts.has("epm.command"):
         marker = builder.AddNamedSystem("epm_command_marker", CommandMarker(
             meshcat, parts.epm.magnet, period))

@@ -323,6 +323,8 @@ def add_lumen_truth(builder, parts, camera):
     parts.export_outputs(lumen, "capsule.lumen",
                          ("lumen_pixel", "lumen_visible", "lumen_point_W", "far_pixel",
                           "far_visible"))
+    parts.share("capsule.lumen.truth_at", lumen.truth_at)
+    parts.share("capsule.lumen.far_at", lumen.far_at)
     return lumen
 
 

@@ -220,6 +220,7 @@ def add_teleop(builder, parts, teleop: Teleop):
         builder.Connect(device.GetOutputPort("link_ok"), mapping.GetInputPort("link_ok"))
         parts.export(device.GetOutputPort("link_ok"), "teleop.link_ok")
         parts.export(device.GetOutputPort("stats"), "teleop.udp_stats")
+        parts.share("teleop.device.address", device.address)
     else:  # browser
         device = builder.AddNamedSystem("teleop.device", BrowserOperator(
             parts.meshcat, teleop.device, parts.shared("capsule.camera.config")))

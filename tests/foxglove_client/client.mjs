@@ -5,11 +5,15 @@
 // the count, and the first message (large arrays shortened to their length).
 // Usage: node client.mjs ws://127.0.0.1:PORT SECONDS [TOPIC ...]
 // It ends when every named topic (and every advertised one) has a decoded message, or
-// after SECONDS.
+// after SECONDS. With CAPSULE_CLIENT_DUMP=DIR in the environment it also writes the last
+// message of each topic, whole, to DIR/<topic with / as _>.json (for a picture of what
+// it saw: benchmarks/live_client_picture.py).
 import wsProtocol from "@foxglove/ws-protocol";
 import rosmsg from "@foxglove/rosmsg";
 import serialization from "@foxglove/rosmsg2-serialization";
 import WebSocket from "ws";
+import fs from "node:fs";
+import path from "node:path";
 
 const { FoxgloveClient } = wsProtocol;
 const { parse } = rosmsg;
@@ -36,13 +40,37 @@ function shorten(value) {
   return value;
 }
 
+const dump = process.env.CAPSULE_CLIENT_DUMP;
+const last = {};
+
+function whole(value) {
+  if (value instanceof Uint8Array || ArrayBuffer.isView(value)) return Array.from(value);
+  if (Array.isArray(value)) return value.map(whole);
+  if (typeof value === "bigint") return Number(value);
+  if (value && typeof value === "object") {
+    return Object.fromEntries(Object.entries(value).map(([k, v]) => [k, whole(v)]));
+  }
+  return value;
+}
+
+function writeDump() {
+  if (!dump) return;
+  fs.mkdirSync(dump, { recursive: true });
+  for (const [topic, message] of Object.entries(last)) {
+    fs.writeFileSync(path.join(dump, topic.replaceAll("/", "_") + ".json"),
+                     JSON.stringify(whole(message)));
+  }
+}
+
 function done() {
   const topics = new Set([...wanted, ...[...channels.values()].map((c) => c.topic)]);
   return topics.size > 0 && [...topics].every((t) => decoded[t]);
 }
 
 function finish(code) {
-  process.stdout.write(JSON.stringify({ decoded, errors }) + "\n");
+  writeDump();
+  const advertised = [...channels.values()].map((c) => c.topic);
+  process.stdout.write(JSON.stringify({ decoded, errors, advertised }) + "\n");
   client.close();
   process.exit(code);
 }
@@ -66,6 +94,7 @@ client.on("message", ({ subscriptionId, data }) => {
   if (!channel) return;
   try {
     const message = channel.reader.readMessage(data);
+    if (dump) last[channel.topic] = message;
     const entry = decoded[channel.topic];
     if (entry) entry.count += 1;
     else decoded[channel.topic] = { schema: channel.schemaName, count: 1, first: shorten(message) };

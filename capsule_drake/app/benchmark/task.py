@@ -24,6 +24,7 @@ from capsule_drake.navigation.plugin import load_navigator
 from capsule_drake.physics.contact.tissue import TISSUE_COLUMNS
 from capsule_drake.plugins import load_function
 from capsule_drake.scenario import load_scenario
+from capsule_drake.station import station_value
 
 # A run reaches the cecum when the capsule's centreline station is this close to the end (m).
 CECUM_MARGIN = 0.04
@@ -143,9 +144,10 @@ def run_task(task: Task, progress=None) -> dict:
         detector = (load_function("polyp detector", task.polyp_detector, "a function")
                     if task.polyp_detector else None)
         if station.HasOutputPort("capsule.camera.rgb_image"):
-            camera = station.GetSubsystemByName("capsule.camera")
+            lens, tick, latency = (station_value(station, f"capsule.camera.{name}")
+                                   for name in ("lens", "tick", "latency"))
             coverage = builder.AddNamedSystem("coverage", MucosaCoverage(
-                colon, camera.lens, scenario.capsule.camera.far))
+                colon, lens, scenario.capsule.camera.far))
             for name in ("depth_image", "frame_info", "frame_pose"):
                 builder.Connect(station.GetOutputPort(f"capsule.camera.{name}"),
                                 coverage.GetInputPort(name))
@@ -153,7 +155,7 @@ def run_task(task: Task, progress=None) -> dict:
             for name in ("lumen_pixel", "lumen_visible", "far_pixel", "far_visible"):
                 extra[name] = LogVectorOutput(station.GetOutputPort(f"capsule.lumen.{name}"),
                                               builder, period)
-            extra["camera"] = camera
+            extra["lens"] = lens
             labelled = station.HasOutputPort("capsule.camera.label_image")
             # The polyps (scored with a detector, if any) and the diverticula apart: a
             # polyp detector's mark on a diverticulum is a false positive.
@@ -164,8 +166,7 @@ def run_task(task: Task, progress=None) -> dict:
                     continue
                 views = builder.AddNamedSystem(name, LesionViews(
                     {label: k for k, label in enumerate(lesion_labels(mine))}, len(mine),
-                    int(camera.lens.pixel_rays()[1].sum()), camera.tick(),
-                    camera.latency() + 1e-6, detector=scorer))
+                    int(lens.pixel_rays()[1].sum()), tick, latency + 1e-6, detector=scorer))
                 for port in ("label_image", "depth_image", "frame_info") + (
                         ("rgb_image",) if scorer else ()):
                     builder.Connect(station.GetOutputPort(f"capsule.camera.{port}"),
@@ -207,10 +208,10 @@ def run_task(task: Task, progress=None) -> dict:
         failed.update(curve=curve, segments=colon.centerline.segment_ranges(),
                       worker_pid=os.getpid())
         return failed
-    camera = extra.pop("camera", None)
+    lens = extra.pop("lens", None)
     data = {name: log.FindLog(result.context) for name, log in extra.items()}
     stopped = result.metrics.get("stopped_early")
-    row = _metrics(task, colon, result, data, camera, stopped)
+    row = _metrics(task, colon, result, data, lens, stopped)
     if result.status == "diverged":  # nothing measured in such a run means anything
         row.update({key: np.nan for key in DIVERGED_NAN})
         row.update(reached_cecum=False, segments_passed=[])
@@ -267,7 +268,7 @@ DIVERGED_NAN = ("time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
                 "loc_rot_err_median_deg", "coverage")
 
 
-def _metrics(task, colon, result, data, camera, stopped) -> dict:
+def _metrics(task, colon, result, data, lens, stopped) -> dict:
     length = colon.centerline.length
     times = result.times
     state = result.capsule_state
@@ -281,14 +282,14 @@ def _metrics(task, colon, result, data, camera, stopped) -> dict:
     dt = np.diff(times, append=times[-1]) if len(times) else np.zeros(0)
     epm = result.epm_pose[:3]
     centring = np.nan
-    if camera is not None and "lumen_pixel" in data:
+    if lens is not None and "lumen_pixel" in data:
         pixel, visible = _logged_lumen(data, "lumen")
         if visible.any():
-            rays = camera.lens.unproject(pixel[visible])
+            rays = lens.unproject(pixel[visible])
             angles = np.degrees(np.arccos(np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1),
                                                   -1.0, 1.0)))
             centring = float(np.median(angles))
-    detection_error, detection_rate, false_positives = _detection_scores(camera, data)
+    detection_error, detection_rate, false_positives = _detection_scores(lens, data)
     localisation = _localisation_errors(data, state)
     coverage = float(data["coverage"].data()[0, -1]) if "coverage" in data and \
         data["coverage"].data().size else np.nan
@@ -387,7 +388,7 @@ def _localisation_errors(data, state) -> dict:
                            round(float(np.degrees(np.median(angle[ok]))), 2))))
 
 
-def _detection_scores(camera, data) -> tuple[float, float, float]:
+def _detection_scores(lens, data) -> tuple[float, float, float]:
     """How the run's lumen tracker did against the image-side truth (perception/
     lumen_truth.py, `far_region` of each frame's range image), sampled together: the median
     distance between detected and true pixel (% of the image diagonal) where both see the
@@ -395,7 +396,7 @@ def _detection_scores(camera, data) -> tuple[float, float, float]:
     samples without a lumen in view that it reported visible (false positives). NaN for a run
     without a tracker (or a measure with no samples). Tracker and truth both hold the last
     frame's result; they may be a frame apart for the tracker's reading delay."""
-    if camera is None or "tracker_lumen_pixel" not in data or "far_pixel" not in data:
+    if lens is None or "tracker_lumen_pixel" not in data or "far_pixel" not in data:
         return np.nan, np.nan, np.nan
     truth, truth_visible = _logged_lumen(data, "far")
     found, found_visible = _logged_lumen(data, "tracker_lumen")
@@ -410,7 +411,7 @@ def _detection_scores(camera, data) -> tuple[float, float, float]:
     both = truth_visible & found_visible
     if not both.any():
         return np.nan, rate, false_positives
-    diagonal = float(np.hypot(camera.lens.width, camera.lens.height))
+    diagonal = float(np.hypot(lens.width, lens.height))
     error = 100.0 * float(np.median(np.linalg.norm(found[both] - truth[both], axis=1))) / diagonal
     return error, rate, false_positives
 

@@ -44,10 +44,9 @@ def planned_mcap(scenario, plan):
 def _report_mcap(result) -> str | None:
     """Prints where the MCAP log is; or, when writing it failed, prints nothing and returns
     the failure (one line: `_finish` reports it)."""
-    diagram = result.diagram
-    if diagram is None or not diagram.HasSubsystemNamed("channel_logger"):
+    logger = result.channel_logger
+    if logger is None:
         return None
-    logger = diagram.GetSubsystemByName("channel_logger")
     for line in logger.writer.dropped:   # a live output that stopped (said as it did)
         print(f"note: {line}", file=sys.stderr)
     log = logger.log

@@ -8,6 +8,7 @@ import sys
 from capsule_drake.app.mcap_log import expected_mcap_bytes
 from capsule_drake.app.run import simulate
 from capsule_drake.scenario import DEFAULT_SCENARIO_FILE, ScenarioError
+from capsule_drake.station import station_value
 from capsule_drake.app.cli_parser import DEFAULT_PORT, LOOPBACK
 from capsule_drake.app.commands.common import (_claim, _finish, _flags, _load, _meshcat,
                                                _plan, _report_mcap, planned_mcap)
@@ -48,9 +49,9 @@ def _teleop(args) -> int:
 
     def announce(builder, station):
         if teleop.operator == "udp":
-            device = station.GetSubsystemByName("teleop.device")
-            print(f"listening for the haptic device on udp://{device.address()[0]}:"
-                  f"{device.port()} (docs/udp_protocol.md)", file=sys.stderr)
+            host, port = station_value(station, "teleop.device.address")()
+            print(f"listening for the haptic device on udp://{host}:{port} "
+                  "(docs/udp_protocol.md)", file=sys.stderr)
         return None
 
     result = simulate(scenario, meshcat=meshcat, out_dir=out_dir, progress=not args.quiet,

@@ -15,6 +15,9 @@ import time
 from capsule_drake.app.ros2_messages import schema_text
 
 
+RESEND_AFTER = 0.1   # s after a subscription that a latched channel is sent again
+
+
 def _listener(live: "FoxgloveLive"):
     """A foxglove ServerListener that tells `live` of each subscription (foxglove-sdk is
     imported when a server is made: a run without one does not load it)."""
@@ -60,13 +63,23 @@ class FoxgloveLive:
         return f"the Foxglove server ws://{self.host}:{self.port}"
 
     def subscribed(self, topic: str) -> None:
-        """A client subscribed to `topic`: a latched channel's last message is sent again."""
+        """A client subscribed to `topic`: a latched channel's last message is sent again,
+        a moment later (the server calls this before it adds the subscription, so a message
+        logged here would not reach the client: it did not, one time in two)."""
+        timer = threading.Timer(RESEND_AFTER, self._resend, (topic,))
+        timer.daemon = True
+        timer.start()
+        self._subscribed.set()
+
+    def _resend(self, topic: str) -> None:
         with self._lock:
             latched = self._latched.get(topic)
             channel = self._channels.get(topic)
         if latched is not None and channel is not None:
-            channel.log(latched[0], log_time=latched[1])
-        self._subscribed.set()
+            try:
+                channel.log(latched[0], log_time=latched[1])
+            except Exception:   # the server closed meanwhile: nothing to send to
+                pass
 
     def _channel(self, topic: str, type_name: str):
         schema = self._foxglove.Schema(name=type_name, encoding="ros2msg",

@@ -2,8 +2,9 @@
 the ROS 2 topics all through one ChannelLogger (app/mcap_log.py), and the EPM's goal topic
 into the station's `epm.command` input.
 
-`channel_outputs_extend(scenario)` is `simulate`'s extend for them (None when the scenario
-has none); its close hook closes every output.
+`add_channel_outputs(builder, station, scenario)` adds them beside a station (the Run does,
+app/run.py) and returns their ChannelLogger (None when the scenario has none), whose
+`close()` closes every output.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.app.live.foxglove_out import FoxgloveLive
 from capsule_drake.app.live.ros2_out import GoalInbox, Ros2Topics
-from capsule_drake.app.mcap_log import Ros2McapFile, add_channel_logger
+from capsule_drake.app.mcap_file import Ros2McapFile
+from capsule_drake.app.mcap_log import add_channel_logger
 
 
 class EpmGoalSource(LeafSystem):
@@ -91,27 +93,25 @@ def _to_stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def channel_outputs_extend(scenario, announce=_to_stderr):
-    """`simulate`'s extend that connects the scenario's channel outputs (and the EPM's goal
-    topic) to the run, or None when it has none. `announce` gets one line per live server."""
+def add_channel_outputs(builder, station, scenario, wall_map=None, announce=_to_stderr):
+    """Connects the scenario's channel outputs (and the EPM's goal topic) beside `station`
+    in `builder` and returns their ChannelLogger, or None when the scenario has none.
+    `wall_map`: the run's map of the wall's pressure (app/run.py `add_wall_pressure`), if
+    any, for its image channel. `announce` gets one line per live server."""
     outputs = scenario.outputs
     if outputs.mcap is None and outputs.foxglove is None and outputs.ros2 is None:
         return None
-
-    def extend(builder, station):
-        sinks = channel_sinks(outputs)
-        for sink in sinks:
-            if not sink.fatal and announce is not None:
-                announce(f"live: {sink.name}")
-        logger = add_channel_logger(builder, station, scenario, sinks)
-        if outputs.ros2 is not None and outputs.ros2.epm_command:
-            topics = next(s for s in sinks if hasattr(s, "dds_participant"))
-            inbox = GoalInbox(hold_after=outputs.ros2.hold_after,
-                              dds_participant=topics.dds_participant)
-            source = builder.AddNamedSystem("ros2.epm_command", EpmGoalSource(inbox))
-            builder.Connect(station.GetOutputPort("epm.pose"), source.GetInputPort("epm_pose"))
-            builder.Connect(source.GetOutputPort("epm_command"),
-                            station.GetInputPort("epm.command"))
-        return logger.close
-
-    return extend
+    sinks = channel_sinks(outputs)
+    for sink in sinks:
+        if not sink.fatal and announce is not None:
+            announce(f"live: {sink.name}")
+    logger = add_channel_logger(builder, station, scenario, sinks, wall_map=wall_map)
+    if outputs.ros2 is not None and outputs.ros2.epm_command:
+        topics = next(s for s in sinks if hasattr(s, "dds_participant"))
+        inbox = GoalInbox(hold_after=outputs.ros2.hold_after,
+                          dds_participant=topics.dds_participant)
+        source = builder.AddNamedSystem("ros2.epm_command", EpmGoalSource(inbox))
+        builder.Connect(station.GetOutputPort("epm.pose"), source.GetInputPort("epm_pose"))
+        builder.Connect(source.GetOutputPort("epm_command"),
+                        station.GetInputPort("epm.command"))
+    return logger
