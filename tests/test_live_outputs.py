@@ -271,7 +271,9 @@ def test_a_foxglove_client_decodes_every_channel_of_a_running_simulation(tmp_pat
     advertises and decodes a message of each with the advertised schema; the scene holds
     the colon's wall, the capsule and the EPM."""
     client = _node_client()
-    run = _start_run(["--scenario", "WithSensors", "--duration", "3", "--foxglove", "0",
+    # 6 s: on a loaded machine the client falls behind and the server drops its oldest
+    # queued messages (foxglove-sdk's backlog), so a channel needs a few chances.
+    run = _start_run(["--scenario", "WithSensors", "--duration", "6", "--foxglove", "0",
                       "--scenario-text", "{outputs: {foxglove: {wait_for_client: 120}}}"],
                      tmp_path / "run")
     port = _wait_for_line(run, r"ws://127\.0\.0\.1:(\d+)").group(1)

@@ -15,7 +15,11 @@ import time
 from capsule_drake.app.ros2_messages import schema_text
 
 
-RESEND_AFTER = 0.1   # s after a subscription that a latched channel is sent again
+RESEND_AFTER = (0.1, 1.0, 3.0)
+"""Seconds after a subscription at which a latched channel is sent again: the server calls
+its listener before it adds the subscription, and a client too slow for the stream has its
+oldest queued messages dropped (foxglove-sdk's backlog, 1024 messages), so once is not
+enough on a loaded machine."""
 
 
 def _listener(live: "FoxgloveLive"):
@@ -64,11 +68,14 @@ class FoxgloveLive:
 
     def subscribed(self, topic: str) -> None:
         """A client subscribed to `topic`: a latched channel's last message is sent again,
-        a moment later (the server calls this before it adds the subscription, so a message
-        logged here would not reach the client: it did not, one time in two)."""
-        timer = threading.Timer(RESEND_AFTER, self._resend, (topic,))
-        timer.daemon = True
-        timer.start()
+        a moment later and twice more (RESEND_AFTER; logged here, it did not reach the
+        client one time in two)."""
+        with self._lock:
+            latched = topic in self._latched
+        for delay in RESEND_AFTER if latched else ():
+            timer = threading.Timer(delay, self._resend, (topic,))
+            timer.daemon = True
+            timer.start()
         self._subscribed.set()
 
     def _resend(self, topic: str) -> None:
@@ -91,10 +98,10 @@ class FoxgloveLive:
         return channel
 
     def publish(self, topic: str, spec, message: dict, data: bytes, log_time_ns: int) -> None:
-        channel = self._channels.get(topic) or self._channel(topic, spec.type_name)
-        if spec.latched:
+        if spec.latched:   # kept before the channel is advertised: a subscriber gets it
             with self._lock:
                 self._latched[topic] = (data, log_time_ns)
+        channel = self._channels.get(topic) or self._channel(topic, spec.type_name)
         channel.log(data, log_time=log_time_ns)
         self.messages += 1
         if self._wait > 0.0:
