@@ -35,6 +35,7 @@ Prints each check's simulated (or computed) figure, the published one, their rat
 would have to change for them to meet.
 """
 
+import dataclasses
 import math
 import sys
 
@@ -50,8 +51,11 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from capsule_drake.anatomy import load_colon
 from capsule_drake.physics.contact.foundation import (FoundationContact, StraightTube,
                                                      WallTable)
-from capsule_drake.physics.contact.compliant import (CompliantWall, foundation_modulus,
+from capsule_drake.capsule.model import capsule_model
+from capsule_drake.physics.contact.compliant import (CompliantWall, bilinear_volume_force,
+                                                      foundation_modulus, knee_depth,
                                                       median_lumen_radius)
+from capsule_drake.physics.contact.tissue import patient_tissue
 from capsule_drake.scenario import load_scenario
 
 MMHG = 133.322
@@ -62,6 +66,7 @@ RUPTURE_MMHG = {"cecum": 81.0, "sigmoid": 169.0}
 JOHNSON_N_PER_MM = {"small head, straight": 0.8, "large head, angled": 0.7}
 HEAD_RADIUS = 0.00625      # m (U): a 12.5 mm colonoscope tip
 SUPPORT_SWEEP = (0.0, 1.0e5, 3.0e5, 1.0e6, 3.0e6, 1.0e7)   # Pa/m (U)
+KNEE_SWEEP = (0.0, 0.1, 0.25, 0.4)   # the wall's knee_strain (U); 0: no stiffening
 GUO_RANGE_N = (0.007, 4.5)
 GUO_RADIUS, GUO_CYLINDER, GUO_MASS = 0.0055, 0.015, 0.005   # m, m, kg (mass U)
 LUMEN_RADII = (0.020, 0.0060, 0.0055, 0.0050, 0.0045, 0.0040)   # m
@@ -165,15 +170,37 @@ def burst_pressure(sigma_u: float, thickness: float, radius: float) -> float:
     return sigma_u * thickness / radius
 
 
-def head_force(k: float, depth: float, head_radius: float) -> float:
+def head_force(k: float, depth: float, head_radius: float, knee: float = math.inf,
+               k_stiff: float = 0.0) -> float:
     """Force (N) of a Winkler foundation k (Pa/m) on a sphere pressed `depth` (at most its
-    radius) into it."""
-    return k * math.pi * depth**2 * (3.0 * head_radius - depth) / 3.0
+    radius) into it; past `knee` its pressure rises k_stiff per metre (the stiffened wall:
+    the cap beyond the knee's surface counts k_stiff - k more)."""
+    def cap(d):
+        return math.pi * d**2 * (3.0 * head_radius - d) / 3.0
+    past = cap(depth - knee) if depth > knee else 0.0
+    return k * cap(depth) + (k_stiff - k) * past
+
+
+def sink_depth(config, radius: float, force: float) -> float:
+    """How deep (m) a capsule lying along a flat stretch of the wall of `config` (lumen
+    radius `radius` for the hoop term and the knee) sinks under `force` (N): the bilinear
+    closed form solved by bisection."""
+    model = capsule_model()
+    k, k2 = foundation_modulus(config, radius), foundation_modulus(config, radius, True)
+    knee = knee_depth(config, radius)
+    low, high = 0.0, 0.2
+    for _ in range(80):
+        mid = 0.5 * (low + high)
+        if bilinear_volume_force(k, k2, knee, mid, model.radius, model.length) < force:
+            low = mid
+        else:
+            high = mid
+    return 0.5 * (low + high)
 
 
 def main() -> int:
     figure = sys.argv[sys.argv.index("--figure") + 1] if "--figure" in sys.argv else None
-    rows_a, rows_b, rows_c = [], [], []
+    rows_a, rows_b, rows_c, rows_d = [], [], [], []
     scenario = load_scenario()
     colon, _ = load_colon(scenario.colon)
     wall = CompliantWall()
@@ -231,8 +258,12 @@ def main() -> int:
           "ratio at 4 mm |")
     print("|---|---|---|---|---|---|---|")
     for support in SUPPORT_SWEEP:
-        k = foundation_modulus(CompliantWall(support_stiffness=support), radius)
-        secants = [head_force(k, d, HEAD_RADIUS) / (d * 1000) for d in (0.002, 0.004, 0.006)]
+        swept = CompliantWall(support_stiffness=support)
+        k = foundation_modulus(swept, radius)
+        stiff = dict(knee=knee_depth(swept, radius),
+                     k_stiff=foundation_modulus(swept, radius, stiffened=True))
+        secants = [head_force(k, d, HEAD_RADIUS, **stiff) / (d * 1000)
+                   for d in (0.002, 0.004, 0.006)]
         nominal = " (nominal)" if support == wall.support_stiffness else ""
         measured = JOHNSON_N_PER_MM["small head, straight"]
         rows_c.append((support, secants[1], measured))
@@ -241,6 +272,43 @@ def main() -> int:
     print("Johnson's samples' support is not in the abstract: a sample on a rigid plate is held "
           "by its thickness alone (E / h = "
           f"{wall.through_thickness_modulus / wall.thickness:.1e} Pa/m), far stiffer.")
+    print(f"(c') the same at the nominal support across the knee of the wall's stretch "
+          f"(knee_strain, U; the knee {radius * 1000:.1f} mm x strain beyond the mucosa)")
+    print("| knee strain | knee (mm) | F/d at 2 mm | 4 mm | 6 mm (N/mm) | ratio at 4 mm |")
+    print("|---|---|---|---|---|---|")
+    for strain in KNEE_SWEEP:
+        swept = CompliantWall(knee_strain=strain or 1.0, stiffening=wall.stiffening
+                              if strain else 1.0)
+        k = foundation_modulus(swept, radius)
+        stiff = dict(knee=knee_depth(swept, radius),
+                     k_stiff=foundation_modulus(swept, radius, stiffened=True))
+        secants = [head_force(k, d, HEAD_RADIUS, **stiff) / (d * 1000)
+                   for d in (0.002, 0.004, 0.006)]
+        label = ("none (linear)" if not strain
+                 else f"{strain}" + (" (nominal)" if strain == wall.knee_strain else ""))
+        knee = f"{stiff['knee'] * 1000:.1f}" if strain else "-"
+        print(f"| {label} | {knee} | {secants[0]:.3f} | {secants[1]:.3f} | {secants[2]:.3f} | "
+              f"{secants[1] / JOHNSON_N_PER_MM['small head, straight']:.2f} |")
+
+    print(f"\n(d) how deep a capsule sinks into the wall under a steady pull (a magnet's), "
+          f"lying along it, the colon's median lumen radius {radius * 1000:.1f} mm: the "
+          "nominal wall and the population's corners (5th / 95th percentiles), linear and "
+          "across the knee (U)")
+    print("| wall | k (Pa/m) | knee strain | 0.5 N (mm) | 1 N (mm) | 2 N (mm) |")
+    print("|---|---|---|---|---|---|")
+    for name in ("nominal", "soft", "stiff"):
+        base = (wall if name == "nominal"
+                else dataclasses.replace(wall, **patient_tissue(0, name).values))
+        for strain in KNEE_SWEEP:
+            swept = dataclasses.replace(base, knee_strain=strain or 1.0,
+                                        stiffening=base.stiffening if strain else 1.0)
+            depths = [sink_depth(swept, radius, f) * 1000 for f in (0.5, 1.0, 2.0)]
+            rows_d.append((name, strain, depths))
+            print(f"| {name} | {foundation_modulus(swept, radius):.2e} | "
+                  f"{strain or 'none (linear)'} | {depths[0]:.1f} | {depths[1]:.1f} | "
+                  f"{depths[2]:.1f} |")
+    print("The run guard allows the capsule's radius beyond the undeformed wall for its give "
+          "(compliant.py wall_allowance), plus its 5 mm margin.")
     if figure:
         plot(figure, rows_a, rows_b, rows_c)
         print(f"figure: {figure}")

@@ -15,7 +15,9 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.physics.contact.compliant import displaced_volume_force
+from capsule_drake.physics.contact.compliant import (CompliantWall, bilinear_volume_force,
+                                                     displaced_volume_force, foundation_modulus,
+                                                     knee_depth)
 from capsule_drake.physics.contact.foundation import (FoundationContact, StraightTube,
                                                      WallTable, no_forces)
 
@@ -38,10 +40,11 @@ def capsule_state(depth, roll=0.0, radius=2.0):
     return np.r_[q.w(), q.x(), q.y(), q.z(), p, np.zeros(6)]
 
 
-def wall_system(tube, friction=0.09, dissipation=0.0, time_step=2e-3):
+def wall_system(tube, friction=0.09, dissipation=0.0, time_step=2e-3, **stiffening):
     model = capsule_model()
     return FoundationContact(BodyIndex(1), WallTable(tube), RigidTransform(), model.radius,
-                             model.length, K, friction, dissipation, time_step, MASS, AXIAL)
+                             model.length, K, friction, dissipation, time_step, MASS, AXIAL,
+                             **stiffening)
 
 
 @pytest.mark.parametrize("roll", [0.0, math.pi / 40, math.pi / 20])  # on a cell, between
@@ -60,6 +63,51 @@ def test_the_wall_pushes_back_with_its_closed_form(roll):
         # Straight up, through the capsule's axis: no side force, no torque.
         assert np.allclose(wrench[3:5], 0.0, atol=1e-9 + 1e-6 * closed)
         assert np.allclose(wrench[:3], 0.0, atol=1e-9 + 1e-6 * closed)
+
+
+@pytest.mark.parametrize("knee", [0.0005, 0.002])
+def test_past_its_knee_the_wall_pushes_back_with_the_bilinear_closed_form(knee):
+    # The stiffened wall (compliant.py knee_strain, stiffening): k d up to the knee, then
+    # 7.71 k more per metre; the closed form k V(d) + (k2 - k) V(d - knee) within 5 %, and
+    # below the knee the linear wall's force exactly.
+    model = capsule_model()
+    k_stiff = 7.71 * K
+    system = wall_system(FlatTube(), knee_depth=knee, stiffened_modulus=k_stiff)
+    linear = wall_system(FlatTube())
+    context, plain = system.CreateDefaultContext(), linear.CreateDefaultContext()
+    for s, c in ((system, context), (linear, plain)):
+        s.GetInputPort("other_forces").FixValue(c, [])
+    for depth in (0.0003, 0.001, 0.002, 0.003, 0.004, model.radius, 1.5 * model.radius):
+        state = capsule_state(depth)
+        system.GetInputPort("capsule_state").FixValue(context, state)
+        linear.GetInputPort("capsule_state").FixValue(plain, state)
+        force = system.wall_wrench(context)[5]
+        closed = bilinear_volume_force(K, k_stiff, knee, depth, model.radius, model.length)
+        assert force == pytest.approx(closed, rel=0.05), (depth, force, closed)
+        if depth <= knee:
+            assert force == pytest.approx(linear.wall_wrench(plain)[5], rel=1e-12)
+        else:
+            assert force > 1.2 * linear.wall_wrench(plain)[5]
+
+
+def test_the_stiffened_modulus_and_knee_follow_from_the_wall():
+    wall = CompliantWall()
+    R = 0.02
+    hoop = wall.circumferential_modulus * wall.thickness / R**2
+    through = wall.through_thickness_modulus / wall.thickness
+    for stiffened, factor in ((False, 1.0), (True, wall.stiffening)):
+        outward = factor * hoop + wall.support_stiffness
+        assert foundation_modulus(wall, R, stiffened) == pytest.approx(
+            outward * through / (outward + through))
+    assert knee_depth(wall, R) == pytest.approx(wall.knee_strain * R)
+    assert knee_depth(CompliantWall(stiffening=1.0), R) == math.inf
+    # The bilinear closed form is the linear one below the knee, and beyond it the linear
+    # one plus the extra stiffness times the volume past the knee's surface.
+    r, L = capsule_model().radius, capsule_model().length
+    assert bilinear_volume_force(K, 5 * K, 0.002, 0.0015, r, L) == pytest.approx(
+        displaced_volume_force(K, 0.0015, r, L))
+    assert bilinear_volume_force(K, 5 * K, 0.002, 0.003, r, L) == pytest.approx(
+        displaced_volume_force(K, 0.003, r, L) + displaced_volume_force(4 * K, 0.001, r, L))
 
 
 def test_the_closed_form_is_the_displaced_volume():

@@ -592,7 +592,7 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
         builder.Connect(station.GetOutputPort("contact.wall"), monitor.GetInputPort("wall_contact"))
     guard = builder.AddNamedSystem("run_guard", RunGuard(
         colon, model.radius, model.length, scenario.guard,
-        wall_allowance=scenario.contact.wall_allowance(model.radius)))
+        wall_allowance=scenario.contact.wall_allowance(model.radius, colon)))
     builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     return station, colon, monitor
 

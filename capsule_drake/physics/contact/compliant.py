@@ -31,9 +31,21 @@ h / E_through) (Pa/m) to the capsule (`foundation_modulus`). Two realisations
   The two agree at small indentations and part by 10 % at 2 mm; the hydroelastic one costs
   three to four times as much a step (the soft wall's patch is hundreds of contact polygons).
 
-The camera's walls, the lumen truth and coverage are unchanged by either. The layer (or the
-foundation's reach) is r deep: past 5.8 mm of indentation the wall has given way, which the
-run guard takes as going through it (`wall_allowance`).
+The wall stiffens as it stretches (foundation realisation): intestine's stress-strain curve
+is bilinear, its circumferential modulus 7.7 times higher past a knee (Terry 2014, pig small
+intestine, biaxial). Past the depth knee_strain x R beyond the mucosa (hoop strain
+knee_strain) the foundation's modulus is the one with the circumferential modulus
+`stiffening` times higher, so the pressure is k d, then k knee + k2 (d - knee); its closed
+form `bilinear_volume_force` (tests/test_foundation.py). Where the knee lies no source read
+here says (U, swept in benchmarks/bench_tissue.py): at 0.25 it leaves the nominal wall's
+runs as they were (their 99th percentile of the capsule's depth, 2.8 mm, is a hoop strain
+near 0.14-0.19) and holds a soft wall's capsule under a magnet's newton at 8 mm instead of
+14 (bench_tissue (d)).
+
+The camera's walls, the lumen truth and coverage are unchanged by either. The hydroelastic
+layer is r deep; the foundation pushes deeper too (the cells that face the wall). A capsule
+farther out than the wall stretches round before it tears (FAILURE_STRAIN times the lumen's
+radius) has gone through it: the run guard's `wall_allowance`.
 
 What it leaves out, and says so: one modulus for the whole colon (R is the colon's median
 lumen radius; the hoop term differs by segment as 1 / R^2); under a local load the wall also
@@ -58,6 +70,11 @@ from capsule_drake.physics.contact.common import (add_capsule_drag, add_rigid_hy
 from capsule_drake.schema import need_range
 
 
+FAILURE_STRAIN = 0.6281
+"""The colon wall's elongation at failure: 62.81 %, human, uniaxial (Christensen et al. 2015,
+docs/sources.md section 3.5). How far the wall can be pushed out (the run guard's allowance)."""
+
+
 @dataclasses.dataclass
 class CompliantWall:
     """The colon wall yields: a wall of measured thickness and moduli on an elastic support
@@ -80,6 +97,15 @@ class CompliantWall:
     support_stiffness: float = 3.0e5
     # Radius of the lumen in the hoop term (m); 0: the colon's median lumen radius.
     lumen_radius: float = 0.0
+    # The wall stiffens as it stretches: past a hoop strain of `knee_strain` (the capsule
+    # knee_strain x R beyond the mucosa) its circumferential modulus is `stiffening` times
+    # the one above. 7.71 is the ratio of the high to the low region of the bilinear fit
+    # around the bowel, 1388.89 / 180.07 kPa (Terry et al., IJECB 2(4), 2014; pig small
+    # intestine, biaxial after preconditioning): a surrogate (S). Where the knee lies no
+    # source read here gives (U): 0.25, swept 0.1-0.4 (benchmarks/bench_tissue.py). 1: no
+    # stiffening. The foundation realisation only (Drake's hydroelastic field is linear).
+    knee_strain: float = 0.25
+    stiffening: float = 7.71
     # Coulomb friction between capsule and mucosa (dynamic = static): 0.09, a colonoscope
     # shaft on human colonic mucosa at the best lubricant (Watanabe et al., Commun Eng 2024;
     # the lowest reached). On small-bowel mucosa 0.0004-0.054 (Lyle et al. 2013).
@@ -122,11 +148,15 @@ class CompliantWall:
         a step carries the capsule into the wall is physics/step_bound.py's own bound."""
         return math.inf, ""
 
-    def wall_allowance(self, capsule_radius: float) -> float:
-        """How far (m) the capsule may be inside the wall's undeformed surface because the
-        wall gave: its layer's depth, the capsule's radius. The run guard adds it to its
-        `max_wall_excursion`."""
-        return capsule_radius
+    def wall_allowance(self, capsule_radius: float, colon=None) -> float:
+        """How far (m) the capsule may be beyond the wall's undeformed surface because the
+        wall gave: as far as the wall stretches round before it tears, FAILURE_STRAIN times
+        the lumen's radius (a wall pushed out by w stretches by w / R), and at least the
+        capsule's radius (the hydroelastic layer's depth). The run guard adds it to its
+        `max_wall_excursion`; a capsule farther out has gone through the wall."""
+        radius = self.lumen_radius or (median_lumen_radius(colon) if colon is not None
+                                       else capsule_radius)
+        return max(capsule_radius, FAILURE_STRAIN * radius)
 
 
 def hoop_modulus(config: CompliantWall, radius: float) -> float:
@@ -134,12 +164,34 @@ def hoop_modulus(config: CompliantWall, radius: float) -> float:
     return config.circumferential_modulus * config.thickness / radius**2
 
 
-def foundation_modulus(config: CompliantWall, radius: float) -> float:
+def foundation_modulus(config: CompliantWall, radius: float, stiffened: bool = False) -> float:
     """The Winkler modulus the wall presents to the capsule (Pa/m): the hoop stretch and the
-    support in parallel, in series with the wall's thickness compressed."""
-    outward = hoop_modulus(config, radius) + config.support_stiffness
+    support in parallel, in series with the wall's thickness compressed. `stiffened`: past
+    the knee of the wall's stretch (its circumferential modulus `stiffening` times higher)."""
+    hoop = hoop_modulus(config, radius) * (config.stiffening if stiffened else 1.0)
+    outward = hoop + config.support_stiffness
     through = config.through_thickness_modulus / config.thickness
     return 1.0 / (1.0 / outward + 1.0 / through)
+
+
+def knee_depth(config: CompliantWall, radius: float) -> float:
+    """How far beyond the mucosa (m) the wall stiffens: its knee strain times the lumen's
+    radius (a uniform expansion by w stretches the wall round by w / R)."""
+    return config.knee_strain * radius if config.stiffening != 1.0 else math.inf
+
+
+def bilinear_volume_force(k: float, k_stiff: float, knee: float, depth, radius: float,
+                          length: float):
+    """The force (N) of a wall whose pressure is k d up to `knee` beyond the mucosa and
+    k_stiff beyond it, on a capsule `depth` into it, flat: k times the capsule's volume
+    beyond the mucosa plus (k_stiff - k) times its volume beyond the knee's surface (a
+    surface `knee` deeper), each `displaced_volume_force`'s. The foundation realisation's
+    closed form."""
+    depth = np.asarray(depth, dtype=float)
+    beyond = displaced_volume_force(1.0, depth, radius, length)
+    past = (displaced_volume_force(1.0, np.maximum(depth - knee, 0.0), radius, length)
+            if math.isfinite(knee) else 0.0)
+    return k * beyond + (k_stiff - k) * past
 
 
 def capsule_modulus(k: float, capsule_radius: float) -> float:
@@ -176,13 +228,22 @@ def displaced_volume_force(k: float, depth, radius: float, length: float):
     with c = r - depth and a = sqrt(r^2 - c^2). The foundation realisation's closed form
     (foundation.py); `indentation_force` is the hydroelastic one's, whose pressure follows
     the depth along the capsule's normal instead: the two agree at small indentations and
-    part by 10 % at 2 mm."""
-    depth = np.clip(np.asarray(depth, dtype=float), 0.0, radius)
+    part by 10 % at 2 mm. Deeper than the radius, the cells that face the wall push: the
+    half capsule's volume plus the depth past the axis times its shadow, 2 r L + pi r^2."""
+    whole = np.maximum(np.asarray(depth, dtype=float), 0.0)
+    depth = np.minimum(whole, radius)
     c = radius - depth
     a = np.sqrt(np.maximum(radius**2 - c**2, 0.0))
     cylinder = length * (radius**2 * np.arccos(np.clip(c / radius, -1.0, 1.0)) - c * a)
     caps = math.pi * depth**2 * (3.0 * radius - depth) / 3.0
-    return k * (cylinder + caps)
+    shadow = (whole - depth) * (2.0 * radius * length + math.pi * radius**2)
+    return k * (cylinder + caps + shadow)
+
+
+def wall_lumen_radius(config: CompliantWall, colon) -> float:
+    """The lumen radius (m) of the hoop term and the knee: the config's, or the colon's
+    median."""
+    return config.lumen_radius or median_lumen_radius(colon)
 
 
 def median_lumen_radius(colon) -> float:
@@ -217,6 +278,10 @@ def check_compliant_wall(config: CompliantWall, scenario=None) -> None:
                "measured on mucosa: 0.55 (peel) to 1.98 (tack)")
     need_range(config.hunt_crossley_dissipation, "contact.hunt_crossley_dissipation", ">= 0",
                "s/m")
+    need_range(config.knee_strain, "contact.knee_strain", "[0.01, 2]", "",
+               "the hoop strain past which the wall stiffens; the colon tears near 1.8")
+    need_range(config.stiffening, "contact.stiffening", "[1, 50]", "",
+               "1: none; measured 7.7 around the bowel")
     need_range(config.drag_translational, "contact.drag_translational", ">= 0", "N s/m")
     need_range(config.drag_rotational, "contact.drag_rotational", ">= 0", "N m s/rad")
     if config.realisation not in REALISATIONS:
@@ -243,7 +308,7 @@ def add_compliant_contact(plant, scene_graph, colon_params, colon, config: Compl
         add_rigid_hydroelastic_wall(plant, colon_params, colon, properties)
     else:
         add_rigid_hydroelastic_wall(plant, colon_params, colon, properties, chunks=False)
-    k = foundation_modulus(config, config.lumen_radius or median_lumen_radius(colon))
+    k = foundation_modulus(config, wall_lumen_radius(config, colon))
     set_capsule_field_mesh(plant, scene_graph, properties,
                            capsule_field_mesh(capsule_radius, capsule_length),
                            capsule_modulus(k, capsule_radius))
@@ -278,6 +343,7 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
     X_BG = inspector.GetPoseInFrame(shell[0])
     axial = body.default_rotational_inertia().get_moments()[2]
     table = WallTable(parts.colon)
+    radius = wall_lumen_radius(config, parts.colon)
     system = builder.AddNamedSystem("wall_contact", FoundationContact(
         body.index(), table, X_BG, parts.capsule.radius,
         parts.capsule.length, parts.shared("contact.foundation_modulus"), config.friction,
@@ -285,7 +351,8 @@ def add_foundation(builder, parts, config: CompliantWall) -> None:
         body.default_spatial_inertia().CopyToFullMatrix6(),
         body.default_spatial_inertia().get_com(),
         plant.gravity_field().gravity_vector(), table.nearest(parts.X_WB0.translation()),
-        config.adhesion_energy))
+        config.adhesion_energy, knee_depth=knee_depth(config, radius),
+        stiffened_modulus=foundation_modulus(config, radius, stiffened=True)))
     builder.Connect(parts.output("capsule.state"), system.GetInputPort("capsule_state"))
     # The other applied forces pass through it (its force is implicit in the wall's own
     # response, exact at rest only with the others known): the applied_forces block.

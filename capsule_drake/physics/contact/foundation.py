@@ -308,7 +308,8 @@ class FoundationContact(LeafSystem):
                  time_step: float, mass: float, axial_inertia: float,
                  spatial_inertia=None, p_BoBcm=(0.0, 0.0, 0.0),
                  gravity_W=(0.0, 0.0, -9.81), start_station: int = 0,
-                 adhesion_energy: float = 0.0):
+                 adhesion_energy: float = 0.0, knee_depth: float = math.inf,
+                 stiffened_modulus: float | None = None):
         super().__init__()
         self._index = body_index
         self._table = table
@@ -320,6 +321,11 @@ class FoundationContact(LeafSystem):
         self._count = len(areas)
         self._reach = float(np.linalg.norm(self._p_B, axis=1).max())
         self._k = foundation_modulus
+        # Past `knee_depth` (m) beyond the mucosa the wall presses with `stiffened_modulus`
+        # (Pa/m) more per metre: its stretch past the knee of its stress-strain curve.
+        self._knee = float(knee_depth)
+        self._k_stiff = float(foundation_modulus if stiffened_modulus is None
+                              else stiffened_modulus)
         self._mu = friction
         self._dissipation = dissipation
         self._dt = time_step
@@ -397,7 +403,8 @@ class FoundationContact(LeafSystem):
         (pressed, r, nu, area, pressure, normal_gain, beta, share, slip, limit, floor,
          system) = kernels.contact_cells(
             points, offsets, self._n_B, R, near, self._no_stuck if stuck is None else stuck,
-            release, x[10:13], x[7:10], self._areas, self._k, self._dissipation, self._dt,
+            release, x[10:13], x[7:10], self._areas, self._k, self._knee, self._k_stiff,
+            self._dissipation, self._dt,
             self._mu, self._tangential_damping + self._dt * self._tangential_stiffness,
             station, REFINEMENTS, table._steps, table.frames, table.flat, table.step,
             table.dtheta, table.around, self._inertia_B)

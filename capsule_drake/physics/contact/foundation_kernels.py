@@ -142,13 +142,15 @@ def response_gain(r, nu, normal_gain, beta):
 
 @njit(cache=True)
 def contact_cells(points, offsets, normals_B, R, near, stuck, release, v_W, w_W, areas,
-                  k, dissipation, dt, mu, tangential_per_share, station, refinements, steps,
-                  frames, flat, step, dtheta, around, inertia_B):
+                  k, knee, k_stiff, dissipation, dt, mu, tangential_per_share, station,
+                  refinements, steps, frames, flat, step, dtheta, around, inertia_B):
     """The cells in contact among `near` and what the step needs of each (FoundationContact
     ._geometry): (pressed (M,), r, nu (M, 3), area, pressure, normal_gain, bristle_gain,
     share, slip (M, 3), limit, floor (M,), system (6, 6): M + dt gain, M the capsule's
     spatial inertia `inertia_B` (about its body origin, [w; v], body frame) turned into
-    world, gain the cells' response mapped onto its spatial velocity [w; v])."""
+    world, gain the cells' response mapped onto its spatial velocity [w; v]). The wall's
+    elastic pressure is bilinear in the depth d: k d up to `knee` (m), then k_stiff beyond
+    it (knee = inf: linear)."""
     count = near.shape[0]
     pts = np.empty((count, 3))
     for n in range(count):
@@ -205,8 +207,12 @@ def contact_cells(points, offsets, normals_B, R, near, stuck, release, v_W, w_W,
             pressure[q] = k * d
             normal_gain[q] = k * dt * area[q]
         else:
-            pressure[q] = k * d * max(rate, 0.0)
-            normal_gain[q] = k * area[q] * (d * dissipation + dt * rate) if rate > 0.0 else 0.0
+            elastic, stiffness = k * d, k
+            if d > knee:   # past the knee of the wall's stretch: the stiffer modulus
+                elastic, stiffness = k * knee + k_stiff * (d - knee), k_stiff
+            pressure[q] = elastic * max(rate, 0.0)
+            normal_gain[q] = (area[q] * (elastic * dissipation + stiffness * dt * rate)
+                              if rate > 0.0 else 0.0)
         floor[q] = -k * release * area[q]
     share = area / max(total, 1e-300)
     beta = tangential_per_share * share

@@ -79,7 +79,7 @@ class RigidWall:
         Drake's contact being implicit."""
         return math.inf, ""
 
-    def wall_allowance(self, capsule_radius: float) -> float:
+    def wall_allowance(self, capsule_radius: float, colon=None) -> float:
         """The rigid wall gives nothing: the run guard's max_wall_excursion alone."""
         return 0.0
 
