@@ -41,7 +41,7 @@ REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 from bench_realtime import ALLOCATOR, cpu_name  # noqa: E402
 
-from capsule_drake.app.outputs import LogSpool
+from capsule_drake.app.log_spool import LogSpool
 from capsule_drake.app.run import Run, simulator_for
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.scenario import load_scenario

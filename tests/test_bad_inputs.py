@@ -29,7 +29,7 @@ from capsule_drake.anatomy.imported import import_colon_mesh, write_import
 from capsule_drake.app.cli import main as cli_main
 from capsule_drake.app import outputs
 from capsule_drake.app.mcap_file import Ros2McapFile
-from capsule_drake.app.outputs import load_logs
+from capsule_drake.app.log_spool import load_logs
 from tube_set import straight_tube
 
 REPO = Path(__file__).resolve().parents[1]

@@ -21,7 +21,7 @@ from capsule_drake.app.channels import CHANNELS, ChannelWriter, channel_of
 from capsule_drake.app.live.dds_types import dds_topic_name, dds_type_name, idl_type, to_idl
 from capsule_drake.app.live.pacing import PaceWatch
 from capsule_drake.app.live.ros2_out import LOOPBACK_CONFIG, goal_command, twist_command
-from capsule_drake.app.outputs import load_logs
+from capsule_drake.app.log_spool import load_logs
 from capsule_drake.app.ros2_messages import DEFINITIONS, header, schema_text, vector3
 from capsule_drake.app.scene_markers import scene_markers
 

@@ -16,9 +16,9 @@ import pytest
 from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.app.cli import main as cli_main
-from capsule_drake.app.outputs import (LogSpool, OutputError, check_room, claim_folder,
-                                      load_logs, new_run_folder, plan_outputs, release_claims,
-                                      write_atomic)
+from capsule_drake.app.outputs import (OutputError, check_room, claim_folder, new_run_folder,
+                                       plan_outputs, release_claims, write_atomic)
+from capsule_drake.app.log_spool import LogSpool, load_logs
 from capsule_drake.app.run import Interrupted, chain_extends, simulate
 from capsule_drake.app.signals import DeferredSignals
 from capsule_drake.scenario import load_scenario

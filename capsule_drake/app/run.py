@@ -28,7 +28,7 @@ from capsule_drake.io.metrics import run_metrics
 from capsule_drake.app.live.outputs import add_channel_outputs
 from capsule_drake.app.live.pacing import PaceWatch
 from capsule_drake.app.signals import DeferredSignals
-from capsule_drake.app.outputs import LOG_KEYS, LogSpool
+from capsule_drake.app.log_spool import LOG_KEYS, LogSpool
 from capsule_drake.physics.contact.tissue import tissue_metrics
 from capsule_drake.physics.contact_monitor import ContactMonitor
 from capsule_drake.physics.wall_pressure import (WALL_PRESSURE_SYSTEM, WallPressure,

@@ -8,8 +8,9 @@ import json
 from pathlib import Path
 
 
-from capsule_drake.app.outputs import (LogSpool, OutputError, check_room, run_output_bytes,
-                                       save_npz, write_atomic)
+from capsule_drake.app.outputs import (OutputError, check_room, run_output_bytes, save_npz,
+                                       write_atomic)
+from capsule_drake.app.log_spool import LogSpool
 from capsule_drake.io.replay import replay_page, run_plots, wall_map_panel
 from capsule_drake.io.wall_map import wall_map_png, write_wall_map
 from capsule_drake.scenario import Scenario, dump_scenario
