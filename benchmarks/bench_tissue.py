@@ -52,7 +52,8 @@ from capsule_drake.anatomy import load_colon
 from capsule_drake.physics.contact.foundation import (FoundationContact, StraightTube,
                                                      WallTable)
 from capsule_drake.capsule.model import capsule_model
-from capsule_drake.physics.contact.compliant import (CompliantWall, bilinear_volume_force,
+from capsule_drake.physics.contact.compliant import (FAILURE_STRAIN, CompliantWall,
+                                                      bilinear_volume_force,
                                                       foundation_modulus, knee_depth,
                                                       median_lumen_radius)
 from capsule_drake.physics.contact.tissue import patient_tissue
@@ -104,8 +105,8 @@ def pulled_resistance(lumen_radius: float, speed: float, time_step: float = 2e-3
                       adhesion: float | None = None, friction: float | None = None) -> float:
     """Mean pull (N) on the capsule sliding steadily along a straight tube (module (a)), with
     the wall's adhesion energy `adhesion` (J/m^2) and friction (default: the model's)."""
-    k = foundation_modulus(CompliantWall(), lumen_radius)
     nominal = CompliantWall()
+    k = foundation_modulus(nominal, lumen_radius)
     adhesion = nominal.adhesion_energy if adhesion is None else adhesion
     friction = nominal.friction if friction is None else friction
     r, L, m = GUO_RADIUS, GUO_CYLINDER, GUO_MASS
@@ -120,7 +121,8 @@ def pulled_resistance(lumen_radius: float, speed: float, time_step: float = 2e-3
     wall = builder.AddSystem(FoundationContact(
         body.index(), WallTable(StraightTube(lumen_radius)), RigidTransform(), r, L, k, friction,
         5.0, time_step, m, axial, np.diag([transverse, transverse, axial, m, m, m]),
-        gravity_W=g, adhesion_energy=adhesion))
+        gravity_W=g, adhesion_energy=adhesion, knee_depth=knee_depth(nominal, lumen_radius),
+        stiffened_modulus=foundation_modulus(nominal, lumen_radius, stiffened=True)))
     puller = builder.AddSystem(Puller(body.index(), 0.05, speed))
     builder.Connect(plant.get_state_output_port(), wall.GetInputPort("capsule_state"))
     builder.Connect(plant.get_state_output_port(), puller.GetInputPort("state"))
@@ -307,8 +309,9 @@ def main() -> int:
             print(f"| {name} | {foundation_modulus(swept, radius):.2e} | "
                   f"{strain or 'none (linear)'} | {depths[0]:.1f} | {depths[1]:.1f} | "
                   f"{depths[2]:.1f} |")
-    print("The run guard allows the capsule's radius beyond the undeformed wall for its give "
-          "(compliant.py wall_allowance), plus its 5 mm margin.")
+    print("The run guard allows the wall's failure strain (62.81 %) times the lumen radius "
+          f"beyond the undeformed wall for its give ({FAILURE_STRAIN * radius * 1000:.1f} mm "
+          "here; compliant.py wall_allowance), plus its 5 mm margin.")
     if figure:
         plot(figure, rows_a, rows_b, rows_c)
         print(f"figure: {figure}")
