@@ -92,8 +92,7 @@ from gymnasium import spaces
 from capsule_drake.epm.guard import floor_guard
 from capsule_drake.epm.paths import epm_start
 from capsule_drake.epm.poses import stage_to_pose
-from capsule_drake.app.run import Run
-from capsule_drake.physics.contact_monitor import ContactMonitor
+from capsule_drake.app.run import Run, add_contact_monitor
 from capsule_drake.app.benchmark import CECUM_MARGIN, CONTACT_THRESHOLD
 from capsule_drake.perception import Lens
 from capsule_drake.scenario import load_scenario
@@ -289,13 +288,7 @@ class ColonNavigationEnv(gymnasium.Env):
 
         def add_contact_stats(builder, station):
             # The environment's own monitor: the run's is not evaluated without its loggers.
-            wall = station.HasOutputPort("contact.wall")
-            monitor = builder.AddNamedSystem("gym.contact_monitor", ContactMonitor(wall=wall))
-            builder.Connect(station.GetOutputPort("contact_results"),
-                            monitor.GetInputPort("contact_results"))
-            if wall:
-                builder.Connect(station.GetOutputPort("contact.wall"),
-                                monitor.GetInputPort("wall_contact"))
+            monitor = add_contact_monitor(builder, station, "gym.contact_monitor")
             stats = builder.AddNamedSystem(CONTACT_STATS, ContactStats(CONTACT_SAMPLE_PERIOD,
                                                                        CONTACT_THRESHOLD))
             builder.Connect(monitor.GetOutputPort("contact_load"), stats.get_input_port())

@@ -584,17 +584,25 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     except ValueError as e:
         close_render_worker(station)
         raise ScenarioError(f"scenario: {e}") from None
-    wall = station.HasOutputPort("contact.wall")
-    monitor = builder.AddNamedSystem(CONTACT_MONITOR, ContactMonitor(wall=wall))
-    builder.Connect(station.GetOutputPort("contact_results"),
-                    monitor.GetInputPort("contact_results"))
-    if wall:
-        builder.Connect(station.GetOutputPort("contact.wall"), monitor.GetInputPort("wall_contact"))
+    monitor = add_contact_monitor(builder, station)
     guard = builder.AddNamedSystem("run_guard", RunGuard(
         colon, model.radius, model.length, scenario.guard,
         wall_allowance=scenario.contact.wall_allowance(model.radius, colon)))
     builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     return station, colon, monitor
+
+
+def add_contact_monitor(builder: DiagramBuilder, station, name: str = CONTACT_MONITOR):
+    """Adds a ContactMonitor (the capsule's contact load and peak pressure) named `name`
+    beside `station`, reading its contact results and, on the compliant wall's foundation
+    route, its own contact (`contact.wall`)."""
+    wall = station.HasOutputPort("contact.wall")
+    monitor = builder.AddNamedSystem(name, ContactMonitor(wall=wall))
+    builder.Connect(station.GetOutputPort("contact_results"),
+                    monitor.GetInputPort("contact_results"))
+    if wall:
+        builder.Connect(station.GetOutputPort("contact.wall"), monitor.GetInputPort("wall_contact"))
+    return monitor
 
 
 def add_wall_pressure(builder: DiagramBuilder, station, colon,
