@@ -551,6 +551,22 @@ def test_no_recording_with_a_live_page_writes_no_recording(tmp_path):
                                                      "wall_pressure.png"]
 
 
+@pytest.mark.slow
+def test_a_foxglove_port_in_use_is_one_line_and_nothing_runs(tmp_path, capsys):
+    import socket
+    with socket.socket() as held:   # another server on the port
+        held.bind(("127.0.0.1", 0))
+        held.listen(1)
+        port = held.getsockname()[1]
+        code = cli_main(["run", "--duration", "0.1", "--foxglove", str(port), "--no-recording",
+                         "--quiet", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert code == 2 and len(errors) == 1 and "Traceback" not in err, err
+    assert f"127.0.0.1:{port}" in errors[0] and "in use" in errors[0], errors[0]
+    assert not (tmp_path / "run" / "metrics.json").exists()
+
+
 def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
     # --force does something without --out when there is an --mcap to replace.
     monkeypatch.chdir(tmp_path)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 import time
 
+from capsule_drake.app.outputs import OutputError
 from capsule_drake.app.ros2_messages import schema_text
 
 
@@ -56,9 +57,14 @@ class FoxgloveLive:
         self._subscribed = threading.Event()
         self._wait = float(wait_for_client)
         self.host = host
-        self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
-                                            context=self._context,
-                                            server_listener=_listener(self))
+        try:
+            self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
+                                                context=self._context,
+                                                server_listener=_listener(self))
+        except Exception as e:   # a port in use, an address not this machine's
+            reason = str(e).split(": ", 1)[-1]
+            raise OutputError(f"--foxglove: cannot listen on {host}:{port} ({reason}); give "
+                              "another port, or 0 for any free one") from None
         self.port = self.server.port
         self.messages = 0
 
