@@ -32,8 +32,8 @@ Besides its ports, a built station carries the build-time values its blocks shar
     scene.plant                  the MultibodyPlant (bodies, frames, time step)
     capsule.camera.lens|config|tick|latency|render_worker   with a camera
     capsule.lumen.truth_at|far_at                            the lumen truth's functions
-    teleop.device.address        a network device's (host, port)
-    meshcat.flush_trail|replay_frames                        with Meshcat
+    teleop.device.address        a network device's address(): (host, port) it listens on
+    meshcat.flush_trail|replay_frames    with Meshcat: flush_trail(t), replay_frames()
 The application never looks a system up by its name (tests/test_blocks.py).
 """
 
