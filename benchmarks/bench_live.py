@@ -65,7 +65,6 @@ print(count)
 """
 
 
-RUN_TEXT: list = []   # the --scenario-text, layered on every run
 WARM = 1.0   # s of simulated time not counted: the build, the scene and the first messages
 
 
@@ -148,31 +147,31 @@ def _foxglove_client(port: int, seconds: float):
     return thread, holder
 
 
-def run(name, output: str, seconds: float, timings=None):
-    """One run with `output` ("none", "mcap", "foxglove", "ros2"); returns (metrics, CPU s
-    of the simulation process from the diagram's build to the end, stderr text)."""
+def run(name, output: str, seconds: float, timings=None, text: str | None = None):
+    """One run with `output` ("none", "mcap", "foxglove", "ros2") on `text` (YAML on
+    the named scenario, or None); returns (metrics, CPU s
+    of the simulation process per simulated second after its first WARM, stderr text)."""
     cpu = {}
     folder = Path(tempfile.mkdtemp(prefix="bench_live_"))
     client = reader = None
     if output == "mcap":
-        text = f"{{outputs: {{mcap: {{path: {folder / 'run.mcap'}}}}}}}"
+        extra = f"{{outputs: {{mcap: {{path: {folder / 'run.mcap'}}}}}}}"
     elif output == "foxglove":
         port = _free_port()
-        text = f"{{outputs: {{foxglove: {{port: {port}, wait_for_client: 60}}}}}}"
+        extra = f"{{outputs: {{foxglove: {{port: {port}, wait_for_client: 60}}}}}}"
         client = _foxglove_client(port, 4 * seconds + 120)
     elif output == "ros2":
         domain = 60 + os.getpid() % 100
-        text = f"{{outputs: {{ros2: {{domain_id: {domain}}}}}}}"
+        extra = f"{{outputs: {{ros2: {{domain_id: {domain}}}}}}}"
         reader = subprocess.Popen([sys.executable, "-c", DDS_READER, str(domain),
                                    str(4 * seconds + 60)], stdout=subprocess.PIPE, text=True,
                                   env=dict(os.environ, PYTHONPATH=str(ROOT)))
         time.sleep(2.0)   # the reader's participant up before the run's writers
     else:
-        text = None
+        extra = None
     # A live output paces the run to real time (app/run.py `paced`): the CPU time a run
     # takes does not count the waits.
-    scenario = load_scenario(name=name, override=[f"{{duration: {seconds}}}", *RUN_TEXT,
-                                                  text])
+    scenario = load_scenario(name=name, override=[f"{{duration: {seconds}}}", text, extra])
 
     def extend(builder, station):
         builder.AddSystem(_Mark(cpu, WARM))
@@ -213,16 +212,17 @@ def main():
         subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--silent"], cwd=CLIENT,
                        check=True, timeout=600)
     name = args.scenario
-    RUN_TEXT.append(args.scenario_text or None)
+    text = args.scenario_text or None   # layered on every run
     steps_per_s = 1.0 / load_scenario(name=name).plant.time_step
-    run(name, "none", WARM + 0.5)   # warm-up: colon, settling and renderers cached
+    run(name, "none", WARM + 0.5, text=text)   # warm-up: colon, settling and renderers cached
     outputs = ("none", "mcap", "foxglove", "ros2")
     cpu = {o: [] for o in outputs}
     timings: dict = {}
     for k in range(args.repeats):
         for output in outputs:
             metrics, per_second, err = run(name, output, args.seconds,
-                                           timings if k == 0 and output != "none" else None)
+                                           timings if k == 0 and output != "none" else None,
+                                           text=text)
             cpu[output].append(per_second)
             if "warning" in err:
                 print(f"  ({output}: {err.strip().splitlines()[-1]})")
@@ -247,7 +247,7 @@ def main():
         paced = "{simulator: {target_realtime_rate: 1.0}}"
         port = _free_port()
         scenario = load_scenario(name=name, override=[
-            f"{{duration: {args.paced_seconds}}}", *RUN_TEXT, paced,
+            f"{{duration: {args.paced_seconds}}}", text, paced,
             f"{{outputs: {{foxglove: {{port: {port}, wait_for_client: 60}}}}}}"])
         client = _foxglove_client(port, args.paced_seconds + 180)
         err = io.StringIO()

@@ -14,6 +14,8 @@ writes and what they use. tests/test_mcap.py checks them field by field against 
 independent copy (the `rosbags` package's Humble type store).
 """
 
+import functools
+
 # One entry per type: its .msg field list (constants included, comments left out).
 DEFINITIONS = {
     "builtin_interfaces/msg/Time": """
@@ -234,10 +236,12 @@ def field_lines(type_name: str) -> list[str]:
             if line.strip()]
 
 
-def fields(type_name: str) -> list[tuple[str, str]]:
-    """(field type text, field name) of a type's fields, in order, constants left out."""
-    return [(line.split()[0], line.split()[1]) for line in field_lines(type_name)
-            if "=" not in line.split()[1]]
+@functools.cache
+def fields(type_name: str) -> tuple[tuple[str, str], ...]:
+    """(field type text, field name) of a type's fields, in order, constants left out
+    (parsed once per type: the DDS output converts every message by them)."""
+    return tuple((line.split()[0], line.split()[1]) for line in field_lines(type_name)
+                 if "=" not in line.split()[1])
 
 
 def dependency(type_name: str, field_type: str) -> str | None:
