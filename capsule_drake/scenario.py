@@ -221,6 +221,9 @@ class FoxgloveOutput:
     port: int = 8765
     # Seconds the run waits, at its first message, for a viewer to subscribe (0: none).
     wait_for_client: float = 0.0
+    # Messages queued per client before the oldest is dropped (foxglove-sdk's default): a
+    # viewer slower than the stream loses messages, never the run; raise it for a slow one.
+    backlog: int = 1024
 
 
 @dataclass
@@ -504,6 +507,8 @@ def _check_outputs(outputs: OutputsConfig, scenario: Scenario, bound) -> None:
     if outputs.foxglove is not None:
         bound(outputs.foxglove.wait_for_client, "outputs.foxglove.wait_for_client",
               "[0, 3600]", "s")
+        bound(outputs.foxglove.backlog, "outputs.foxglove.backlog", "[16, 1000000]", "",
+              "messages queued per client")
     if outputs.ros2 is not None:
         bound(outputs.ros2.domain_id, "outputs.ros2.domain_id", "[0, 232]", "",
               "DDS maps domains 0-232 to UDP ports")

@@ -19,7 +19,7 @@ from capsule_drake.app.ros2_messages import schema_text
 RESEND_AFTER = (0.1, 1.0, 3.0)
 """Seconds after a subscription at which a latched channel is sent again: the server calls
 its listener before it adds the subscription, and a client too slow for the stream has its
-oldest queued messages dropped (foxglove-sdk's backlog, 1024 messages), so once is not
+oldest queued messages dropped (foxglove-sdk's backlog, `backlog` messages), so once is not
 enough on a loaded machine."""
 
 
@@ -43,11 +43,14 @@ class FoxgloveLive:
         port: the port (0: any free one; `port` then says which).
         wait_for_client: seconds the first message waits for a client to subscribe (0: it
             does not wait), so that a viewer started with the run sees it from the start.
+        backlog: messages queued per client; when a client falls further behind, its oldest
+            queued message is dropped (the run never waits for a viewer).
     """
 
     fatal = False
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8765, wait_for_client: float = 0.0):
+    def __init__(self, host: str = "127.0.0.1", port: int = 8765, wait_for_client: float = 0.0,
+                 backlog: int = 1024):
         import foxglove
         self._foxglove = foxglove
         self._context = foxglove.Context()
@@ -60,7 +63,8 @@ class FoxgloveLive:
         try:
             self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
                                                 context=self._context,
-                                                server_listener=_listener(self))
+                                                server_listener=_listener(self),
+                                                message_backlog_size=int(backlog))
         except Exception as e:   # a port in use, an address not this machine's
             reason = str(e).split(": ", 1)[-1]
             raise OutputError(f"--foxglove: cannot listen on {host}:{port} ({reason}); give "

@@ -83,7 +83,8 @@ def channel_sinks(outputs):
         sinks.append(Ros2McapFile(outputs.mcap.path, outputs.mcap.compression))
     if outputs.foxglove is not None:
         config = outputs.foxglove
-        sinks.append(FoxgloveLive(config.host, config.port, config.wait_for_client))
+        sinks.append(FoxgloveLive(config.host, config.port, config.wait_for_client,
+                                   config.backlog))
     if outputs.ros2 is not None:
         sinks.append(Ros2Topics(outputs.ros2.domain_id, outputs.ros2.loopback))
     return sinks
