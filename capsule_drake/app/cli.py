@@ -12,8 +12,8 @@ import traceback
 
 from capsule_drake.anatomy.cache import CacheError, cache_base
 from capsule_drake.app.cli_parser import _parser
-from capsule_drake.app.commands import (benchmark, eval_lumen, import_colon, notebooks, record,
-                                        run, teleop)
+from capsule_drake.app.commands import (benchmark, docs, eval_lumen, import_colon, notebooks,
+                                        record, run, teleop)
 
 from capsule_drake.app.commands.common import (COLON_VERBS, _check_flag_combinations,
                                                _created_folders, _remove_unused_folders)
@@ -26,7 +26,8 @@ from capsule_drake.scenario import ScenarioError
 # Each verb's command (app/commands/): it returns the exit status.
 VERBS = {"run": run._run, "record": record._record, "eval-lumen": eval_lumen._eval_lumen,
          "teleop": teleop._teleop, "benchmark": benchmark._benchmark,
-         "import-colon": import_colon._import_colon, "notebooks": notebooks._notebooks}
+         "import-colon": import_colon._import_colon, "notebooks": notebooks._notebooks,
+         "docs": docs._docs}
 
 
 def _raise_interrupted(signal_number, frame):

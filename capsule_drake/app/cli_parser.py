@@ -180,6 +180,22 @@ def _parser() -> argparse.ArgumentParser:
     nb.add_argument("--no-browser", action="store_true",
                     help="do not open a browser (the address to open is printed)")
 
+    doc = verbs.add_parser(
+        "docs", help="the documentation site: serve it here, or build it (--build)",
+        description="Serve the documentation site (docs/, mkdocs.yml) on this machine with "
+                    "live reload, or with --build write it as a static site. Strict either "
+                    "way: a broken link, anchor or reference is an error. The reference pages "
+                    "and the diagram's picture are made from the code as it builds. Needs the "
+                    "docs extra: ./capsule-sim docs installs it into .venv the first time; "
+                    "elsewhere pip install -e '.[docs]'.")
+    doc.add_argument("--build", action="store_true",
+                     help="write the static site (to site/, or --out) and exit")
+    doc.add_argument("--out", type=_path, metavar="DIR",
+                     help="with --build: the folder to write the site to (default site/)")
+    doc.add_argument("--port", type=_port, default=8000,
+                     help="the server's port (default 8000)")
+    _host_argument(doc, "the documentation server")
+
     imp = verbs.add_parser(
         "import-colon", help="a user's colon mesh: check, repair, extract its centreline",
         description="Read a colon mesh (OBJ, STL, PLY, GLB; metres), refuse with one line what "

@@ -1,0 +1,135 @@
+"""The results pages' navigation tables, made from the benchmark's result files.
+
+A results page names the files a table comes from, and the documentation build
+(scripts/docs_hooks.py) puts the table there, so no figure of these tables is typed:
+
+    <!-- results-table: benchmarks/results/compliant_standard_2026-11-29.csv -->
+    <!-- results-stops: benchmarks/results/compliant_standard_2026-11-29.csv -->
+
+`results-table` is the summary per navigator (the cecal intubation rate with its 95 % Wilson
+interval, the mean time to the cecum and speed to it, wall contact, peak force and pressure,
+the wall's per-site figures, coverage); `results-stops` the runs that did not reach the
+cecum and where they stopped; `results-breakdown` the population's groups (sigmoid variant,
+sex, tercile of the colon's length). The files are `runs.csv` or `runs-as-finished.csv` of
+`capsule-sim benchmark` (the latter is appended run by run, so a suite still going can be
+tabled); rows whose run did not finish are left out. `benchmarks/population_tables.py`
+prints the same from the command line.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+
+from capsule_drake.app.benchmark.tables import breakdown, wilson_interval
+
+NUMBERS = ("colon_cm", "time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
+           "peak_contact_force_N", "peak_contact_pressure_kPa", "coverage", "sim_time_s",
+           "site_peak_pressure_kPa", "site_injury_s", "site_ischaemia_s")
+
+MARKER = re.compile(r"^<!-- results-(table|stops|breakdown): (.+?) -->$")
+"""A results page's line naming the result files a table is made from."""
+
+
+def read_rows(paths) -> list[dict]:
+    """The finished runs of benchmark result files, numbers as floats (blank: NaN)."""
+    rows = []
+    for path in paths:
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                if row.get("status") != "finished":
+                    continue
+                for key in NUMBERS:
+                    row[key] = float(row[key]) if row.get(key) not in (None, "") else np.nan
+                row["reached_cecum"] = row["reached_cecum"] == "True"
+                row["seed"] = int(row["seed"])
+                rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict], columns) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(str(row[c]) for c in columns) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _speed(rows) -> str:
+    """Mean speed (mm/s) to the cecum of the runs that reached it: the way along the
+    centreline over the time it took."""
+    values = [10.0 * row["progress_cm"] / row["time_to_cecum_s"] for row in rows
+              if row["reached_cecum"] and row["time_to_cecum_s"] > 0]
+    return f"{np.mean(values):.1f}" if values else "-"
+
+
+def _mean(rows, key, digits=1) -> str:
+    values = np.array([row[key] for row in rows], dtype=float)
+    values = values[np.isfinite(values)]
+    return f"{values.mean():.{digits}f}" if len(values) else "-"
+
+
+def summary(rows: list[dict]) -> list[dict]:
+    """One row per navigator, in the order they first appear."""
+    table = []
+    for navigator in dict.fromkeys(row["navigator"] for row in rows):
+        mine = [row for row in rows if row["navigator"] == navigator]
+        reached = sum(row["reached_cecum"] for row in mine)
+        low, high = wilson_interval(reached, len(mine))
+        table.append({"navigator": navigator, "runs": len(mine),
+                      "cecum": f"{reached}/{len(mine)}", "95 % interval": f"{low:.2f}-{high:.2f}",
+                      "time to cecum (s)": _mean([r for r in mine if r["reached_cecum"]],
+                                                 "time_to_cecum_s"),
+                      "speed (mm/s)": _speed(mine),
+                      "wall contact (s)": _mean(mine, "wall_contact_s"),
+                      "peak force (N)": _mean(mine, "peak_contact_force_N", 3),
+                      "peak pressure (kPa)": _mean(mine, "peak_contact_pressure_kPa"),
+                      "site peak (kPa)": _mean(mine, "site_peak_pressure_kPa"),
+                      "site > 4 kPa (s)": _mean(mine, "site_ischaemia_s"),
+                      "site > 330 kPa (s)": _mean(mine, "site_injury_s"),
+                      "coverage": _mean(mine, "coverage", 2)})
+    return table
+
+
+def stops(rows: list[dict]) -> list[str]:
+    """A line per run that did not reach the cecum: where it stopped."""
+    lines = []
+    for row in rows:
+        if row["reached_cecum"]:
+            continue
+        patient = f", {row['patient']}" if row.get("patient") else ""
+        where = (f"{row['progress_cm']:.0f} cm in, {row['stuck_in']}"
+                 if np.isfinite(row["progress_cm"]) else row["stuck_in"])
+        lines.append(f"- {row['navigator']} seed {row['seed']} ({row['colon_cm']:.0f} cm"
+                     f"{patient}): {where}")
+    return lines
+
+
+def block(kind: str, paths, root: Path = Path(".")) -> str:
+    """The Markdown of a marker: `kind` is table, stops or breakdown."""
+    rows = read_rows([root / p for p in paths])
+    if not rows:
+        raise ValueError(f"no finished runs in {' '.join(map(str, paths))}")
+    if kind == "table":
+        return markdown(summary(rows), list(summary(rows)[0]))
+    if kind == "stops":
+        return "\n".join(stops(rows)) or "(every run reached the cecum)"
+    groups = breakdown([{"row": row} for row in rows])
+    return markdown(groups, list(groups[0])) if groups else "(no population patients)"
+
+
+def expand(text: str, root: Path = Path(".")) -> str:
+    """`text` with the table, list or breakdown made from its files after each marker (a
+    block already there, typed or made before, is replaced)."""
+    lines, out, k = text.splitlines(), [], 0
+    while k < len(lines):
+        match = MARKER.match(lines[k].strip())
+        out.append(lines[k])
+        k += 1
+        if not match:
+            continue
+        while k < len(lines) and lines[k].startswith(("|", "- ")):
+            k += 1
+        out += ["", block(match.group(1), match.group(2).split(), root), ""]
+    return "\n".join(out) + ("\n" if text.endswith("\n") else "")
