@@ -21,7 +21,7 @@ from capsule_drake.app.benchmark.result_tables import block
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
-    runs = parser.parse_args().runs
+    runs = " ".join(str(path) for path in parser.parse_args().runs)
     for kind in ("table", "breakdown", "stops"):
         print(block(kind, runs))
         print()

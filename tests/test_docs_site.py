@@ -110,12 +110,12 @@ def test_every_results_marker_names_files_that_are_there_and_nothing_typed_follo
             if not match:
                 continue
             markers += 1
-            for name in match.group(2).split():
+            for name in result_tables.parse(match.group(2))[0]:
                 assert (ROOT / name).is_file(), f"{page}:{k + 1}: no {name}"
             following = next((x for x in lines[k + 1:] if x.strip()), "")
             assert not following.startswith(("|", "- ")), (
                 f"{page}:{k + 1}: a typed table or list after the marker")
-            assert result_tables.block(match.group(1), match.group(2).split(), ROOT)
+            assert result_tables.block(match.group(1), match.group(2), ROOT)
 
 
 @pytest.mark.slow

@@ -411,11 +411,3 @@ def test_the_listed_selectors_are_exercised_where_they_say():
         assert isinstance(load_scenario(name=name).epm.driver, LumenFollower), name
     for path, (reason, tests) in EXCEPTIONS.items():
         assert reason and all(_test_exists(test) for test in tests), (path, tests)
-
-
-def test_the_readme_lists_every_named_scenario():
-    # README, "Scenarios": one table row per scenario of diagrams/default.yaml, no more.
-    readme = (DEFAULT_SCENARIO_FILE.parents[1] / "README.md").read_text()
-    table = readme.split("### Scenarios", 1)[1].split("\n### ", 1)[0]
-    listed = [line.split("`")[1] for line in table.splitlines() if line.startswith("| `")]
-    assert listed == scenario_names(DEFAULT_SCENARIO_FILE)

@@ -6,6 +6,11 @@ A results page names the files a table comes from, and the documentation build
     <!-- results-table: benchmarks/results/compliant_standard_2026-11-29.csv -->
     <!-- results-stops: benchmarks/results/compliant_standard_2026-11-29.csv -->
 
+Options after the files: `by=COLUMN` groups the rows by another column of the files than
+the navigator (`by=lift`, `by=tissue`); `where=COLUMN:VALUE` keeps the rows whose column
+holds that value; `label="TEXT"` adds a first column saying what the runs were (a wall, a
+setting), for a table set beside another.
+
 `results-table` is the summary per navigator (the cecal intubation rate with its 95 % Wilson
 interval, the mean time to the cecum and speed to it, wall contact, peak force and pressure,
 the wall's per-site figures, coverage); `results-stops` the runs that did not reach the
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +58,7 @@ def read_rows(paths) -> list[dict]:
 
 def markdown(rows: list[dict], columns) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(str(row[c]) for c in columns) + " |" for row in rows]
+    lines += ["| " + " | ".join(str(row.get(c, "")) for c in columns) + " |" for row in rows]
     return "\n".join(lines)
 
 
@@ -70,14 +76,16 @@ def _mean(rows, key, digits=1) -> str:
     return f"{values.mean():.{digits}f}" if len(values) else "-"
 
 
-def summary(rows: list[dict]) -> list[dict]:
-    """One row per navigator, in the order they first appear."""
+def summary(rows: list[dict], by: str = "navigator", label: str | None = None) -> list[dict]:
+    """One row per value of the column `by` (the navigator), in the order they first
+    appear; `label`: a first column saying what the runs were."""
     table = []
-    for navigator in dict.fromkeys(row["navigator"] for row in rows):
-        mine = [row for row in rows if row["navigator"] == navigator]
+    for value in dict.fromkeys(row[by] for row in rows):
+        mine = [row for row in rows if row[by] == value]
         reached = sum(row["reached_cecum"] for row in mine)
         low, high = wilson_interval(reached, len(mine))
-        table.append({"navigator": navigator, "runs": len(mine),
+        first = {"runs of": label} if label is not None else {}
+        table.append({**first, by: value, "runs": len(mine),
                       "cecum": f"{reached}/{len(mine)}", "95 % interval": f"{low:.2f}-{high:.2f}",
                       "time to cecum (s)": _mean([r for r in mine if r["reached_cecum"]],
                                                  "time_to_cecum_s"),
@@ -89,16 +97,20 @@ def summary(rows: list[dict]) -> list[dict]:
                       "site > 4 kPa (s)": _mean(mine, "site_ischaemia_s"),
                       "site > 330 kPa (s)": _mean(mine, "site_injury_s"),
                       "coverage": _mean(mine, "coverage", 2)})
+        p95 = [float(row.get("loc_pos_err_p95_mm") or "nan") for row in mine]
+        if np.isfinite(p95).any():   # a navigator that localises the capsule itself
+            table[-1]["localiser p95 (mm)"] = f"{np.nanmean(p95):.1f}"
     return table
 
 
-def stops(rows: list[dict]) -> list[str]:
+def stops(rows: list[dict], by: str = "navigator") -> list[str]:
     """A line per run that did not reach the cecum: where it stopped."""
     lines = []
     for row in rows:
         if row["reached_cecum"]:
             continue
         patient = f", {row['patient']}" if row.get("patient") else ""
+        patient += f", {by} {row[by]}" if by != "navigator" else ""
         where = (f"{row['progress_cm']:.0f} cm in, {row['stuck_in']}"
                  if np.isfinite(row["progress_cm"]) else row["stuck_in"])
         lines.append(f"- {row['navigator']} seed {row['seed']} ({row['colon_cm']:.0f} cm"
@@ -106,15 +118,41 @@ def stops(rows: list[dict]) -> list[str]:
     return lines
 
 
-def block(kind: str, paths, root: Path = Path(".")) -> str:
-    """The Markdown of a marker: `kind` is table, stops or breakdown."""
+def parse(arguments: str) -> tuple[list[str], dict[str, str]]:
+    """A marker's files and options (`by=lift label="soft wall"`)."""
+    files, options = [], {}
+    for token in shlex.split(arguments):
+        key, equals, value = token.partition("=")
+        if equals:
+            if key not in ("by", "label", "where"):
+                raise ValueError(f"results marker: unknown option {key!r} (by, label, where)")
+            options[key] = value
+        else:
+            files.append(token)
+    return files, options
+
+
+def block(kind: str, arguments: str, root: Path = Path(".")) -> str:
+    """The Markdown of a marker: `kind` is table, stops or breakdown; `arguments` its files
+    and options."""
+    paths, options = parse(arguments)
     rows = read_rows([root / p for p in paths])
     if not rows:
         raise ValueError(f"no finished runs in {' '.join(map(str, paths))}")
+    by = options.get("by", "navigator")
+    column, _, value = options.get("where", "").partition(":")
+    for name in (by, column) if column else (by,):
+        if any(name not in row for row in rows):
+            raise ValueError(f"results marker: no column {name!r} in {' '.join(paths)}")
+    if column:
+        rows = [row for row in rows if row[column] == value]
+        if not rows:
+            raise ValueError(f"results marker: no finished run with {column} {value!r}")
     if kind == "table":
-        return markdown(summary(rows), list(summary(rows)[0]))
+        table = summary(rows, by, options.get("label"))
+        return markdown(table, list(dict.fromkeys(k for row in table for k in row)))
     if kind == "stops":
-        return "\n".join(stops(rows)) or "(every run reached the cecum)"
+        return "\n".join(stops(rows, by)) or "(every run reached the cecum)"
     groups = breakdown([{"row": row} for row in rows])
     return markdown(groups, list(groups[0])) if groups else "(no population patients)"
 
@@ -131,5 +169,5 @@ def expand(text: str, root: Path = Path(".")) -> str:
             continue
         while k < len(lines) and lines[k].startswith(("|", "- ")):
             k += 1
-        out += ["", block(match.group(1), match.group(2).split(), root), ""]
+        out += ["", block(match.group(1), match.group(2), root), ""]
     return "\n".join(out) + ("\n" if text.endswith("\n") else "")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from capsule_drake.anatomy.lesions import SIZE_CLASSES
-from capsule_drake.app.benchmark.task import COLUMNS
+from capsule_drake.app.benchmark.task import COLUMN_DOCS, COLUMNS, Task, failed_result
 
 
 def _json_default(value):
@@ -83,6 +83,38 @@ def summary(results: list[dict]) -> list[dict]:
     return out
 
 
+def _mean_doc(key: str, how: str = "mean") -> str:
+    return f"{how}, over the navigator's runs with a value (NaN left out), of {key}: " + (
+        COLUMN_DOCS[key])
+
+
+SUMMARY_COLUMN_DOCS = {
+    "navigator": COLUMN_DOCS["navigator"],
+    "runs": "the navigator's runs, failed ones included (count)",
+    "reached_cecum": "\"reached/runs\": the runs that reached the cecum (text)",
+    "cecum_95ci": "the 95 % Wilson score interval of the cecal intubation rate "
+                  "(`wilson_interval`), \"[low, high]\" (1)",
+    **{key: _mean_doc(key) for key in (
+        "colon_cm", "time_to_cecum_s", "progress", "wall_contact_s", "peak_contact_force_N",
+        "peak_contact_pressure_kPa", "injury_pressure_s", "site_peak_pressure_kPa",
+        "site_injury_s", "site_ischaemia_s", "centring_error_deg", "detection_error_pct",
+        "detection_rate", "detection_fp_rate")},
+    **{key + suffix: _mean_doc(key, how)
+       for key in ("loc_pos_err_median_mm", "loc_pos_err_p95_mm", "loc_rot_err_median_deg")
+       for suffix, how in (("", "mean"), ("_worst", "largest"))},
+    "epm_path_m": _mean_doc("epm_path_m"),
+    "coverage": _mean_doc("coverage"),
+    **{f"seen_{size_class}": f"\"seen/present\" {size_class} polyps over the runs that "
+       "counted them (a camera); \"-\" if none had one (text)" for size_class in SIZE_CLASSES},
+    "seen_diverticula": "\"seen/present\" diverticula over the runs that counted them; "
+                        "\"-\" if none had one (text)",
+    "polyp_sensitivity": "\"detected/seen\" polyps over the runs that scored a polyp "
+                         "detector; \"-\" without one (text)",
+    "polyp_fp_per_min": _mean_doc("polyp_fp_per_min"),
+}
+"""What each column of summary.csv (`summary`) is, ending in its unit in parentheses."""
+
+
 def _sensitivity(rows) -> str:
     """"detected/seen" polyps over the runs that scored a polyp detector ("-": none)."""
     scored = [row for row in rows if np.isfinite(float(row.get("polyps_detected", np.nan)))]
@@ -103,6 +135,12 @@ def _seen(rows, size_class: str) -> str:
     if not present:
         return "-"
     return f"{sum(int(row[f'seen_{size_class}']) for row in counted)}/{present}"
+
+
+_summary_columns = set(summary([failed_result(Task("check", 0), "")])[0])
+if _summary_columns != set(SUMMARY_COLUMN_DOCS):
+    raise RuntimeError("summary columns without a SUMMARY_COLUMN_DOCS entry, or entries "
+                       f"without a column: {sorted(_summary_columns ^ set(SUMMARY_COLUMN_DOCS))}")
 
 
 def breakdown(results: list[dict]) -> list[dict]:

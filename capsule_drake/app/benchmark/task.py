@@ -21,7 +21,7 @@ from capsule_drake.capsule.camera_walls import lesion_labels
 from capsule_drake.navigation.coverage import MucosaCoverage
 from capsule_drake.navigation.lesions_seen import SEEN_SECONDS, LesionViews
 from capsule_drake.navigation.plugin import load_navigator
-from capsule_drake.physics.contact.tissue import TISSUE_COLUMNS
+from capsule_drake.physics.contact.tissue import TISSUE_COLUMN_DOCS, TISSUE_COLUMNS
 from capsule_drake.plugins import load_function
 from capsule_drake.scenario import load_scenario
 from capsule_drake.station import station_value
@@ -53,6 +53,94 @@ COLUMNS = ("navigator", "seed", "colon_cm", "patient", *TISSUE_COLUMNS, "reached
            "epm_path_m", "coverage", "polyps_diminutive", "seen_diminutive", "polyps_small",
            "seen_small", "polyps_large", "seen_large", "polyps_detected", "polyp_fp_per_min",
            "diverticula", "seen_diverticula", "sim_time_s", "wall_time_s", "status", "error")
+# What each column is, ending in its unit in parentheses ("(1)": a plain number or fraction;
+# "(text)", "(count)", "(true/false)"); the documentation's reference is generated from it
+# (app/reference.py). A column without one fails at import.
+COLUMN_DOCS = {
+    "navigator": "the navigator: a built-in one (NAVIGATORS) or a user's "
+                 "\"package.module:function\" (text)",
+    "seed": "the colon's seed, colon.seed (count)",
+    "colon_cm": "length of the colon's centreline, anus to cecal pole (cm)",
+    "patient": "the population patient's sex and sigmoid variant (\"female, redundant "
+               "sigmoid\"), \"\" for a colon not drawn from the population (text)",
+    **TISSUE_COLUMN_DOCS,
+    "reached_cecum": "whether the capsule's centreline station came within CECUM_MARGIN "
+                     "(4 cm) of the centreline's end (true/false)",
+    "time_to_cecum_s": "simulated time of the first logged sample within CECUM_MARGIN of "
+                       "the end; NaN if the capsule never got there (s)",
+    "progress": "furthest centreline station reached, as a share of the way from the start "
+                "station to the end: (furthest - start) / (length - start) (1)",
+    "progress_cm": "furthest centreline station reached minus the start station (cm)",
+    "stuck_in": "why a run that did not reach the cecum ended: the reason it was stopped "
+                "early (guard, clearance, error), else the segment it stalled in (no "
+                "STALL_ADVANCE = 1 cm of progress in the last STALL_WINDOW = 30 s), or "
+                "\"time limit (segment, at N cm)\" if it was still advancing; \"\" when it "
+                "reached the cecum (text)",
+    "wall_contact_s": "simulated time during which the summed contact force on the capsule "
+                      "exceeded CONTACT_THRESHOLD (0.05 N), over the logged samples (s)",
+    "peak_contact_force_N": "largest summed magnitude of the contact forces (hydroelastic "
+                            "surfaces, point contacts and the compliant wall's), over the "
+                            "logged samples (N)",
+    "peak_contact_pressure_kPa": "highest contact pressure over the logged samples; NaN "
+                                 "for point contact, which has no pressure field (kPa)",
+    "injury_pressure_s": "simulated time the contact's peak pressure spent above the "
+                         "injury threshold, 330 kPa (physics/tissue.py); NaN for point "
+                         "contact (s)",
+    "site_peak_pressure_kPa": "highest pressure any one patch of the wall felt "
+                              "(physics/wall_pressure.py); NaN without a pressure field (kPa)",
+    "site_injury_s": "longest time one patch of the wall spent above 330 kPa without a "
+                     "break; NaN without a pressure field (s)",
+    "site_ischaemia_s": "longest time one patch of the wall spent above the ischaemia "
+                        "threshold, 4.0 kPa (30 mmHg), without a break; NaN without a "
+                        "pressure field (s)",
+    "centring_error_deg": "median, over the logged samples where the lumen truth is in "
+                          "view, of the angle between the camera's optical axis and the ray "
+                          "to the lumen truth's pixel (capsule.lumen.lumen_pixel); NaN "
+                          "without a camera (deg)",
+    "detection_error_pct": "median distance between the lumen tracker's pixel and the "
+                           "image-side truth's (capsule.lumen.far_pixel) where both see the "
+                           "lumen, in % of the image diagonal; NaN without a tracker (%)",
+    "detection_rate": "share of the samples with the lumen in view (image-side truth) that "
+                      "the tracker reported visible; NaN without a tracker (1)",
+    "detection_fp_rate": "share of the samples without the lumen in view that the tracker "
+                         "reported visible (false positives); NaN without a tracker (1)",
+    "loc_pos_err_median_mm": "median, over the logged samples, of the distance between the "
+                             "localiser's estimated and the true capsule position; NaN "
+                             "without capsule.localizer (mm)",
+    "loc_pos_err_p95_mm": "95th percentile of that position error; NaN without "
+                          "capsule.localizer (mm)",
+    "loc_rot_err_median_deg": "median angle of the rotation between the localiser's "
+                              "estimated and the true capsule orientation; NaN without "
+                              "capsule.localizer (deg)",
+    "epm_path_m": "length of the path of the EPM's centre, summed between logged samples (m)",
+    "coverage": "share of the area of the camera's wall mesh that a frame showed by the end "
+                "of the run (navigation/coverage.py); NaN without a camera (1)",
+    "polyps_diminutive": "polyps of at most 5 mm in the colon (count)",
+    "seen_diminutive": "of those, the ones the camera showed for at least SEEN_SECONDS "
+                       "(0.2 s; navigation/lesions_seen.py); NaN without a camera (count)",
+    "polyps_small": "polyps of 6-9 mm in the colon (count)",
+    "seen_small": "of those, the ones shown for at least 0.2 s; NaN without a camera (count)",
+    "polyps_large": "polyps of 10 mm or more in the colon (count)",
+    "seen_large": "of those, the ones shown for at least 0.2 s; NaN without a camera (count)",
+    "polyps_detected": "polyps seen (shown for at least 0.2 s) that the user's polyp "
+                       "detector (Task.polyp_detector) marked in at least one frame; NaN "
+                       "without a detector (count)",
+    "polyp_fp_per_min": "the polyp detector's false positives (marks on no polyp) per "
+                        "minute of frames; NaN without a detector (1/min)",
+    "diverticula": "diverticula in the colon (count)",
+    "seen_diverticula": "of those, the ones shown for at least 0.2 s; NaN without a camera "
+                        "(count)",
+    "sim_time_s": "simulated time at which the run ended (s)",
+    "wall_time_s": "wall-clock time of the run's simulation, from its first step to its "
+                   "end (the build excluded; a failed run's: its whole time) (s)",
+    "status": "\"finished\" (the row measures the run, whatever ended it) or \"failed\" "
+              "(text)",
+    "error": "how a failed run failed (a crash, its wall-time limit, an exception, naming "
+             "the plug-in that raised if one did); \"\" for a finished run (text)",
+}
+if set(COLUMN_DOCS) != set(COLUMNS):
+    raise RuntimeError("benchmark columns without a COLUMN_DOCS entry, or entries without "
+                       f"a column: {sorted(set(COLUMNS) ^ set(COLUMN_DOCS))}")
 # A run's `status`: it finished (its row measures it, whatever ended it: the time limit, the
 # cecum, the guard), or it failed (`error` says how: its process crashed, it outlived its
 # wall-time limit, it raised or exited before it could simulate, or an error ended its

@@ -40,5 +40,7 @@ def _docs(args) -> int:
     command = mkdocs_command(args)
     sys.stdout.flush()
     os.chdir(ROOT)
+    # The theme's banner about its successor, printed at every build, is not the user's news.
+    os.environ.setdefault("NO_MKDOCS_2_WARNING", "1")
     os.execv(sys.executable, command)
     return 0

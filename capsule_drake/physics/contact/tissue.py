@@ -270,6 +270,25 @@ TISSUE_COLUMNS = ("tissue", "tissue_thickness_mm", "tissue_modulus_MPa",
                   "tissue_support_MPa_per_m", "tissue_friction")
 """The tissue a run's contact had, as metrics.json and the benchmark's table give it."""
 
+TISSUE_COLUMN_DOCS = {
+    "tissue": "how the run's wall was chosen (`tissue_metrics`): \"drawn\" for the patient, "
+              "a corner's name (\"soft\", \"stiff_sticky\", ...), \"percentile P\", "
+              "\"nominal\" (the scenario's contact figures), or \"none (rigid stand-in)\" "
+              "for a contact model without tissue figures (text)",
+    "tissue_thickness_mm": "the thickness of the run's wall (the patient's; "
+                           "contact.thickness when nominal); NaN on the rigid stand-in (mm)",
+    "tissue_modulus_MPa": "the circumferential tensile modulus of the run's wall "
+                          "(contact.circumferential_modulus when nominal); NaN on the rigid "
+                          "stand-in (MPa)",
+    "tissue_support_MPa_per_m": "the elastic support outside the run's wall "
+                                "(contact.support_stiffness when nominal); NaN on the rigid "
+                                "stand-in (MPa/m)",
+    "tissue_friction": "Coulomb friction between capsule and mucosa (contact.friction "
+                       "when nominal); NaN on the rigid stand-in (1)",
+}
+"""What each of TISSUE_COLUMNS is, ending in its unit in parentheses (the benchmark's
+COLUMN_DOCS, app/benchmark/task.py, take them)."""
+
 
 def tissue_metrics(config, colon_params) -> dict:
     """What the run's wall was (TISSUE_COLUMNS and `tissue_percentiles`): how it was chosen
