@@ -389,7 +389,7 @@ def _scenario_page(named: dict) -> tuple[str, dict]:
     return (_banner("capsule_drake/scenario.py and the config dataclasses it holds",
                     "Scenario fields")
             + "Every key a scenario file may set, a section per config in the scenario's "
-            "order. A union's members are chosen by YAML tag (`contact: !CompliantWall {}`; an "
+            "order. A union's members are chosen by YAML tag (`epm: {mount: !Arm {}}`; an "
             "untagged mapping is the first member); an optional block is absent when null, "
             "and its section gives the defaults of `{}`. Unit 1: a plain number. Bounds: the "
             "ranges checked at load (any other number need only be finite). Source: the "
