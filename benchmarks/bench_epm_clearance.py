@@ -1,5 +1,5 @@
 """The EPM's smallest gap to the skin, where the magnet is, for each mount under each kind of
-driver: the figures behind the README's "The EPM keeps its clearance" table.
+driver: the figures behind the table of docs/results/epm.md.
 
     python benchmarks/bench_epm_clearance.py [--mounts a,b] [--drivers a,b]
 

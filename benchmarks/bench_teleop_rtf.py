@@ -26,7 +26,8 @@ from capsule_drake.station import make_station
 def machine_reference_ms(calls: int = 20000) -> float:
     """Wall time (ms) of a fixed piece of the 1 kHz loop's kind of Python (dipole pair
     forces): this VM's speed drifts by tens of percent over minutes, so each real-time
-    factor is printed beside it (26-50 ms when the README's figures were taken)."""
+    factor is printed beside it (26-50 ms when the figures of docs/results/performance.md,
+    "Teleoperation", were taken)."""
     from capsule_drake.physics.magnetics import dipole_pair_interaction_float
     start = time.perf_counter()
     for k in range(calls):

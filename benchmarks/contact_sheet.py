@@ -1,4 +1,5 @@
-"""Contact sheet of capsule camera views along the default colon (for the README).
+"""Contact sheet of capsule camera views along the default colon (for docs/models/sensors.md,
+"Views along the colon").
 
     .venv/bin/python benchmarks/contact_sheet.py [--out docs/contact_sheet.png] [--seed 0]
 

@@ -1,4 +1,5 @@
-"""The README's Meshcat figures, drawn by headless Chromium (needs `chromium` on PATH).
+"""The documentation's Meshcat figures (docs/), drawn by headless Chromium (needs `chromium`
+on PATH).
 
     .venv/bin/python benchmarks/meshcat_figures.py [--out docs] [--only replay,arm,...]
 

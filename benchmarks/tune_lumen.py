@@ -6,8 +6,8 @@ Tuning frames: colon seeds `seed`..`seed + 4` through the default fisheye, from 
 simulator's camera (RenderEngineVtk) under the nominal, noise and exposure conditions, and
 from the ray caster (perception/raycast.py) with its nominal shading. The other conditions
 (every other image condition, every random light), the pinhole lens and colon seeds 100-104
-are kept for scoring (`capsule-sim eval-lumen`), so that the figures in the README are
-measured on what was not tuned on.
+are kept for scoring (`capsule-sim eval-lumen`), so that the figures of
+docs/results/lumen.md are measured on what was not tuned on.
 
 Both steps score against the image-side truth (perception/lumen_truth.py, `far_region`: the
 centre of the farthest part of the view, from the frame's range image).

@@ -1,6 +1,6 @@
 """Scenario: everything that defines one simulation, as typed dataclasses loaded from YAML.
 
-Each field names a block of the station's diagram (README, "The diagram"); a block that is
+Each field names a block of the station's diagram (docs/diagram.md); a block that is
 null is not there. What drives the EPM is one tagged field, `epm.driver`:
 
     Default: {}

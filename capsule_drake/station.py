@@ -6,11 +6,11 @@ Every part of the diagram is a block (blocks.py): a module registers its config 
 check and its add together, and the station adds the blocks `STATION_BLOCKS` names
 (scenario.py, beside the fields that hold their configs), in that order, each whose config
 the scenario holds: first every block's models (before the plant is finalised), then every
-block's systems. A block connects to the blocks before it by
-their exported port names and exports its own as `<instance>.<signal>` (README, "The
-diagram", lists them). The scene (plant, scene graph, colon, capsule, table, contact), the
-magnet force and the EPM's carrier are in every station; every other block is there when
-its field of the scenario is set; the EPM's driver comes last but for Meshcat.
+block's systems. A block connects to the blocks before it by their exported port names and
+exports its own as `<instance>.<signal>` (docs/diagram.md, "The order and the exported
+ports", lists them). The scene (plant, scene graph, colon, capsule, table, contact), the
+magnet force and the EPM's carrier are in every station; every other block is there when its
+field of the scenario is set; the EPM's driver comes last but for Meshcat.
 
 Exported in every station:
     capsule.state          [q_WB (wxyz), p_WB, w_WB, v_WB] of the capsule body

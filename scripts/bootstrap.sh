@@ -63,6 +63,6 @@ fi
 # glibc's per-thread cache of freed memory blocks, enlarged (more blocks, and blocks up to
 # 256 kB): a simulation step allocates and frees many blocks (the contact surfaces, the
 # solver's problem, Python's objects), and the default cache sends most of them back to
-# the shared allocator. Measured: the Default scenario ~10 % faster (README, Performance).
+# the shared allocator. Measured: the Default scenario ~10 % faster (docs/results/performance.md).
 # A value the user sets is kept; other C libraries ignore it.
 export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.tcache_count=65000:glibc.malloc.tcache_max=262144}"

@@ -1,10 +1,10 @@
 """Bad inputs and faults, as a careless user or a hostile environment produces them.
 
-Every case asserts what the README promises ("Bad input, faults and exit codes"): a non-zero
-exit, one line on stderr naming the culprit, no Python traceback, no hang, and whatever had
-been logged on disk. The categories: scenario values, scenario files, command-line flags,
-plug-ins, output folders and disks, signals, the run guard and errors inside a simulation,
-and mesh import.
+Every case asserts what docs/runs.md promises ("Bad inputs get one line", "Exit status"): a
+non-zero exit, one line on stderr naming the culprit, no Python traceback, no hang, and
+whatever had been logged on disk. The categories: scenario values, scenario files,
+command-line flags, plug-ins, output folders and disks, signals, the run guard and errors
+inside a simulation, and mesh import.
 """
 
 import collections
@@ -108,8 +108,8 @@ SCENARIO_VALUES = [
      r"capsule\.start_s 0\.018 m: the capsule would stick out of the colon's open end"),
     ("realtime rate negative", _text("{simulator: {target_realtime_rate: -1}}"),
      r"target_realtime_rate"),
-    # Text read otherwise than it looks (README: the last of a key given twice won; YAML 1.1
-    # read these forms as other numbers or booleans; Python's float() reads other digits).
+    # Text read otherwise than it looks (docs/runs.md: the last of a key given twice won; YAML
+    # 1.1 read these forms as other numbers or booleans; Python's float() reads other digits).
     ("key given twice", _text("{epm: {clearance: 0.03, clearance: 0.04}}"),
      r"override:1: epm\.clearance: given twice"),
     ("hexadecimal number", _text("{colon: {seed: 0x10}}"),

@@ -261,8 +261,8 @@ def _colon(mesh, folder, name, scale=1.0):
 
 @pytest.fixture(scope="module")
 def lying_folder(tmp_path_factory):
-    """The README's example: a capped cylinder 30 cm long and 4 cm wide, lying along y, in
-    millimetres (tube_set.lying_cylinder), imported: its folder."""
+    """The example of docs/guides/import-colon.md: a capped cylinder 30 cm long and 4 cm
+    wide, lying along y, in millimetres (tube_set.lying_cylinder), imported: its folder."""
     from tube_set import lying_cylinder
 
     folder = tmp_path_factory.mktemp("lying")
@@ -422,12 +422,13 @@ def _settle(folder):
 @pytest.mark.slow
 def test_the_capsule_rests_on_the_lying_tubes_roof_and_nowhere_in_the_standing_one(
         lying, lying_folder, standing, standing_folder):
-    """Let settle (the scenario's physics at 0.5 ms): in the README's lying tube the
-    Default EPM, 11 cm above the axis, lifts the capsule onto the roof and holds it there
-    at rest, so its start is kept (from the centreline, in the run, the lift was a 2.2 m/s
-    throw: the run guard stopped it at 0.01 s). The open tube standing on end has no level
-    place and no closed end: at every start tried the capsule is pulled out of its top
-    (or, far from the EPM, falls out of its bottom); one line says so, and why."""
+    """Let settle (the scenario's physics at 0.5 ms): in the lying tube of
+    docs/guides/import-colon.md the Default EPM, 11 cm above the axis, lifts the capsule
+    onto the roof and holds it there at rest, so its start is kept (from the centreline, in
+    the run, the lift was a 2.2 m/s throw: the run guard stopped it at 0.01 s). The open
+    tube standing on end has no level place and no closed end: at every start tried the
+    capsule is pulled out of its top (or, far from the EPM, falls out of its bottom); one
+    line says so, and why."""
     from capsule_drake.anatomy.start_check import pick_start
 
     radius, length = _capsule()

@@ -291,14 +291,14 @@ def test_an_import_folder_is_a_colon_source_and_bad_sources_fail_in_one_line(tmp
 
 @pytest.mark.slow
 def test_the_readme_import_example_runs_with_the_capsule_inside(tmp_path, capsys):
-    """The README's example on a segmentation of a straight colon (tube_set.lying_cylinder:
-    30 cm long, 4 cm wide, capped, in millimetres, lying along y): `import-colon scan.stl
-    --out my_colon --scale 0.001`, then the Default drag on it for 10 s exits 0, and the
-    capsule's axis stays farther from the wall mesh than its radius less 1 mm. Started on
-    the centreline, the capsule was thrown onto the roof at 2.2 m/s by the EPM 11 cm above
-    the axis, and the run guard stopped the run at t = 0.01 s; let settle first
-    (anatomy/start_check.py), it starts on the roof at rest (measured: advanced 8.3 cm in
-    10 s, largest excursion 0.59 mm; over the Default's 60 s 23.4 cm, to the far cap,
+    """The example of docs/guides/import-colon.md on a segmentation of a straight colon
+    (tube_set.lying_cylinder: 30 cm long, 4 cm wide, capped, in millimetres, lying along y):
+    `import-colon scan.stl --out my_colon --scale 0.001`, then the Default drag on it for 10
+    s exits 0, and the capsule's axis stays farther from the wall mesh than its radius less
+    1 mm. Started on the centreline, the capsule was thrown onto the roof at 2.2 m/s by the
+    EPM 11 cm above the axis, and the run guard stopped the run at t = 0.01 s; let settle
+    first (anatomy/start_check.py), it starts on the roof at rest (measured: advanced 8.3 cm
+    in 10 s, largest excursion 0.59 mm; over the Default's 60 s 23.4 cm, to the far cap,
     0.68 mm)."""
     import json
     from pathlib import Path

@@ -140,7 +140,8 @@ def test_core_detector_on_the_ray_casters_frames():
     """Frames of colons and poses not tuned on (colon seeds 40-41), from the independent
     image path, nominal and with every image condition at once. A guard against regression
     at today's level (median 2.5 and 3.3 % of the diagonal, 95 and 87 % detected over 200
-    poses, README), not yet the issue's targets (1.5 %, 95 %)."""
+    poses; the detectors' reported figures: docs/results/lumen.md), not yet the issue's
+    targets (1.5 %, 95 %)."""
     frames = condition_frames(40, colons=2, seed=40, renderer="raycast",
                               conditions=("nominal", "everything"))
     for condition, chosen in frames.items():

@@ -258,12 +258,12 @@ def test_18_resets_over_six_colons_stay_within_100_mb_of_the_sixth():
     four kept and evicting), and no diagram left after close(). Before the fix a reset
     leaked ~12 MB without the camera and ~100 MB with it (515 -> 873 MB and 2,042 -> 5,133
     MB over 30 resets), ~145 and ~1,200 MB over these 12; fixed, fifty resets over ten
-    colons grew 3 and 48 MB from the 10th to the 50th (README). Measured over 24 resets:
-    flat from the 5th on (385 -> 386 MB from the 6th to the 18th, 1,073 -> 1,085 MB with
-    the camera; from the 12th to the 24th, 386 -> 386 and 1,085 -> 1,092 MB), so the 12
-    resets after the first round are as good a window as the 12 after the second (the
-    test measured those until the suite's time ran short). The two configurations run at
-    once, one process each (benchmarks/bench_memory.py measures the fifty, with a build's
+    colons grew 3 and 48 MB from the 10th to the 50th (docs/guides/gym.md). Measured over 24
+    resets: flat from the 5th on (385 -> 386 MB from the 6th to the 18th, 1,073 -> 1,085 MB
+    with the camera; from the 12th to the 24th, 386 -> 386 and 1,085 -> 1,092 MB), so the 12
+    resets after the first round are as good a window as the 12 after the second (the test
+    measured those until the suite's time ran short). The two configurations run at once,
+    one process each (benchmarks/bench_memory.py measures the fifty, with a build's
     time)."""
     processes = {name: subprocess.Popen([sys.executable, "-c", RESETS, observations],
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,

@@ -199,7 +199,8 @@ def test_the_population_tier_is_built_with_its_flexures():
     first twenty to bend, 8-30 s each), built: each course's flexures by the rule are its
     drawn count in at least 4 of them and within one in all; the bent course keeps each
     segment's drawn length (to 1 mm) and passes the course's checks. (The first twenty:
-    17 exact, 20 within one; README. benchmarks/population_flexures.py measures more.)"""
+    17 exact, 20 within one; docs/models/colon.md, "Acute-angle flexures".
+    benchmarks/population_flexures.py measures more.)"""
     from capsule_drake.anatomy.course import (MIN_CLEARANCE, MIN_CURVATURE_RATIO,
                                               course_defects, nominal_radius)
     exact = 0

@@ -1,4 +1,4 @@
-"""The README's examples (and the docs'), run as written.
+"""The examples of the README and the docs (docs/), run as written.
 
 Every code block is fenced and says its language: `python` and `bash` blocks are examples,
 `text` blocks are diagrams and synopses. Each Python block runs, as it stands, in a Python
@@ -143,7 +143,7 @@ def test_the_extraction_finds_blocks_markers_and_indented_code():
     assert [(b.language, b.code, b.not_run) for b in found] == [
         ("bash", "./capsule-sim notebooks\n", "it opens a browser"), ("python", "print(1)\n", None)]
     assert indented_code(text) == [3]
-    assert len(EXAMPLES) >= 3  # the README's own: not an empty parametrisation
+    assert len(EXAMPLES) >= 3  # the README's and the docs' own: not an empty parametrisation
 
 
 @pytest.mark.parametrize("block", [pytest.param(b, marks=_marks(b), id=b.name)
@@ -245,8 +245,8 @@ def test_inline_calls_with_literal_arguments_run_as_written():
 
 
 def test_an_inline_call_that_raises_is_found():
-    # The README's finite-size magnets once read `MagneticForce(field_model="finite")`,
-    # which lacks the plant and the magnets.
+    # The finite-size magnets' text (then the README's, now docs/models/magnets.md) once
+    # read `MagneticForce(field_model="finite")`, which lacks the plant and the magnets.
     failures = inline_call_failures('as `MagneticForce(field_model="finite")` or '
                                     '`MagnetGeometry(shape="sphere", dimensions=[0.01])`',
                                     "x.md")

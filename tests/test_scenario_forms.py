@@ -1,4 +1,4 @@
-"""Scenario text read as it looks (README, "Bad inputs get one line"): a key given twice,
+"""Scenario text read as it looks (docs/runs.md, "Bad inputs get one line"): a key given twice,
 the number forms YAML 1.1 reads otherwise than a reader does (hexadecimal, octal, binary,
 base 60, digit separators, leading zeros, yes/no/on/off), text where a number belongs
 (quoted, or in digits other than 0-9) are refused with one line naming the field; the

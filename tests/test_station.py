@@ -313,8 +313,9 @@ def test_a_settled_start_begins_at_rest_on_the_wall_without_the_snap():
 def test_the_default_step_advances_the_capsule_as_a_quarter_millisecond_reference():
     """The Default drag at its own plant step (2 ms, the implicit magnet torque) against the
     same run at 0.25 ms, over 10 s (the start's snap onto the wall and the first centimetres
-    of drag): the advance along the colon within 10 % (measured over 30 s: 0.03 %, README
-    Performance), the excursion beyond the wall under 1 mm in both."""
+    of drag): the advance along the colon within 10 % (measured over 30 s: 0.03 %,
+    docs/results/performance.md, "Time-step convergence"), the excursion beyond the wall
+    under 1 mm in both."""
     runs = {}
     for step in (None, 2.5e-4):
         scenario = load_scenario(override="{duration: 10.0}")

@@ -117,7 +117,7 @@ def test_the_locator_agrees_with_the_centrelines_own_closest_on_a_bending_colon(
     # The locator (nearest sample, one Newton step) against Centerline.closest (Newton on
     # the spline): wall points 1-2.8 cm from the axis of a helix whose bends have a radius
     # of 4.23 cm, inside and outside them (a colon's bends are at least 1.5 lumen radii:
-    # README, "Acute-angle flexures"; here 1.5 radii of 2.8 cm).
+    # docs/models/colon.md, "Acute-angle flexures"; here 1.5 radii of 2.8 cm).
     centerline = helix_centerline()
     rng = np.random.default_rng(3)
     s = rng.uniform(0.01, centerline.length - 0.01, 3000)

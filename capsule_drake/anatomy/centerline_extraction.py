@@ -47,7 +47,7 @@ jittered and Delaunay triangulations of 4k-220k faces, metres and millimetres) w
 0.7 mm; equal-area radii within 0.6 % (median); the same mesh with its vertices moved by
 1e-6 of its size gives a centreline within 0.05 mm of the first. Tubes of random shape,
 every feature drawn together (`benchmarks/bench_import.py --sweep`), show where it fails:
-see the README, "Imported colons".
+see docs/models/imported-colon.md, "The centreline".
 Round trip of the procedural colon (exported, imported, extracted), seeds 0-9: within
 0.35-0.95 mm of the original centreline everywhere, both ways (seeds 0, 3, 4: 0.64, 0.90,
 0.50 mm).

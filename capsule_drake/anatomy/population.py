@@ -246,7 +246,8 @@ COURSE_ATTEMPTS = 20
 """Patients drawn, in turn, until the procedural course can draw one without kinks or
 overlaps (`resolve_population`): about 1 in 10 cannot (short sigmoids with long rectums,
 wide ceca), so the population the course draws is a little narrower than the one sampled
-(measured over 80 seeds: 8 redrawn, totals 147.6 +- 17.8 -> 148.2 +- 17.9 cm; README)."""
+(measured over 80 seeds: 8 redrawn, totals 147.6 +- 17.8 -> 148.2 +- 17.9 cm;
+docs/models/colon.md, "Patients from the population")."""
 
 _RESOLVED: dict[str, tuple] = {}
 _PATIENTS: dict[str, Patient] = {}

@@ -256,8 +256,8 @@ def _mcap_argument(parser):
     parser.add_argument("--mcap", type=_path, metavar="FILE",
                         help="also write the run as ROS 2 messages (camera, depth, IMU, "
                              "magnetic field, tf, contact wrench, lumen) into an MCAP file, "
-                             "as it goes, for Foxglove or `ros2 bag` (README, \"ROS 2 and "
-                             "Foxglove: MCAP logs\")")
+                             "as it goes, for Foxglove or `ros2 bag` (docs/guides/live.md, "
+                             "\"MCAP logs\")")
 
 
 def _live_arguments(parser):

@@ -26,7 +26,8 @@ from capsule_drake.station import make_station
 
 SETTLE_STEP = 5e-4
 """Plant step of the settling (s): where the capsule's first snap onto the wall, at
-0.5-0.6 m/s, stays within 0.6 mm of it (README, Performance)."""
+0.5-0.6 m/s, stays within 0.6 mm of it (docs/results/performance.md, "Time-step
+convergence")."""
 
 
 def simulator_for(diagram, config: SimulatorConfig | None = None, random_seed: int | None = None):
@@ -78,12 +79,13 @@ def settled_state(scenario: Scenario) -> np.ndarray:
 def start_where_it_rests(scenario: Scenario) -> Scenario:
     """The scenario with the capsule starting where it rests, on a colon that is not the
     procedural one (an imported mesh, the ex vivo segment): such a colon lies as its mesh
-    was made, and the centreline at capsule.start_s may be no place to start (the README's
-    imported tube: the EPM 11 cm above its axis threw the capsule onto the roof at 2.2 m/s).
-    The import's start check (anatomy/start_check.py `pick_start`) lets the capsule settle
-    at capsule.start_s and, if it does not rest there, at up to five other starts, and
-    keeps the first where it rests; the run then starts settled there (capsule.settle at
-    least REST_SETTLE). A procedural colon's scenario is returned as it is.
+    was made, and the centreline at capsule.start_s may be no place to start (the imported
+    tube of docs/guides/import-colon.md: the EPM 11 cm above its axis threw the capsule onto
+    the roof at 2.2 m/s). The import's start check (anatomy/start_check.py `pick_start`)
+    lets the capsule settle at capsule.start_s and, if it does not rest there, at up to five
+    other starts, and keeps the first where it rests; the run then starts settled there
+    (capsule.settle at least REST_SETTLE). A procedural colon's scenario is returned as it
+    is.
 
     Raises:
         ScenarioError: the capsule rests at none of the starts (one line, what happened at

@@ -1,10 +1,10 @@
 """A contact-force sensor in the capsule's shell: the force the colon wall presses on it.
 
-The smallest sensor a user might add, and the example of how one is added (README, "Adding
-a block"): this module (config, LeafSystem, `add_contact_sensor`) plus one field of
-`CapsuleConfig`. Force-sensing capsules and tethered tips carry such sensors to limit the
-pressure on the mucosa; the figures below are an engineering assumption (a thin-film
-three-axis sensor), not a datasheet.
+The smallest sensor a user might add, and the example of how one is added
+(docs/guides/add-a-block.md): this module (config, LeafSystem, `add_contact_sensor`) plus
+one field of `CapsuleConfig`. Force-sensing capsules and tethered tips carry such sensors to
+limit the pressure on the mucosa; the figures below are an engineering assumption (a
+thin-film three-axis sensor), not a datasheet.
 
 Every 1 / sample_rate s it samples the net contact force on the capsule (from the plant's
 ContactResults), expressed in the capsule frame B, adds white Gaussian noise of

@@ -90,13 +90,14 @@ class MagneticArrayConfig:
     # drift, 3 uT/K typical (DS, as above), over the capsule's temperature change since
     # the calibration. Calibrated warm (at 37 C, as it will be used), the residual is the
     # body's +-1.5 K: 5 uT. U. Calibrated on the bench at 25 C, it would be 36 uT, and it
-    # then dominates the localisation error (README, "Magnetic localisation").
+    # then dominates the localisation error (docs/models/localisation.md, "What limits it").
     offset_drift_sigma: float = 5e-6
     # Gain error per axis after calibration (fraction, 1 sigma): the sensors' sensitivity
     # error (+-5 % typical, DS) and axis mismatch (+-0.5-1 %, DS), calibrated with each
     # sensor's 3 x 3 matrix in a known uniform field (a Helmholtz coil) to this residual.
     # U. The self-field's part is calibrated away with the offset; the EPM field's is not.
-    # The localisation's worst runs double with 1 % (README, "Magnetic localisation").
+    # The localisation's worst runs double with 1 % (docs/models/localisation.md, "What
+    # limits it").
     gain_sigma: float = 0.003
     # Cross-axis sensitivity after the same calibration (fraction of each other axis,
     # 1 sigma per term; the datasheet calls it insignificant for this monolithic sensor,

@@ -1,7 +1,7 @@
 """The capsule as every block sees it: its body, frames, size and mass, read once from
 models/capsule.sdf, and the frame convention of the whole package.
 
-Frames (one letter each, everywhere: code, ports, SDF comments, README):
+Frames (one letter each, everywhere: code, ports, SDF comments, docs/diagram.md):
     W  world: x to the patient's left, y to the head, z anterior (up; the patient lies
        supine on the table, whose top is z = 0)
     B  the capsule body: origin at its geometric centre, +z along its axis toward the dome

@@ -1,5 +1,6 @@
 """Screenshots of a page in headless Chromium, for the tests that check what a browser shows
-(the Meshcat console, the replay page) and the README's figures.
+(the Meshcat console, the replay page) and the documentation's figures
+(benchmarks/meshcat_figures.py).
 
 Needs a Chromium executable (`chromium`, as Debian packages it, or `chromium-browser`); it
 is driven over the DevTools protocol on a pipe, so nothing listens on a port.

@@ -112,7 +112,8 @@ class LumenParams:
     # benchmarks/tune_lumen.py on colon seeds 0-4 only, against the image-side truth's
     # "lumen in view", with the 8 % rim margin: the simulator's frames under the nominal,
     # noise and exposure conditions and the ray caster's under its nominal light, through
-    # the fisheye; scored on seeds 100-104 under every condition and both lenses, README).
+    # the fisheye; scored on seeds 100-104 under every condition and both lenses,
+    # docs/results/lumen.md).
     confidence_weights: list[float] = dataclasses.field(
         default_factory=lambda: list(CORE_CONFIDENCE_WEIGHTS))
     # --- the "net" detector (perception/lumen_net.py) ---

@@ -23,12 +23,12 @@ class LumenTrackerConfig:
     """Which detector the tracker runs. YAML-loadable; all fields default."""
 
     # "net" (the learned detector, perception/lumen_net.py: trained on generated frames of
-    # colon seeds no reported figure uses; README "Lumen tracker"), "gaussian" (the seed's
-    # dark-class detector), "median" (the STORM implementation's), "core" (the darkest
-    # point's core, perception/lumen.py), or "package.module:function": a user's detector
-    # with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool) -> an object with
-    # `visible`, `pixel` (u, v), `confidence` and, optionally, `region` (H, W) (see
-    # perception/lumen.py).
+    # colon seeds no reported figure uses; docs/models/lumen.md, "The learned detector"),
+    # "gaussian" (the seed's dark-class detector), "median" (the STORM implementation's),
+    # "core" (the darkest point's core, perception/lumen.py), or "package.module:function":
+    # a user's detector with the signature (rgb (H, W, 3|4) uint8, field_mask (H, W) bool)
+    # -> an object with `visible`, `pixel` (u, v), `confidence` and, optionally, `region`
+    # (H, W) (see perception/lumen.py).
     detector: str = "net"
     # Settings of the built-in detectors (ignored by a user's).
     params: LumenParams = dataclasses.field(default_factory=LumenParams)

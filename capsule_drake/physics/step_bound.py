@@ -125,7 +125,8 @@ omega above (898 rad/s). The pull stays explicit: its stiffness K = 4 F / r give
 omega_translation (371 rad/s at the closest clearance, 2.7 ms), and the contact's 2 ms
 (section 3) is then the shorter. Backward Euler damps the magnet's wobble (by 1 / sqrt(1 +
 (omega dt)^2) a step) instead of keeping it; the convergence study
-(benchmarks/bench_step_convergence.py, README) shows what that costs in the drag.
+(benchmarks/bench_step_convergence.py, docs/results/performance.md, "Time-step convergence")
+shows what that costs in the drag.
 
 Measured (benchmarks/bench_time_step.py, 4 s of each case, Drake 1.58)
 ---------------------------------------------------------------------

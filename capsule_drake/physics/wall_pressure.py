@@ -55,8 +55,8 @@ minutes (ischaemia); a capsule dragged at ~1 cm/s crosses a 1 cm patch in about 
 so 10 ms times a spell to about 1 %. It is the runs' default log period, and the map reads
 the state the loggers read at the same times: its samples are logs.npz's contact_pressure
 samples (all but the last, at the run's end), so its peak is their largest
-(tests/test_wall_pressure.py). Cost per sample: benchmarks/bench_wall_pressure.py (README,
-"Tissue safety")."""
+(tests/test_wall_pressure.py). Cost per sample: benchmarks/bench_wall_pressure.py
+(docs/models/contact.md, "Tissue safety")."""
 
 WALL_PRESSURE_SYSTEM = "wall_pressure"
 """The run's wall-pressure map beside the station (app/run.py)."""

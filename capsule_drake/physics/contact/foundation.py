@@ -10,7 +10,8 @@ goes at 0.65x real time where the rigid stand-in goes at 2.15x (benchmarks/bench
 Coarser meshes are cheaper but miss the foundation's closed form by 10-25 % at the shallow
 indentations runs reach. Here the same mechanics are integrated directly, at a cost that does
 not grow with the patch: the per-cell arithmetic is compiled (foundation_kernels.py, Numba),
-and the compliant wall runs faster than the rigid stand-in (README, Performance).
+and the compliant wall runs faster than the rigid stand-in (docs/results/performance.md, "The
+compliant wall's cost").
 
 The wall. The colon is a tube around its centreline: at arc length s and angle theta its
 mucosa lies `colon.wall_radius(s, theta)` from the centreline (the haustral folds and taenia

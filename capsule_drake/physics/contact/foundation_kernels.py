@@ -2,9 +2,10 @@
 
 The foundation runs every plant step (1-2 ms of simulated time). Written with NumPy on the
 ~150 cells near the wall, each step was ~150 array operations whose cost is their call, not
-their arithmetic (~0.5 ms a step, most of the compliant wall's cost: README, Performance).
-These loops do the same arithmetic once per cell. `foundation.py` keeps the model: what is
-picked, stored and returned; its docstring says what each quantity means.
+their arithmetic (~0.5 ms a step, most of the compliant wall's cost:
+docs/results/performance.md, "The compliant wall's cost"). These loops do the same
+arithmetic once per cell. `foundation.py` keeps the model: what is picked, stored and
+returned; its docstring says what each quantity means.
 
 Each kernel's first call compiles it (a few seconds); the machine code is cached beside this
 file (`cache=True`), so later processes load it.
