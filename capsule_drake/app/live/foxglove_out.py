@@ -23,6 +23,12 @@ oldest queued messages dropped (foxglove-sdk's backlog, `backlog` messages), so 
 enough on a loaded machine."""
 
 
+NEW_CHANNEL_WAIT = 10.0
+"""Seconds a channel's first message waits for a viewer that takes every channel
+(`wait_for_client` > 0 only): a loaded machine's client took seconds to subscribe to the
+camera's channel, advertised after the run had started, and missed a short run's images."""
+
+
 def _listener(live: "FoxgloveLive"):
     """A foxglove ServerListener that tells `live` of each subscription (foxglove-sdk is
     imported when a server is made: a run without one does not load it)."""
@@ -58,7 +64,10 @@ class FoxgloveLive:
         self._latched: dict[str, tuple[bytes, int]] = {}
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
-        self._wait = float(wait_for_client)
+        self._taken: set[str] = set()         # topics a client has subscribed to
+        self._taken_changed = threading.Condition(self._lock)
+        self._wait = self._wait_setting = float(wait_for_client)
+        self._waits_for_new = self._wait > 0.0
         self.host = host
         try:
             self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
@@ -82,6 +91,8 @@ class FoxgloveLive:
         client one time in two)."""
         with self._lock:
             latched = topic in self._latched
+            self._taken.add(topic)
+            self._taken_changed.notify_all()
         for delay in RESEND_AFTER if latched else ():
             timer = threading.Timer(delay, self._resend, (topic,))
             timer.daemon = True
@@ -111,7 +122,10 @@ class FoxgloveLive:
         if spec.latched:   # kept before the channel is advertised: a subscriber gets it
             with self._lock:
                 self._latched[topic] = (data, log_time_ns)
-        channel = self._channels.get(topic) or self._channel(topic, spec.type_name)
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._channel(topic, spec.type_name)
+            self._wait_for_new_channel(topic)
         channel.log(data, log_time=log_time_ns)
         self.messages += 1
         if self._wait > 0.0:
@@ -119,6 +133,25 @@ class FoxgloveLive:
             deadline = time.monotonic() + wait
             while not self._subscribed.wait(0.05) and time.monotonic() < deadline:
                 pass
+
+    def _wait_for_new_channel(self, topic: str) -> None:
+        """With `wait_for_client`, once a viewer has subscribed, a channel advertised later
+        (the camera's, at its first frame) holds its first message until the viewer takes
+        it too, at most NEW_CHANNEL_WAIT seconds (or `wait_for_client`, if shorter), so a
+        viewer started with the run sees every channel from its first message. A viewer
+        that lets one wait run out (a Foxglove layout showing a few panels) is not waited
+        for again."""
+        if not self._waits_for_new or not self._subscribed.is_set():
+            return
+        deadline = time.monotonic() + min(NEW_CHANNEL_WAIT, self._wait_setting)
+        with self._lock:
+            while topic not in self._taken and time.monotonic() < deadline:
+                self._taken_changed.wait(0.05)
+            taken = topic in self._taken
+        if taken:
+            time.sleep(0.1)   # the server adds the subscription after telling its listener
+        else:
+            self._waits_for_new = False
 
     def close(self) -> None:
         self.server.stop()
