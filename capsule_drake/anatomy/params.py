@@ -74,10 +74,9 @@ def check_population_params(params: Population) -> None:
         if value not in allowed:
             raise ValueError(f"colon.source.{name} must be one of {', '.join(allowed)}, "
                              f"got {value!r}")
-    p = params.length_percentile
-    if p is not None and not (np.isfinite(p) and 0.0 < p < 100.0):
-        raise ValueError(f"colon.source.length_percentile must be in (0, 100) or null, "
-                         f"got {p!r}")
+    if params.length_percentile is not None:
+        need_range(params.length_percentile, "colon.source.length_percentile", "(0, 100)", "",
+                   "or null: drawn")
 
 
 @dataclass
