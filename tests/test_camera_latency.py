@@ -95,7 +95,7 @@ def test_a_dead_worker_changes_nothing_but_the_speed(caplog):
 def test_latency_must_fit_in_a_tick_and_needs_a_still_scene():
     with pytest.raises(ValueError, match="latency 0.1 s must be below the camera's tick"):
         check_camera_config(CameraConfig(fps=10.0, latency=0.1))
-    with pytest.raises(ValueError, match="latency -0.01 must be >= 0"):
+    with pytest.raises(ValueError, match="latency must be finite and >= 0 s, got -0.01"):
         check_camera_config(CameraConfig(latency=-0.01))
     from test_camera import _moving_capsule_diagram
     with pytest.raises(ValueError, match="latency needs a scene the camera sees unmoving"):

@@ -475,7 +475,8 @@ def test_bad_config_values_name_the_field(field, value):
         check_pseudo_force_config(config)
     assert "\n" not in str(error.value)
     # The system trusts its config; a scenario is checked when it is loaded.
-    with pytest.raises(ScenarioError, match=f"^scenario: pseudo_force {field}") as error:
+    with pytest.raises(ScenarioError,
+                       match=rf"^scenario: pseudo_force\.{field} must be") as error:
         load_scenario(override=f"pseudo_force: {{{field}: {_yaml(value)}}}")
     assert "\n" not in str(error.value)
 

@@ -298,10 +298,10 @@ def test_reported_values_are_refused_naming_the_key(override, message):
 
 @pytest.mark.parametrize("override, message", [
     ("{epm: {driver: !Teleop {channel: {forward: {delay: 1e9}}}}}",
-     "scenario: epm.driver (Teleop): channel.forward: channel delay 1000000000.0 + 8 x jitter "
-     "0.0 must be at most 2 s"),
+     "scenario: epm.driver (Teleop): channel.forward.delay 1000000000.0 + 8 x jitter 0.0 "
+     "must be at most 2 s"),
     ("{epm: {driver: !Teleop {channel: {backward: {jitter: 0.3}}}}}",
-     "scenario: epm.driver (Teleop): channel.backward: channel delay 0.0 + 8 x jitter 0.3 "),
+     "scenario: epm.driver (Teleop): channel.backward.delay 0.0 + 8 x jitter 0.3 "),
     ("{epm: {driver: !Teleop {operator: udp, udp: {host: no.such.host.invalid}}}}",
      "scenario: epm.driver (Teleop): udp bridge host 'no.such.host.invalid' does not resolve"),
     ("{epm: {driver: !Teleop {operator: udp, udp: {host: 'a b'}}}}",

@@ -74,10 +74,9 @@ def check_population_params(params: Population) -> None:
         if value not in allowed:
             raise ValueError(f"colon.source.{name} must be one of {', '.join(allowed)}, "
                              f"got {value!r}")
-    p = params.length_percentile
-    if p is not None and not (np.isfinite(p) and 0.0 < p < 100.0):
-        raise ValueError(f"colon.source.length_percentile must be in (0, 100) or null, "
-                         f"got {p!r}")
+    if params.length_percentile is not None:
+        need_range(params.length_percentile, "colon.source.length_percentile", "(0, 100)", "",
+                   "or null: drawn")
 
 
 @dataclass
@@ -482,8 +481,7 @@ def check_colon_params(params: ColonParams) -> None:
     if params.population is not None:
         check_population_params(params.population)
     bound("fold_height_scale", "[0, 2]", "", "insufflation lowers the measured folds")
-    need(0 <= params.fold_height_jitter < 1, "fold_height_jitter", "must be in [0, 1)",
-         params.fold_height_jitter)
+    bound("fold_height_jitter", "[0, 1)")
     for name in SEGMENT_NAMES:
         seg = params.segment(name)
         bound(f"{name}.length_min", f"[{MIN_SEGMENT_LENGTH:g}, {MAX_SEGMENT_LENGTH:g}]", "m")
@@ -528,15 +526,14 @@ def check_colon_params(params: ColonParams) -> None:
         bound(f"{mesh}_min_step", "[1e-4, 0.02]", "m")
         need(low <= axial, f"{mesh}_min_step", f"must be <= {mesh}_axial_step ({axial})", low)
         bound(f"{mesh}_tolerance", "[0, 0.005]", "m")
-        need(8 <= around <= 1024, f"{mesh}_points_around", "must be in [8, 1024]", around)
+        bound(f"{mesh}_points_around", "[8, 1024]")
         step = f"{mesh}_min_step" if tolerance > 0 else f"{mesh}_axial_step"
         vertices = longest / getattr(params, step) * around
         need(vertices <= MAX_MESH_VERTICES, f"{mesh}_points_around",
              f"x rings (a colon of up to {longest:.2f} m over {step} "
              f"{getattr(params, step):g} m) must stay below {MAX_MESH_VERTICES:,} vertices, "
              f"not {vertices:,.0f}", around)
-    need(1 <= params.collision_chunks <= 100, "collision_chunks",
-         "must be in [1, 100] (each is a mesh file and a geometry)", params.collision_chunks)
+    bound("collision_chunks", "[1, 100]", "", "each is a mesh file and a geometry")
     a = params.abdomen
     bound("abdomen.depth_at_umbilicus", "[0.12, 0.5]", "m",
           "a supine abdomen is 20-25 cm front to back")
@@ -567,9 +564,8 @@ def check_colon_params(params: ColonParams) -> None:
              "must be an existing mesh file or import folder", params.source.path)
         bound("source.scale", "[1e-6, 1e3]", "", "0.001 for a mesh in millimetres")
     if isinstance(params.source, MeshOptions):
-        need(1000 <= params.source.max_faces <= 2_000_000, "source.max_faces",
-             "must be in [1000, 2000000] (a software camera render costs per triangle)",
-             params.source.max_faces)
+        bound("source.max_faces", "[1000, 2000000]", "",
+              "a software camera render costs per triangle")
         bound("source.skin_above", "[0, 0.5]", "m")
     if params.lumen is not None:
         lumen = params.lumen
@@ -584,8 +580,7 @@ def check_colon_params(params: ColonParams) -> None:
                  "narrows segments of a procedural or population colon, not of colon.source "
                  f"{params.source_name()}", lumen.collapsed)
         if lumen.bubbles is not None:
-            need(0 <= lumen.bubbles <= 500, "lumen.bubbles", "must be in [0, 500]",
-                 lumen.bubbles)
+            bound("lumen.bubbles", "[0, 500]")
         bound("lumen.collapsed_fraction", "[0.3, 1]", "",
               "of the distended diameter (the capsule must still pass the folds)")
     if params.lesions is not None:
@@ -598,26 +593,24 @@ def check_colon_params(params: ColonParams) -> None:
                  f"into colon.source {params.source_name()}", lesion.kind)
             need(lesion.kind != "diverticulum" or lesion.size_mm <= 20.0, f"{where}.size_mm",
                  "a diverticulum's neck must be at most 20 mm", lesion.size_mm)
-            need(1.0 <= lesion.size_mm <= 50.0, f"{where}.size_mm", "must be in [1, 50] mm",
-                 lesion.size_mm)
+            need_range(lesion.size_mm, f"colon.{where}.size_mm", "[1, 50]", "mm")
             need(lesion.segment in SEGMENT_NAMES, f"{where}.segment",
                  f"must be one of {', '.join(SEGMENT_NAMES)}", lesion.segment)
-            need(0.0 <= lesion.along <= 1.0, f"{where}.along", "must be in [0, 1]",
-                 lesion.along)
+            need_range(lesion.along, f"colon.{where}.along", "[0, 1]")
             need(np.isfinite(lesion.around_deg), f"{where}.around_deg", "must be finite",
                  lesion.around_deg)
         seed = params.lesions.seed
-        need(seed is None or (isinstance(seed, int) and 0 <= seed <= 2**32 - 1),
-             "lesions.seed", f"must be null or an integer in {SEED_RANGE} (a 32-bit seed)",
-             seed)
+        need(seed is None or isinstance(seed, int), "lesions.seed",
+             f"must be null or an integer in {SEED_RANGE} (a 32-bit seed)", seed)
+        if seed is not None:
+            bound("lesions.seed", SEED_RANGE, "", "a 32-bit seed")
     m = params.mucosa
     for field_name in ("base_color", "vessel_color", "deep_vessel_color"):
         value = getattr(m, field_name)
-        need(len(value) == 3 and all(0.0 <= c <= 1.0 for c in value),
-             f"mucosa.{field_name}", "must be three values in [0, 1]", value)
+        need(len(value) == 3, f"mucosa.{field_name}", "must be three values in [0, 1]", value)
+        bound(f"mucosa.{field_name}", "[0, 1]", "", "RGB")
     for field_name in ("texels_around", "texels_along"):
-        value = getattr(m, field_name)
-        need(16 <= value <= 8192, f"mucosa.{field_name}", "must be in [16, 8192]", value)
+        bound(f"mucosa.{field_name}", "[16, 8192]")
     bound("mucosa.texels_per_metre", "[1000, 20000]", "1/m",
           "texels of 0.05-1 mm; coarser, the vessels are thinner than a texel")
     bound("mucosa.variation_scale", "[0.001, 0.05]", "m")
@@ -626,10 +619,8 @@ def check_colon_params(params: ColonParams) -> None:
     bound("mucosa.vessel_width", "[0.0002, 0.005]", "m",
           "submucosal vessels are tenths of a millimetre; a trunk must be wider than the "
           "0.1 mm at which a branch ends")
-    need(0 <= m.vessel_density <= 0.5, "mucosa.vessel_density", "must be in [0, 0.5]",
-         m.vessel_density)
-    need(0 <= m.deep_fraction <= 1, "mucosa.deep_fraction", "must be in [0, 1]",
-         m.deep_fraction)
+    bound("mucosa.vessel_density", "[0, 0.5]")
+    bound("mucosa.deep_fraction", "[0, 1]")
     bound("mucosa.specular", "[0, 1]")
     bound("mucosa.shininess", "[0, 1000]", "", "a Phong exponent")
 

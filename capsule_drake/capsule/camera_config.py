@@ -3,7 +3,6 @@ conditions, latency (CameraConfig), and the size of the render faces a lens need
 (`face_pixels`, bounded before anything is allocated)."""
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -121,7 +120,8 @@ def check_camera_config(config: CameraConfig) -> None:
     why = "capsule cameras take 2-35 frames/s"
     need_range(config.fps, "fps", f"(0, {MAX_FPS:g}]", "1/s", why)
     need_range(config.fps_max, "fps_max", f"(0, {MAX_FPS:g}]", "1/s", why)
-    if not 0.0 < config.fps_min <= config.fps_max:
+    need_range(config.fps_min, "fps_min", "> 0", "1/s")
+    if not config.fps_min <= config.fps_max:
         raise ValueError(f"camera fps_min {config.fps_min} and fps_max {config.fps_max} "
                          "must satisfy 0 < fps_min <= fps_max")
     need_range(config.near, "near", "[1e-4, 1]", "m")
@@ -143,8 +143,7 @@ def check_camera_config(config: CameraConfig) -> None:
     if config.conditions not in CAMERA_CONDITIONS + ("all",):
         raise ValueError(f"camera conditions {config.conditions!r} is not one of "
                          f"{', '.join(CAMERA_CONDITIONS)} or all")
-    if not (math.isfinite(config.latency) and config.latency >= 0.0):
-        raise ValueError(f"camera latency {config.latency} must be >= 0 and finite")
+    need_range(config.latency, "latency", ">= 0", "s")
     lens_config = config.lens
     for name in ("width", "height"):
         need_range(getattr(lens_config, name), f"lens.{name}", f"[16, {MAX_IMAGE_SIDE}]", "px",

@@ -35,6 +35,7 @@ import math
 import numpy as np
 
 from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.schema import need_range
 
 WALL_SAMPLES = 5
 """Points on the capsule's axis segment at which the wall distance is evaluated."""
@@ -102,26 +103,20 @@ class PseudoForceConfig:
 
 def check_pseudo_force_config(config: PseudoForceConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    nonnegative = ("lumen_weight", "wall_weight", "potential_weight", "k_lateral", "k_forward",
-                   "k_wall", "c_wall", "k_along", "k_radial")
-    for name in nonnegative:
-        value = getattr(config, name)
-        if not (np.isfinite(value) and value >= 0.0):
-            raise ValueError(f"pseudo_force {name} {value} must be finite and >= 0")
-    for name in ("wall_distance", "force_limit", "update_period"):
-        value = getattr(config, name)
-        if not (np.isfinite(value) and value > 0.0):
-            raise ValueError(f"pseudo_force {name} {value} must be finite and positive")
-    if config.update_period < 1e-4:
-        raise ValueError(f"pseudo_force update_period {config.update_period} must be >= "
-                         "0.0001 s (a sample costs ~1.5 ms of computation)")
-    if config.wall_distance > 0.05:
-        raise ValueError(f"pseudo_force wall_distance {config.wall_distance} must be at most "
-                         "0.05 m (the widest lumen's radius)")
+    for name, unit in (("lumen_weight", ""), ("wall_weight", ""), ("potential_weight", ""),
+                       ("k_lateral", "N"), ("k_forward", "N"), ("k_wall", "N/m"),
+                       ("c_wall", "N s/m"), ("k_along", "N"), ("k_radial", "N/m")):
+        need_range(getattr(config, name), f"pseudo_force.{name}", ">= 0", unit)
+    need_range(config.wall_distance, "pseudo_force.wall_distance", "(0, 0.05]", "m",
+               "the widest lumen's radius")
+    need_range(config.force_limit, "pseudo_force.force_limit", "> 0", "N")
+    need_range(config.update_period, "pseudo_force.update_period", ">= 0.0001", "s",
+               "a sample costs ~1.5 ms of computation")
     rpy = config.device_from_camera_rpy_deg
-    if len(rpy) != 3 or not np.all(np.isfinite(rpy)) or not np.all(np.abs(rpy) <= 360.0):
-        raise ValueError(f"pseudo_force device_from_camera_rpy_deg {rpy} must be three "
-                         "finite angles in [-360, 360] deg")
+    if len(rpy) != 3:
+        raise ValueError(f"pseudo_force.device_from_camera_rpy_deg must be three angles "
+                         f"(roll, pitch, yaw), got {rpy!r}")
+    need_range(list(rpy), "pseudo_force.device_from_camera_rpy_deg", "[-360, 360]", "deg")
 
 
 def rotation_from_rpy_deg(rpy_deg) -> np.ndarray:

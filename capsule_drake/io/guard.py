@@ -39,6 +39,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.io.metrics import capsule_surface_points_C
+from capsule_drake.schema import need_range
 
 
 @dataclasses.dataclass
@@ -57,13 +58,11 @@ class GuardConfig:
 
 def check_guard_config(config: GuardConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    for name in ("max_speed", "max_wall_excursion", "period", "wall_period"):
-        value = getattr(config, name)
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"guard.{name} must be finite and > 0, got {value}")
-    if config.period < 1e-4 or config.wall_period < 1e-4:
-        raise ValueError("guard.period and guard.wall_period must be >= 1e-4 s (the checks "
-                         "cost ~2 ms)")
+    need_range(config.max_speed, "guard.max_speed", "> 0", "m/s")
+    need_range(config.max_wall_excursion, "guard.max_wall_excursion", "> 0", "m")
+    for name in ("period", "wall_period"):
+        need_range(getattr(config, name), f"guard.{name}", ">= 1e-4", "s",
+                   "the checks cost ~2 ms")
 
 
 # A GuardTrip's `kind` for the reasons after which a run's distances mean nothing.

@@ -71,6 +71,7 @@ from capsule_drake.control.analysis import epm_pose_for_force
 from capsule_drake.epm.poses import field_aligning_moment_direction
 from capsule_drake.perception.lumen_truth import add_lumen_ray_from_truth
 from capsule_drake.blocks import block, checked, need
+from capsule_drake.schema import need_range
 from capsule_drake.teleop.mapping import lead_at_most, limit_pitch, turn
 
 LUMEN_SOURCES = ("truth", "truth_point", "detected")
@@ -158,39 +159,32 @@ class LumenFollowerConfig:
 
 def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    for name in ("period", "speed_time", "heading_time", "wiggle_period", "search_period",
-                 "max_epm_speed", "target_speed", "crumb_spacing", "look_ahead",
-                 "crumb_radius", "trail_reach", "trail_radius"):
-        if not getattr(config, name) > 0.0:
-            raise ValueError(f"lumen follower {name} must be > 0, got {getattr(config, name)}")
-    for name in ("force_gain", "brake_rate", "height_margin",
-                 "stall_speed_fraction", "stall_after", "push_time", "wiggle_deg",
-                 "unstick_distance", "backoff_time", "coast_time", "lost_after",
-                 "search_cone_deg", "search_time"):
-        if not getattr(config, name) >= 0.0:
-            raise ValueError(f"lumen follower {name} must be >= 0, got {getattr(config, name)}")
+    need_range(config.period, "control.period", ">= 0.0001", "s")
+    for name, unit in (("speed_time", "s"), ("heading_time", "s"), ("wiggle_period", "s"),
+                       ("search_period", "s"), ("max_epm_speed", "m/s"),
+                       ("target_speed", "m/s"), ("crumb_spacing", "m"), ("look_ahead", "m"),
+                       ("crumb_radius", "m"), ("trail_reach", "m"), ("trail_radius", "m")):
+        need_range(getattr(config, name), f"control.{name}", "> 0", unit)
+    for name, unit in (("force_gain", ""), ("brake_rate", "N/s"), ("height_margin", "m"),
+                       ("stall_speed_fraction", ""), ("stall_after", "s"), ("push_time", "s"),
+                       ("wiggle_deg", "deg"), ("unstick_distance", "m"),
+                       ("backoff_time", "s"), ("coast_time", "s"), ("lost_after", "s"),
+                       ("search_time", "s")):
+        need_range(getattr(config, name), f"control.{name}", ">= 0", unit)
     for name in ("min_force", "backoff_force", "coast_force", "search_force"):
-        if not getattr(config, name) > 0.0:
-            raise ValueError(f"lumen follower {name} must be > 0 N, got {getattr(config, name)}")
-    if not 0.0 <= config.lift <= 1.0:
-        raise ValueError(f"lumen follower lift must be in [0, 1], got {config.lift}")
+        need_range(getattr(config, name), f"control.{name}", "> 0", "N")
+    need_range(config.lift, "control.lift", "[0, 1]")
     if not config.max_force >= config.min_force:
         raise ValueError("lumen follower max_force must be >= min_force")
-    if not config.push_force >= config.push_force_low >= 0.0:
+    need_range(config.push_force_low, "control.push_force_low", ">= 0", "N")
+    if not config.push_force >= config.push_force_low:
         raise ValueError("lumen follower needs push_force >= push_force_low >= 0")
-    if not config.push_sweep_period > 0.0:
-        raise ValueError("lumen follower push_sweep_period must be > 0")
-    if not 3 <= config.max_crumbs <= 10_000:
-        raise ValueError(f"lumen follower max_crumbs must be in [3, 10000] (3 numbers of "
-                         f"state each), got {config.max_crumbs}")
-    if not config.overspeed > 1.0:
-        raise ValueError("lumen follower overspeed must be > 1")
+    need_range(config.push_sweep_period, "control.push_sweep_period", "> 0", "s")
+    need_range(config.max_crumbs, "control.max_crumbs", "[3, 10000]", "",
+               "3 numbers of state each")
+    need_range(config.overspeed, "control.overspeed", "> 1")
     for name in ("max_lead_deg", "max_pitch_deg", "search_cone_deg"):
-        if not 0.0 <= getattr(config, name) <= 90.0:
-            raise ValueError(f"lumen follower {name} must be in [0, 90] deg, got "
-                             f"{getattr(config, name)}")
-    if not config.period >= 1e-4:
-        raise ValueError(f"lumen follower period must be >= 0.0001 s, got {config.period}")
+        need_range(getattr(config, name), f"control.{name}", "[0, 90]", "deg")
 
 
 # Layout of the discrete state.

@@ -33,6 +33,7 @@ import numpy as np
 
 from capsule_drake.perception.lumen_net import DEFAULT_WEIGHTS, LumenNet
 from capsule_drake.plugins import load_function
+from capsule_drake.schema import need_range
 
 PREFILTERS = ("gaussian", "median")
 CORE_FEATURES = ("depth", "surround", "rim_fraction", "radius", "area_fraction")
@@ -129,9 +130,8 @@ def check_lumen_params(params: LumenParams) -> None:
     if params.prefilter not in PREFILTERS:
         raise ValueError(f"lumen detector prefilter {params.prefilter!r} is not one of "
                          f"{PREFILTERS}")
-    if not 1 <= params.net_symmetries <= 8:
-        raise ValueError(f"lumen detector net_symmetries {params.net_symmetries} must be "
-                         "in 1..8")
+    need_range(params.net_symmetries, "params.net_symmetries", "[1, 8]", "",
+               "the square frame's flips and quarter turns")
     if params.median_size < 1 or params.median_size % 2 == 0:
         raise ValueError(f"lumen detector median_size {params.median_size} must be odd >= 1")
     if not params.blur_sigma >= 0.0:
@@ -144,28 +144,16 @@ def check_lumen_params(params: LumenParams) -> None:
         raise ValueError("lumen detector max_radius must be > 0")
     for name in ("core_fraction", "min_area_fraction", "min_contrast", "max_rim_fraction",
                  "min_confidence"):
-        value = getattr(params, name)
-        if not 0.0 <= value <= 1.0:
-            raise ValueError(f"lumen detector {name} {value} must be in [0, 1]")
+        need_range(getattr(params, name), f"params.{name}", "[0, 1]")
     if not params.dark_bias >= 0.0:
         raise ValueError("lumen detector dark_bias must be >= 0")
-    if not 16 <= params.core_work_size <= 4096:
-        raise ValueError(f"lumen detector core_work_size {params.core_work_size} must be "
-                         f"in [16, 4096] (px)")
-    if not 0.0 < params.core_sigma <= 0.5:
-        raise ValueError(f"lumen detector core_sigma {params.core_sigma} must be in (0, 0.5]")
-    if not 0.0 < params.core_radius <= 1.0:
-        raise ValueError(f"lumen detector core_radius {params.core_radius} must be in (0, 1]")
-    if not 0.0 <= params.core_quantile <= 0.5:
-        raise ValueError(f"lumen detector core_quantile {params.core_quantile} must be in "
-                         "[0, 0.5]")
-    if not 0.0 <= params.core_basin <= 0.5:
-        raise ValueError(f"lumen detector core_basin {params.core_basin} must be in [0, 0.5]")
-    if not 0.0 <= params.core_rim_margin <= 0.3:
-        raise ValueError(f"lumen detector core_rim_margin {params.core_rim_margin} must be "
-                         "in [0, 0.3]")
-    if not 0.0 < params.core_level <= 1.0:
-        raise ValueError(f"lumen detector core_level {params.core_level} must be in (0, 1]")
+    need_range(params.core_work_size, "params.core_work_size", "[16, 4096]", "px")
+    need_range(params.core_sigma, "params.core_sigma", "(0, 0.5]")
+    need_range(params.core_radius, "params.core_radius", "(0, 1]")
+    need_range(params.core_quantile, "params.core_quantile", "[0, 0.5]")
+    need_range(params.core_basin, "params.core_basin", "[0, 0.5]")
+    need_range(params.core_rim_margin, "params.core_rim_margin", "[0, 0.3]")
+    need_range(params.core_level, "params.core_level", "(0, 1]")
     if (len(params.confidence_weights) != len(CORE_FEATURES) + 1
             or not np.all(np.isfinite(params.confidence_weights))):
         raise ValueError(f"lumen detector confidence_weights must be {len(CORE_FEATURES) + 1}"

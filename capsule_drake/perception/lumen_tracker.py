@@ -43,12 +43,11 @@ class LumenTrackerConfig:
 def check_lumen_tracker_config(config: LumenTrackerConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     check_lumen_params(config.params)
-    if not 1 <= int(config.confirm_frames) <= 100 or config.confirm_frames != int(
-            config.confirm_frames):
-        raise ValueError(f"lumen tracker confirm_frames must be an integer in [1, 100], got "
+    need_range(config.confirm_frames, "confirm_frames", "[1, 100]")
+    if config.confirm_frames != int(config.confirm_frames):
+        raise ValueError(f"confirm_frames must be an integer in [1, 100], got "
                          f"{config.confirm_frames}")
-    if not 0.0 < config.agree_deg <= 180.0:
-        raise ValueError(f"lumen tracker agree_deg must be in (0, 180], got {config.agree_deg}")
+    need_range(config.agree_deg, "agree_deg", "(0, 180]", "deg")
 
 
 class LumenTracker(LeafSystem):

@@ -59,6 +59,8 @@ import math
 import numpy as np
 from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, LeafSystem
 
+from capsule_drake.schema import need_range
+
 # The random extra delay of a packet is exponential, truncated at this many standard
 # deviations (a fraction e^-8 = 3e-4 of the packets; it bounds the ring buffer).
 JITTER_TRUNCATION = 8.0
@@ -117,28 +119,22 @@ scans, one slot per period of it: 2 s at 1 kHz is 2,000 slots, and with the shor
 (0.1 ms) 20,000 (a delay of 1e9 s would have asked for 80 TiB)."""
 
 
-def check_channel_config(config: ChannelConfig) -> None:
-    """Raises ValueError naming the first impossible field."""
-    if not (math.isfinite(config.period) and config.period > 0.0):
-        raise ValueError(f"channel period {config.period} must be > 0 and finite")
-    if not (math.isfinite(config.delay) and config.delay >= 0.0):
-        raise ValueError(f"channel delay {config.delay} must be >= 0 and finite")
-    if not (math.isfinite(config.jitter) and config.jitter >= 0.0):
-        raise ValueError(f"channel jitter {config.jitter} must be >= 0 and finite")
-    if not config.period >= 1e-4:
-        raise ValueError(f"channel period {config.period} must be >= 0.0001 s (a packet "
-                         "every 0.1 ms; the haptic loop runs at 1 kHz)")
+def check_channel_config(config: ChannelConfig, where: str = "channel.") -> None:
+    """Raises ValueError naming the first impossible field, its key prefixed by `where`
+    (a scenario's Teleop: "channel.forward." or "channel.backward.")."""
+    need_range(config.period, f"{where}period", ">= 0.0001", "s",
+               "a packet every 0.1 ms; the haptic loop runs at 1 kHz")
+    need_range(config.delay, f"{where}delay", ">= 0", "s")
+    need_range(config.jitter, f"{where}jitter", ">= 0", "s")
     latency = config.delay + JITTER_TRUNCATION * config.jitter
     if latency > MAX_LATENCY:
-        raise ValueError(f"channel delay {config.delay} + {JITTER_TRUNCATION:g} x jitter "
+        raise ValueError(f"{where}delay {config.delay} + {JITTER_TRUNCATION:g} x jitter "
                          f"{config.jitter} must be at most {MAX_LATENCY:g} s (teleoperation "
                          "fails beyond ~1 s; the delay buffer holds one slot per period of it)")
-    if not (0.0 <= config.loss < 1.0):
-        raise ValueError(f"channel loss {config.loss} must be in [0, 1)")
-    seed = config.seed
-    if not (isinstance(seed, (int, float)) and math.isfinite(seed) and int(seed) == seed
-            and 0 <= seed < 2 ** 53):
-        raise ValueError(f"channel seed {config.seed} must be an integer in [0, 2^53)")
+    need_range(config.loss, f"{where}loss", "[0, 1)")
+    need_range(config.seed, f"{where}seed", f"[0, {2 ** 53})", "", "an integer below 2^53")
+    if int(config.seed) != config.seed:
+        raise ValueError(f"{where}seed must be an integer in [0, 2^53), got {config.seed!r}")
 
 
 def _latency_ticks(seconds: float, period: float) -> int:
@@ -313,20 +309,15 @@ class PassivityConfig:
     energy_budget: float = 0.0
 
 
-def check_passivity_config(config: PassivityConfig) -> None:
-    """Raises ValueError naming the first impossible field."""
-    if not (math.isfinite(config.period) and config.period >= 1e-4):
-        raise ValueError(f"passivity period {config.period} must be >= 0.0001 s and finite "
-                         "(the device's servo runs at 1 kHz)")
-    if not (math.isfinite(config.max_damping) and config.max_damping >= 0.0):
-        raise ValueError(f"passivity max_damping {config.max_damping} must be >= 0 and finite")
-    if not (math.isfinite(config.moving_mass) and config.moving_mass > 0.0):
-        raise ValueError(f"passivity moving_mass {config.moving_mass} must be > 0 and finite")
-    if not (math.isfinite(config.force_limit) and config.force_limit >= 0.0):
-        raise ValueError(f"passivity force_limit {config.force_limit} must be >= 0 and finite")
-    if not (math.isfinite(config.energy_budget) and config.energy_budget >= 0.0):
-        raise ValueError(
-            f"passivity energy_budget {config.energy_budget} must be >= 0 and finite")
+def check_passivity_config(config: PassivityConfig,
+                           where: str = "channel.passivity.") -> None:
+    """Raises ValueError naming the first impossible field, its key prefixed by `where`."""
+    need_range(config.period, f"{where}period", ">= 0.0001", "s",
+               "the device's servo runs at 1 kHz")
+    need_range(config.max_damping, f"{where}max_damping", ">= 0", "N s/m")
+    need_range(config.moving_mass, f"{where}moving_mass", "> 0", "kg")
+    need_range(config.force_limit, f"{where}force_limit", ">= 0", "N", "0: no limit")
+    need_range(config.energy_budget, f"{where}energy_budget", ">= 0", "J")
 
 
 def predicted_work(config: PassivityConfig, force: np.ndarray, velocity: np.ndarray) -> float:

@@ -99,11 +99,8 @@ def check_teleop(teleop: Teleop) -> None:
                          f"1.5 x simulated.period ({1.5 * hand.period:g} s): the operator's "
                          "delay line holds at least two samples")
     for name in ("forward", "backward"):
-        try:
-            check_channel_config(getattr(teleop.channel, name))
-        except ValueError as e:
-            raise ValueError(f"channel.{name}: {e}") from None
-    check_passivity_config(teleop.channel.passivity)
+        check_channel_config(getattr(teleop.channel, name), f"channel.{name}.")
+    check_passivity_config(teleop.channel.passivity, "channel.passivity.")
     check_udp_bridge_config(teleop.udp)
     if teleop.operator == "udp":
         check_udp_address(teleop.udp)

@@ -14,6 +14,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from capsule_drake.guidance.terms import saturate_checked
+from capsule_drake.schema import need_range
 
 STYLUS_SIZE = 9  # position (3), quaternion wxyz (4), clutch (1), mode (1)
 
@@ -39,14 +40,16 @@ class HapticDeviceConfig:
 
 def check_haptic_device_config(config: HapticDeviceConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    if len(config.workspace_half_extents) != 3 or min(config.workspace_half_extents) <= 0:
-        raise ValueError("haptic device workspace_half_extents must be 3 values > 0")
-    for name in ("force_limit", "servo_rate", "stylus_mass"):
-        if not getattr(config, name) > 0.0:
-            raise ValueError(f"haptic device {name} must be > 0")
-    for name in ("friction", "stop_stiffness", "stop_damping"):
-        if not getattr(config, name) >= 0.0:
-            raise ValueError(f"haptic device {name} must be >= 0")
+    if len(config.workspace_half_extents) != 3:
+        raise ValueError(f"device.workspace_half_extents must be 3 values (x, y, z), got "
+                         f"{config.workspace_half_extents!r}")
+    need_range(list(config.workspace_half_extents), "device.workspace_half_extents", "> 0",
+               "m")
+    for name, unit in (("force_limit", "N"), ("servo_rate", "Hz"), ("stylus_mass", "kg")):
+        need_range(getattr(config, name), f"device.{name}", "> 0", unit)
+    for name, unit in (("friction", "N s/m"), ("stop_stiffness", "N/m"),
+                       ("stop_damping", "N s/m")):
+        need_range(getattr(config, name), f"device.{name}", ">= 0", unit)
 
 
 class HapticMaster(LeafSystem):

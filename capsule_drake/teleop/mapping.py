@@ -31,6 +31,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.capsule.model import rotation_from_quaternion
 from capsule_drake.epm.poses import field_aligning_moment_direction
+from capsule_drake.schema import need_range
 
 MODES = ("position", "lead", "rate")
 
@@ -79,13 +80,15 @@ def check_mapping_config(config: MappingConfig) -> None:
     """Raises ValueError naming the first impossible field."""
     if config.mode not in MODES:
         raise ValueError(f"teleop mapping mode {config.mode!r} is not one of {MODES}")
-    for name in ("translation_scale", "yaw_gain", "pitch_gain", "rate_translation",
-                 "rate_yaw", "rate_pitch", "dead_band", "max_pitch_deg", "max_lead_deg",
-                 "max_lead_distance", "assist_margin", "max_speed"):
-        if not getattr(config, name) >= 0.0:
-            raise ValueError(f"teleop mapping {name} must be >= 0")
-    if not config.period > 0.0 or not config.stale_after > 0.0:
-        raise ValueError("teleop mapping period and stale_after must be > 0")
+    for name, unit in (("translation_scale", "m/m"), ("yaw_gain", "rad/m"),
+                       ("pitch_gain", "rad/m"), ("rate_translation", "m/s per m"),
+                       ("rate_yaw", "rad/s per m"), ("rate_pitch", "rad/s per m"),
+                       ("dead_band", "m"), ("max_pitch_deg", "deg"), ("max_lead_deg", "deg"),
+                       ("max_lead_distance", "m"), ("assist_margin", "m"),
+                       ("max_speed", "m/s")):
+        need_range(getattr(config, name), f"mapping.{name}", ">= 0", unit)
+    need_range(config.period, "mapping.period", "> 0", "s")
+    need_range(config.stale_after, "mapping.stale_after", "> 0", "s")
 
 
 def turn(h, axis, angle):

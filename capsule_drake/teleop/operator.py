@@ -26,6 +26,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from capsule_drake.capsule.model import rotation_from_quaternion
+from capsule_drake.schema import need_range
 
 
 @dataclasses.dataclass
@@ -91,26 +92,22 @@ class OperatorConfig:
 
 def check_operator_config(config: OperatorConfig) -> None:
     """Raises ValueError naming the first impossible field."""
-    if not config.push_after >= 0.0 or not 0.0 <= config.push_fraction <= 1.0:
-        raise ValueError("teleop operator push_after must be >= 0, push_fraction in [0, 1]")
-    if not config.cruise_offset >= 0.0 or not config.search_offset >= 0.0:
-        raise ValueError("teleop operator cruise_offset and search_offset must be >= 0")
-    if not config.steer_time > 0.0 or not config.speed_time > 0.0 \
-            or not config.search_sweep_period > 0.0:
-        raise ValueError("teleop operator steer_time, speed_time and search_sweep_period "
-                         "must be > 0")
-    for name in ("hand_stiffness", "hand_damping", "advance_speed", "return_speed",
-                 "target_speed", "speed_gain", "search_sweep_after", "stall_after",
-                 "retreat_time", "turn_back_deg",
-                 "steer_gain", "reaction_time", "back_off_speed"):
-        if not getattr(config, name) >= 0.0:
-            raise ValueError(f"teleop operator {name} must be >= 0")
-    if not 0.0 < config.stroke_fraction <= 1.0:
-        raise ValueError("teleop operator stroke_fraction must be in (0, 1]")
-    if not 0.0 < config.advance_cone_deg <= 90.0:
-        raise ValueError("teleop operator advance_cone_deg must be in (0, 90]")
-    if not config.period > 0.0:
-        raise ValueError("teleop operator period must be > 0")
+    need_range(config.push_after, "simulated.push_after", ">= 0", "s")
+    need_range(config.push_fraction, "simulated.push_fraction", "[0, 1]")
+    need_range(config.cruise_offset, "simulated.cruise_offset", ">= 0", "m")
+    need_range(config.search_offset, "simulated.search_offset", ">= 0", "m")
+    for name in ("steer_time", "speed_time", "search_sweep_period"):
+        need_range(getattr(config, name), f"simulated.{name}", "> 0", "s")
+    for name, unit in (("hand_stiffness", "N/m"), ("hand_damping", "N s/m"),
+                       ("advance_speed", "m/s"), ("return_speed", "m/s"),
+                       ("target_speed", "m/s"), ("speed_gain", ""),
+                       ("search_sweep_after", "s"), ("stall_after", "s"),
+                       ("retreat_time", "s"), ("turn_back_deg", "deg"), ("steer_gain", "m"),
+                       ("reaction_time", "s"), ("back_off_speed", "m/s")):
+        need_range(getattr(config, name), f"simulated.{name}", ">= 0", unit)
+    need_range(config.stroke_fraction, "simulated.stroke_fraction", "(0, 1]")
+    need_range(config.advance_cone_deg, "simulated.advance_cone_deg", "(0, 90]", "deg")
+    need_range(config.period, "simulated.period", "> 0", "s")
 
 
 class SimulatedOperator(LeafSystem):

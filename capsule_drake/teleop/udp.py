@@ -25,6 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from capsule_drake.guidance.terms import saturate_checked as saturate_force
+from capsule_drake.schema import need_range
 
 log = logging.getLogger(__name__)
 
@@ -200,22 +201,14 @@ def check_udp_bridge_config(config: UdpBridgeConfig) -> None:
     if len(config.host) > 253 or any(c.isspace() or not c.isprintable() for c in config.host):
         raise ValueError(f"udp bridge host {config.host[:60]!r} must be a host name or address "
                          "(at most 253 characters, no spaces)")
-    if not 0 <= config.port <= 65535:
-        raise ValueError(f"udp bridge port {config.port} must be in [0, 65535]")
-    for name in ("timeout", "period", "force_limit"):
-        value = getattr(config, name)
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f"udp bridge {name} {value} must be finite and positive")
-    if config.period < 1e-4:
-        raise ValueError(f"udp bridge period {config.period} must be >= 0.0001 s (the device "
-                         "sends at 1 kHz)")
-    if not 1 <= config.max_packets_per_tick <= 65536:
-        raise ValueError(f"udp bridge max_packets_per_tick {config.max_packets_per_tick} "
-                         "must be in [1, 65536]")
-    if not 0 <= config.received_log_limit <= MAX_RECEIVED_LOG:
-        raise ValueError(f"udp bridge received_log_limit {config.received_log_limit} "
-                         f"must be in [0, {MAX_RECEIVED_LOG}] (24 bytes each: "
-                         f"{MAX_RECEIVED_LOG * 24 / 1e9:.2g} GB, 10 hours at 1 kHz)")
+    need_range(config.port, "udp.port", "[0, 65535]", "", "0: any free port")
+    need_range(config.timeout, "udp.timeout", "> 0", "s")
+    need_range(config.period, "udp.period", ">= 0.0001", "s", "the device sends at 1 kHz")
+    need_range(config.force_limit, "udp.force_limit", "> 0", "N")
+    need_range(config.max_packets_per_tick, "udp.max_packets_per_tick", "[1, 65536]")
+    need_range(config.received_log_limit, "udp.received_log_limit",
+               f"[0, {MAX_RECEIVED_LOG}]", "",
+               f"24 bytes each: {MAX_RECEIVED_LOG * 24 / 1e9:.2g} GB, 10 hours at 1 kHz")
 
 
 MAX_RECEIVED_LOG = 36_000_000

@@ -61,6 +61,8 @@ import math
 import numpy as np
 from scipy.special import ndtr, ndtri
 
+from capsule_drake.schema import need_range
+
 TISSUE_STREAM = 31
 """The patient's tissue stream: numpy's default_rng([colon.seed, TISSUE_STREAM]) (the
 population's other streams: [seed, 1], [seed, 7, ...], [seed, 11], [seed, 12, ...],
@@ -193,10 +195,7 @@ def check_tissue_request(tissue: str, percentile, where: str = "colon.source") -
                          f"got {tissue!r}")
     if percentile is None:
         return
-    if isinstance(percentile, bool) or not isinstance(percentile, (int, float)) or not (
-            math.isfinite(percentile) and 0.0 < percentile < 100.0):
-        raise ValueError(f"{where}.tissue_percentile must be in (0, 100) or null, "
-                         f"got {percentile!r}")
+    need_range(percentile, f"{where}.tissue_percentile", "(0, 100)", "", "or null: drawn")
     if tissue != DRAWN:
         raise ValueError(f"{where}.tissue_percentile sets every figure of the wall in place "
                          f"of the draw: only with tissue: {DRAWN}, not with tissue: {tissue}")
