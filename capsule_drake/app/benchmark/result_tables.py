@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from capsule_drake.app.benchmark.tables import breakdown, wilson_interval
+from capsule_drake.app.benchmark.tables import summary as tables_summary
 
 NUMBERS = ("colon_cm", "time_to_cecum_s", "progress", "progress_cm", "wall_contact_s",
            "peak_contact_force_N", "peak_contact_pressure_kPa", "coverage", "sim_time_s",
@@ -70,36 +71,34 @@ def _speed(rows) -> str:
     return f"{np.mean(values):.1f}" if values else "-"
 
 
-def _mean(rows, key, digits=1) -> str:
-    values = np.array([row[key] for row in rows], dtype=float)
-    values = values[np.isfinite(values)]
-    return f"{values.mean():.{digits}f}" if len(values) else "-"
+# The page's columns: its heading, the benchmark summary's column, the digits shown.
+SHOWN = (("time to cecum (s)", "time_to_cecum_s", 1), ("wall contact (s)", "wall_contact_s", 1),
+         ("peak force (N)", "peak_contact_force_N", 3),
+         ("peak pressure (kPa)", "peak_contact_pressure_kPa", 1),
+         ("site peak (kPa)", "site_peak_pressure_kPa", 1),
+         ("site > 4 kPa (s)", "site_ischaemia_s", 1), ("site > 330 kPa (s)", "site_injury_s", 1),
+         ("coverage", "coverage", 2))
 
 
 def summary(rows: list[dict], by: str = "navigator", label: str | None = None) -> list[dict]:
-    """One row per value of the column `by` (the navigator), in the order they first
-    appear; `label`: a first column saying what the runs were."""
+    """The benchmark's summary (tables.summary), one row per value of the column `by` (the
+    navigator), shown as the results pages show it; `label`: a first column saying what the
+    runs were."""
     table = []
-    for value in dict.fromkeys(row[by] for row in rows):
-        mine = [row for row in rows if row[by] == value]
-        reached = sum(row["reached_cecum"] for row in mine)
-        low, high = wilson_interval(reached, len(mine))
-        first = {"runs of": label} if label is not None else {}
-        table.append({**first, by: value, "runs": len(mine),
-                      "cecum": f"{reached}/{len(mine)}", "95 % interval": f"{low:.2f}-{high:.2f}",
-                      "time to cecum (s)": _mean([r for r in mine if r["reached_cecum"]],
-                                                 "time_to_cecum_s"),
-                      "speed (mm/s)": _speed(mine),
-                      "wall contact (s)": _mean(mine, "wall_contact_s"),
-                      "peak force (N)": _mean(mine, "peak_contact_force_N", 3),
-                      "peak pressure (kPa)": _mean(mine, "peak_contact_pressure_kPa"),
-                      "site peak (kPa)": _mean(mine, "site_peak_pressure_kPa"),
-                      "site > 4 kPa (s)": _mean(mine, "site_ischaemia_s"),
-                      "site > 330 kPa (s)": _mean(mine, "site_injury_s"),
-                      "coverage": _mean(mine, "coverage", 2)})
-        p95 = [float(row.get("loc_pos_err_p95_mm") or "nan") for row in mine]
-        if np.isfinite(p95).any():   # a navigator that localises the capsule itself
-            table[-1]["localiser p95 (mm)"] = f"{np.nanmean(p95):.1f}"
+    for group in tables_summary([{"row": row} for row in rows], by):
+        mine = [row for row in rows if row[by] == group[by]]
+        low, high = wilson_interval(sum(row["reached_cecum"] for row in mine), len(mine))
+        shown = {"runs of": label} if label is not None else {}
+        shown.update({by: group[by], "runs": group["runs"], "cecum": group["reached_cecum"],
+                      "95 % interval": f"{low:.2f}-{high:.2f}"})
+        for heading, key, digits in SHOWN:
+            value = group[key]
+            shown[heading] = "-" if np.isnan(value) else f"{value:.{digits}f}"
+            if key == "time_to_cecum_s":
+                shown["speed (mm/s)"] = _speed(mine)
+        if np.isfinite(group["loc_pos_err_p95_mm"]):   # a navigator localising the capsule
+            shown["localiser p95 (mm)"] = f"{group['loc_pos_err_p95_mm']:.1f}"
+        table.append(shown)
     return table
 
 

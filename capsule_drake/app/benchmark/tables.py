@@ -33,13 +33,14 @@ def wilson_interval(successes: int, runs: int, z: float = 1.959964) -> tuple[flo
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def summary(results: list[dict]) -> list[dict]:
-    """Per navigator: runs, cecal intubation rate with its 95 % Wilson interval, mean time
-    to cecum (of those that reached it), mean progress, and the means of the other columns;
-    for the localisation errors, the worst run's too."""
+def summary(results: list[dict], by: str = "navigator") -> list[dict]:
+    """Per navigator (or per value of another column `by`, as the results pages group a
+    sweep): runs, cecal intubation rate with its 95 % Wilson interval, mean time to cecum
+    (of those that reached it), mean progress, and the means of the other columns; for the
+    localisation errors, the worst run's too."""
     out = []
-    for navigator in dict.fromkeys(r["row"]["navigator"] for r in results):
-        rows = [r["row"] for r in results if r["row"]["navigator"] == navigator]
+    for navigator in dict.fromkeys(r["row"][by] for r in results):
+        rows = [r["row"] for r in results if r["row"][by] == navigator]
 
         def finite(key):
             values = np.array([row.get(key, np.nan) for row in rows], dtype=float)
@@ -53,7 +54,7 @@ def summary(results: list[dict]) -> list[dict]:
             values = finite(key)
             return round(float(values.max()), 3) if len(values) else np.nan
 
-        out.append({"navigator": navigator, "runs": len(rows),
+        out.append({by: navigator, "runs": len(rows),
                     "reached_cecum": f"{sum(row['reached_cecum'] for row in rows)}/{len(rows)}",
                     "cecum_95ci": "[{:.2f}, {:.2f}]".format(*wilson_interval(
                         sum(bool(row["reached_cecum"]) for row in rows), len(rows))),
