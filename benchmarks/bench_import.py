@@ -14,10 +14,11 @@ With --tubes, instead: imports the test tubes of tests/tube_set.py (made indepen
 the package, 4k-220k faces) once each and prints each one's faces, import time, and the
 recovered centreline's largest distance from the true one (both ways) [mm].
 
-With --sweep N, instead: N tubes of random shape (tube_set.random_spec, seeds from 0: the
-set's features drawn together, deep folds, flares, oblique cuts and sharp bends at the
-same end included; draws that bend tighter than their radius allows are skipped) and the
-distribution of the largest distance, with each tube over 2 mm named.
+With --sweep N, instead: N tubes of random shape (tube_set.random_spec, seeds from
+--first-seed, default 0: the set's features drawn together, deep folds, flares, oblique
+cuts and sharp bends at the same end included; draws that bend tighter than their radius
+allows are skipped) and the distribution of the largest distance, with each tube over 2 mm
+named (--csv PATH: a row per tube).
 
 With --sizes N,N,..., instead: for each size, a bent open tube of about N triangles (a
 uniform grid of rings, 4 cm wide, 48 cm long) and a soup of N separate triangles, each
@@ -25,7 +26,7 @@ imported in a process of its own with the import's size limit lifted, and its wa
 its peak memory and its outcome printed: what importer.MAX_IMPORT_FACES is set from.
 
 Run: python benchmarks/bench_import.py [--repeats 3] [--sim 10] [--tubes] [--sweep N]
-     [--sizes 300000,1200000,4800000]
+     [--first-seed S] [--csv PATH] [--sizes 300000,1200000,4800000]
 """
 
 import argparse
@@ -75,10 +76,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from tube_set import TUBES, centreline_errors, make_tube, random_spec  # noqa: E402
 
 
-def sweep(count: int) -> None:
-    errors, skipped, seed = [], 0, -1
+def sweep(count: int, first_seed: int = 0, csv_path: str | None = None) -> None:
+    rows, skipped, seed = [], 0, first_seed - 1
     with tempfile.TemporaryDirectory() as folder:
-        while len(errors) < count:
+        while len(rows) < count:
             seed += 1
             spec = random_spec(seed)
             try:
@@ -87,20 +88,34 @@ def sweep(count: int) -> None:
                 skipped += 1   # bent tighter than its radius allows
                 continue
             path = tube.write(folder)
+            start = time.perf_counter()
             try:
                 wall = import_colon_mesh(path, tube.scale)
-                error = max(centreline_errors(tube.truth, wall.centerline.points))
+                to_truth, to_line = centreline_errors(tube.truth, wall.centerline.points)
+                status = "ok"
             except ValueError as e:
                 print(f"seed {seed}: refused ({str(e).splitlines()[0]})")
-                error = np.inf
-            errors.append(error)
-            if error >= 0.002:
-                print(f"seed {seed}: {1000 * error:.2f} mm  ends {'/'.join(spec.ends)}, flare "
-                      f"{spec.flare}, oblique {spec.oblique}, bend {spec.end_bend}, folds "
+                to_truth = to_line = np.inf
+                status = "refused"
+            rows.append(dict(seed=seed, ends="/".join(spec.ends), to_truth_mm=1000 * to_truth,
+                             to_line_mm=1000 * to_line,
+                             error_mm=1000 * max(to_truth, to_line),
+                             seconds=time.perf_counter() - start, status=status))
+            if rows[-1]["error_mm"] >= 2.0:
+                print(f"seed {seed}: {rows[-1]['error_mm']:.2f} mm  ends {'/'.join(spec.ends)}, "
+                      f"flare {spec.flare}, oblique {spec.oblique}, bend {spec.end_bend}, folds "
                       f"{spec.haustra} (haustral) {spec.ripple} (ring), {spec.mesh}", flush=True)
-    e = 1000 * np.array(errors)
-    print(f"{len(e)} tubes (seeds 0-{seed}; {skipped} draws bent too tightly, skipped): "
-          f"largest distance median {np.median(e):.2f} mm, 90th percentile "
+    if csv_path:
+        import csv
+
+        with open(csv_path, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows({k: f"{v:.3f}" if isinstance(v, float) else v
+                              for k, v in row.items()} for row in rows)
+    e = np.array([row["error_mm"] for row in rows])
+    print(f"{len(e)} tubes (seeds {first_seed}-{seed}; {skipped} draws bent too tightly, "
+          f"skipped): largest distance median {np.median(e):.2f} mm, 90th percentile "
           f"{np.percentile(e, 90):.2f} mm, largest {e.max():.2f} mm; within 2 mm: "
           f"{np.sum(e < 2.0)} of {len(e)}")
 
@@ -195,6 +210,9 @@ def main() -> None:
                         help="time and check the import of the test tubes instead")
     parser.add_argument("--sweep", type=int, default=0, metavar="N",
                         help="import N tubes of random shape and print the errors instead")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="the sweep's first seed (default 0)")
+    parser.add_argument("--csv", metavar="PATH", help="the sweep's tubes, one row each")
     parser.add_argument("--sizes", metavar="N,N,...",
                         help="import tubes and triangle soups of these sizes instead, each "
                              "in a process of its own: seconds and peak memory")
@@ -207,7 +225,7 @@ def main() -> None:
         size_table([int(float(n)) for n in args.sizes.split(",")])
         return
     if args.sweep:
-        sweep(args.sweep)
+        sweep(args.sweep, args.first_seed, args.csv)
         return
     if args.tubes:
         tube_table()

@@ -33,7 +33,16 @@
    flat cap; to the centre of the sphere fitted to a round cap and then straight along its
    tangent to the wall; to where it crosses the plane of an open end's loop (an oblique
    cut's centre: the loop's own centroid is off the axis where the tube flares or bends),
-   or straight along the end's tangent there if the cubic wanders.
+   or straight along the end's tangent there if the cubic wanders. A round cap's last
+   stretch leaves its sphere's centre along the cap's own axis: toward the area centroid
+   of the faces on the sphere (`_cap_axis`), not along the line's tangent, which a bend
+   just before the cap tilts.
+5. A recast can wander (a cubic carried past the sections it was fitted to, refined, then
+   recast from its own wandering end), so each end is taken from the pass whose last 4 cm
+   are nearest their own sections' centres (`end_residual`: the true centre line is a fixed
+   point of "each section normal to the line is centred on it"). A flat cap's end is then
+   made from the cap itself (`_finish_cap`): the area centroid of its disc, reached along
+   the disc's normal.
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
@@ -453,17 +462,77 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     # its centre is a line of section centres) are not refined; once the line behind it is,
     # its tangent there is more accurate than the march's, and the ray is cast again.
     jumps = [head_jump, tail_jump]
+    candidates = []
     for final in range(FINAL_PASSES):
         hold = tuple(j + 0.5 * step if j > 0 else 0.0 for j in jumps)
         points, radius, _ = _refine(sections, points, step, keep_ends=True,
                                     max_move=0.5 * step, hold=hold)
         points = _smooth_inside(points)
+        if final > 0:   # the march's own ends (an open end at its loop's centroid) are not
+            candidates.append((points, radius))   # candidates: only recast ones are
         if final < FINAL_PASSES - 1:
             points, jumps = _recast_caps(sections, points, step, (head_end, tail_end), jumps,
                                          reference, loops)
+    points, radius = _best_ends(sections, candidates, reference)
+    for side, kind in ((0, head_end), (1, tail_end)):
+        if kind == "flat cap":
+            line = points[::-1] if side == 0 else points
+            line = _finish_cap(sections, line, reference, step)
+            points = line[::-1] if side == 0 else line
+    if len(radius) != len(points):
+        radius = _refine(sections, points, step, keep_ends=True, max_move=0.0)[1]
     if details is not None:
         details.update(closed_share=closed_share, ends=(head_end, tail_end))
     return _arc(points), points, radius
+
+
+END_CHECK_LENGTH = 0.04
+"""The stretch of line at each end over which candidate lines are compared [m]."""
+END_CHECK_SPACING = 0.002
+
+
+def end_residual(sections: MeshSections, line, radius: float) -> float:
+    """How far the last END_CHECK_LENGTH of `line` is from being its own sections' centres:
+    the rms distance from stations every END_CHECK_SPACING to the centre of the section
+    normal to the line there (a closed loop, or where an open end's rim cuts it an arc of at
+    least 180 degrees; `MeshSections.arc_around`). The true centre line is a fixed point of
+    this (each section normal to it is centred on it); a line that leaves it tilts its
+    sections and they pull away. inf if fewer than 5 stations have a section."""
+    line = np.asarray(line)
+    s = _arc(line)
+    tangents = _tangents(line)
+    gaps = []
+    for x in np.arange(max(0.0, s[-1] - END_CHECK_LENGTH), s[-1] - 1e-4, END_CHECK_SPACING):
+        p = np.array([np.interp(x, s, line[:, k]) for k in range(3)])
+        t = np.array([np.interp(x, s, tangents[:, k]) for k in range(3)])
+        t /= np.linalg.norm(t)
+        section = sections.around(p, t) or sections.arc_around(p, t, 2.0 * radius,
+                                                                 min_span=np.pi)
+        if section is not None:
+            gaps.append(np.linalg.norm(_centre(section, p, t) - p))
+    return float(np.sqrt(np.mean(np.square(gaps)))) if len(gaps) >= 5 else np.inf
+
+
+def _best_ends(sections: MeshSections, candidates, radius: float):
+    """Of the lines the final passes made after their ends were recast ((points, radii)
+    each), each end taken from the line whose end is nearest its own sections' centres
+    (`end_residual`), the two halves joined half-way along. (A recast can wander: a cubic
+    carried past the sections it was fitted to, then refined, then recast from its own
+    wandering end.)"""
+    if len(candidates) == 1:
+        return candidates[0]
+    head = min(range(len(candidates)),
+               key=lambda k: end_residual(sections, candidates[k][0][::-1], radius))
+    tail = min(range(len(candidates)),
+               key=lambda k: end_residual(sections, candidates[k][0], radius))
+    if head == tail:
+        return candidates[head]
+    (a, ra), (b, rb) = candidates[head], candidates[tail]
+    sa, sb = _arc(a), _arc(b)
+    first = sa < 0.5 * sa[-1]
+    join = a[first][-1]
+    second = np.flatnonzero(sb > sb[np.argmin(np.linalg.norm(b - join, axis=1))])
+    return np.vstack([a[first], b[second]]), np.concatenate([ra[first], rb[second]])
 
 
 def _distance_between(a, b):
@@ -691,6 +760,7 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference, l
             count = int(np.ceil(u_base / step))
             extension = [curve(u)[0] for u in np.linspace(0.0, u_base, count + 1)[1:]]
             p0, t0 = curve(u_base)
+            t0 = _cap_axis(sections, sphere[0], sphere[1], t0)
             ahead = sections.ray(p0, t0, reach=reach)
         if not np.isfinite(ahead):
             continue
@@ -792,6 +862,87 @@ def _cap_sphere(sections: MeshSections, p, t, ahead):
     if misfit > 0.05 * radius or not 0.6 * ahead <= radius <= 1.5 * ahead:
         return None
     return p + centre, radius
+
+
+CAP_BAND = 0.03
+"""A face belongs to a round cap if its centre is within this share of the cap's radius of
+the fitted sphere."""
+
+
+FLAT_CAP_RMS = 0.03
+"""A cap is flat if the plane fitted to its faces near the line's end fits them within this
+share of the radius (a hemisphere's: ~0.08)."""
+
+
+def _before(line, keep):
+    """`line` without the stretch at its end whose points are not to be kept (only that
+    stretch: a tortuous tube's far parts may fail the same test)."""
+    kept = np.flatnonzero(keep[::-1])
+    return line[:len(line) - kept[0]] if len(kept) else line[:0]
+
+
+def _finish_cap(sections: MeshSections, line, reference, step):
+    """A flat cap's last stretch made from the cap itself.
+
+    The wall ahead of the line's last radius is fitted with a plane (the faces within 0.7
+    radii of where the line's ray meets it). If it fits (rms within FLAT_CAP_RMS of the
+    radius), the line ends at the area centroid of the disc (the faces about as flat as that
+    plane, within 1.5 radii), reached straight along the disc's normal over the last half
+    radius: the line's own direction there (a bend just before the cap tilts it; a section
+    near the disc cuts it) is not used. A round wall is left as the march made it."""
+    s = _arc(line)
+    t = _end_tangent(line)
+    local = sections.around(line[-1], t)
+    radius = local.radius if local is not None else reference
+    back = np.array([np.interp(s[-1] - radius, s, line[:, k]) for k in range(3)])
+    ahead = sections.ray(back, t, reach=4.0 * radius)
+    if not np.isfinite(ahead):
+        return line
+    wall = back + ahead * t
+    triangles = sections.vertices[sections.faces]
+    centres = triangles.mean(axis=1)
+    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    near = np.linalg.norm(centres - wall, axis=1) < 0.7 * radius
+    if near.sum() < 20:
+        return line
+    x = centres[near]
+    q = x.mean(axis=0)
+    normal = np.linalg.svd(x - q)[2][2]
+    if normal @ t < 0.0:
+        normal = -normal
+    if np.sqrt(np.mean(((x - q) @ normal) ** 2)) > FLAT_CAP_RMS * radius:
+        return line   # not flat: a round cap the march took for a flat one is left as it is
+    disc = ((np.abs((centres - q) @ normal) < 0.03 * radius)
+            & (np.abs(sections.face_normals @ normal) > np.cos(np.radians(15.0)))
+            & (np.linalg.norm(centres - wall, axis=1) < 1.5 * radius))
+    if disc.sum() < 10:
+        return line
+    end = np.average(centres[disc], axis=0, weights=areas[disc])
+    start = end - 0.5 * radius * normal
+    body = _before(line, (line - end) @ normal < -0.5 * radius - 0.5 * step)
+    count = max(1, int(np.ceil(0.5 * radius / step)))
+    tail = start + np.outer(np.arange(0, count + 1) / count * 0.5 * radius, normal)
+    return np.vstack([body, tail])
+
+
+def _cap_axis(sections: MeshSections, centre, radius, guess):
+    """The axis of a round cap: from the centre of its sphere toward the area centroid of the
+    faces on it (a hemisphere's centroid lies on its axis, half a radius out; the faces of
+    the tube behind that happen to lie on the sphere form a ring around the same axis).
+    The tube's direction behind the cap, from section centres, is only as good as the
+    straight stretch before the cap is long: a bend just before it tilts it. `guess`, that
+    direction, picks the cap's side and is kept if the faces do not make a cap within 30
+    degrees of it."""
+    triangles = sections.vertices[sections.faces]
+    centres = triangles.mean(axis=1)
+    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    d = centres - centre
+    on = (np.abs(np.linalg.norm(d, axis=1) - radius) < CAP_BAND * radius) & (d @ guess > 0.0)
+    if on.sum() < 20:
+        return guess
+    axis = np.average(d[on], axis=0, weights=areas[on])
+    axis /= np.linalg.norm(axis)
+    return axis if axis @ guess > np.cos(np.radians(30.0)) else guess
 
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
