@@ -20,11 +20,11 @@ tests/tube_set.py). The line is resampled every 1 mm. The mesh is scaled to mill
 for VMTK (its tolerances are in the mesh's unit or a share of its size) and back.
 
 VMTK is not a dependency of the package: install it beside it, e.g.
-    python -m pip install --no-deps --target /work/vmtkpkgs vmtk==1.5.2 vtk==9.6.2
+    python -m pip install --no-deps --target vmtk-packages vmtk==1.5.2 vtk==9.6.2
 and run with that folder on PYTHONPATH (its VTK and pydrake's, renamed inside libdrake,
 share the process):
-    PYTHONPATH=.:/work/vmtkpkgs python benchmarks/vmtk_route.py --tubes [--ours] [--csv F]
-    PYTHONPATH=.:/work/vmtkpkgs python benchmarks/vmtk_route.py --sweep 60 --first-seed 20000 \
+    PYTHONPATH=.:vmtk-packages python benchmarks/vmtk_route.py --tubes [--ours] [--csv F]
+    PYTHONPATH=.:vmtk-packages python benchmarks/vmtk_route.py --sweep 60 --first-seed 20000 \
         --ours --csv F
 
 --tubes runs on tests/tube_set.py's TUBES, --sweep N on N accepted random tubes from seed
