@@ -71,7 +71,7 @@ def test_default_config_passes():
                                           ("min_force", 0.0), ("overspeed", 1.0),
                                           ("max_lead_deg", 120.0), ("push_force_low", 2.0),
                                           ("backoff_force", -0.03), ("lift", 1.2),
-                                          ("lift", -0.1)])
+                                          ("lift", -0.1), ("max_lift", 0.5), ("max_lift", 11.0)])
 def test_bad_config_raises_one_line(field, value):
     config = dataclasses.replace(LumenFollowerConfig(), **{field: value})
     with pytest.raises(ValueError) as error:
@@ -176,6 +176,23 @@ def test_command_with_a_lift_leaves_the_rest_of_the_weight_on_the_tissue(lift):
     np.testing.assert_allclose(_net_force(command, heading),
                                status[1] * heading - [0.0, 0.0, (1.0 - lift) * WEIGHT],
                                atol=0.01 * pull)
+
+
+@pytest.mark.parametrize("max_lift", [0.95, 1.0])
+def test_a_climbing_heading_does_not_lift_the_capsule_past_max_lift(max_lift):
+    """The drive's vertical part on a heading 45 degrees up adds to the lift: without a cap
+    the pull carries more than the weight (the capsule leaves the tissue below); with
+    max_lift the pull's vertical part (by the dipole formula) is that share of the weight,
+    and its horizontal part is still the drive's."""
+    heading = np.array([np.sqrt(0.5), 0.0, np.sqrt(0.5)])
+    drive = 0.5 * WEIGHT
+    uncapped = _new_follower(dataclasses.replace(FAST, lift=0.9))
+    pull = _net_force(uncapped.command_for(drive, heading, _p_WM()), heading) + [0, 0, WEIGHT]
+    assert pull[2] > 1.2 * WEIGHT
+    capped = _new_follower(dataclasses.replace(FAST, lift=0.9, max_lift=max_lift))
+    pull = _net_force(capped.command_for(drive, heading, _p_WM()), heading) + [0, 0, WEIGHT]
+    assert pull[2] == pytest.approx(max_lift * WEIGHT, rel=0.01)
+    np.testing.assert_allclose(pull[:2], drive * heading[:2], atol=0.01 * np.linalg.norm(pull))
 
 
 def test_command_on_the_floor_when_the_force_needs_the_epm_lower():

@@ -33,10 +33,7 @@
    flat cap; to the centre of the sphere fitted to a round cap and then straight along its
    tangent to the wall; to where it crosses the plane of an open end's loop (an oblique
    cut's centre: the loop's own centroid is off the axis where the tube flares or bends),
-   or straight along the end's tangent there if the cubic wanders. A round cap's last
-   stretch leaves its sphere's centre along the cap's own axis: toward the area centroid
-   of the faces on the sphere (`_cap_axis`), not along the line's tangent, which a bend
-   just before the cap tilts.
+   or straight along the end's tangent there if the cubic wanders.
 5. A recast can wander (a cubic carried past the sections it was fitted to, refined, then
    recast from its own wandering end), so each end is taken from the pass whose last 4 cm
    are nearest their own sections' centres (`end_residual`: the true centre line is a fixed
@@ -760,7 +757,6 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference, l
             count = int(np.ceil(u_base / step))
             extension = [curve(u)[0] for u in np.linspace(0.0, u_base, count + 1)[1:]]
             p0, t0 = curve(u_base)
-            t0 = _cap_axis(sections, sphere[0], sphere[1], t0)
             ahead = sections.ray(p0, t0, reach=reach)
         if not np.isfinite(ahead):
             continue
@@ -864,11 +860,6 @@ def _cap_sphere(sections: MeshSections, p, t, ahead):
     return p + centre, radius
 
 
-CAP_BAND = 0.03
-"""A face belongs to a round cap if its centre is within this share of the cap's radius of
-the fitted sphere."""
-
-
 FLAT_CAP_RMS = 0.03
 """A cap is flat if the plane fitted to its faces near the line's end fits them within this
 share of the radius (a hemisphere's: ~0.08)."""
@@ -923,26 +914,6 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     count = max(1, int(np.ceil(0.5 * radius / step)))
     tail = start + np.outer(np.arange(0, count + 1) / count * 0.5 * radius, normal)
     return np.vstack([body, tail])
-
-
-def _cap_axis(sections: MeshSections, centre, radius, guess):
-    """The axis of a round cap: from the centre of its sphere toward the area centroid of the
-    faces on it (a hemisphere's centroid lies on its axis, half a radius out; the faces of
-    the tube behind that happen to lie on the sphere form a ring around the same axis).
-    The tube's direction behind the cap, from section centres, is only as good as the
-    straight stretch before the cap is long: a bend just before it tilts it. `guess`, that
-    direction, picks the cap's side and is kept if the faces do not make a cap within 30
-    degrees of it."""
-    triangles = sections.vertices[sections.faces]
-    centres = triangles.mean(axis=1)
-    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
-    d = centres - centre
-    on = (np.abs(np.linalg.norm(d, axis=1) - radius) < CAP_BAND * radius) & (d @ guess > 0.0)
-    if on.sum() < 20:
-        return guess
-    axis = np.average(d[on], axis=0, weights=areas[on])
-    axis /= np.linalg.norm(axis)
-    return axis if axis @ guess > np.cos(np.radians(30.0)) else guess
 
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:

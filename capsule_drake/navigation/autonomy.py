@@ -103,6 +103,12 @@ class LumenFollowerConfig:
     # Share of the capsule's weight the pull carries (1: it floats; below 1 the rest
     # presses it on the tissue below, where friction resists its motion).
     lift: float = 1.0
+    # Largest share of the capsule's weight the pull's vertical part may carry, whatever the
+    # heading: the lift plus the drive's vertical part on a climbing heading is cut to it.
+    # Past 1 the capsule leaves the tissue below for the unstable hold under the magnet
+    # (read on population patients 1015 and 1028: docs/results/navigation.md). 10: no cap,
+    # as the follower was made and benchmarked.
+    max_lift: float = 10.0
     # Time constant with which the heading follows the lumen direction (s).
     heading_time: float = 0.5
     # The heading stays within this angle of the capsule's axis (deg) and of the
@@ -174,6 +180,10 @@ def check_lumen_follower_config(config: LumenFollowerConfig) -> None:
     for name in ("min_force", "backoff_force", "coast_force", "search_force"):
         need_range(getattr(config, name), f"control.{name}", "> 0", "N")
     need_range(config.lift, "control.lift", "[0, 1]")
+    need_range(config.max_lift, "control.max_lift", "[0, 10]")
+    if not config.max_lift >= config.lift:
+        raise ValueError(f"control.max_lift must be >= control.lift ({config.lift}), got "
+                         f"{config.max_lift}")
     if not config.max_force >= config.min_force:
         raise ValueError("lumen follower max_force must be >= min_force")
     need_range(config.push_force_low, "control.push_force_low", ">= 0", "N")
@@ -285,6 +295,7 @@ class LumenFollowerController(LeafSystem):
         moment aligns the field at the magnet with `heading`."""
         c = self._config
         force = drive * heading + np.array([0.0, 0.0, c.lift * self._weight])
+        force[2] = min(force[2], c.max_lift * self._weight)
         p, m, _ = epm_pose_for_force(p_WM, heading, force, *self._moments)
         if previous is not None:
             move = p - previous[:3]
