@@ -120,6 +120,28 @@ def test_the_writer_encodes_once_for_every_output_and_drops_a_failing_live_one(c
         writer.write("/capsule/imu/data", "sensor_msgs/msg/Imu", message, 3)
 
 
+def test_the_run_declares_its_topics_and_the_foxglove_server_has_them_before_it_listens():
+    """A channel advertised to a viewer already connected can lose its subscription in
+    foxglove-sdk, so the server makes every declared channel before it listens; a topic
+    written but not declared is an error, so a stream's `topics` cannot fall behind what it
+    writes."""
+    from capsule_drake.app.live.foxglove_out import FoxgloveLive
+    live = FoxgloveLive(port=0)
+    writer = ChannelWriter([live])
+    with pytest.raises(KeyError):
+        writer.declare(["/not/a/channel"])
+    writer.declare(["/tf_static", "/capsule/imu/data"])
+    assert live.server is None and set(live._channels) == {"/tf_static", "/capsule/imu/data"}
+    live.start()
+    try:
+        assert live.port > 0
+        writer.write("/capsule/imu/data", "sensor_msgs/msg/Imu", SAMPLES["sensor_msgs/msg/Imu"], 0)
+        with pytest.raises(ValueError, match="not among the topics declared"):
+            writer.write("/tf", "tf2_msgs/msg/TFMessage", SAMPLES["tf2_msgs/msg/TFMessage"], 0)
+    finally:
+        writer.close()
+
+
 def test_a_goal_pose_is_its_position_and_z_axis_and_a_bad_one_holds():
     s = np.sqrt(0.5)   # 90 degrees about x: z goes to -y
     goal = {"pose": {"position": vector3([0.1, 0.2, 0.3]),

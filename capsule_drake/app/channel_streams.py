@@ -60,10 +60,12 @@ def _quaternion_of(R: RotationMatrix) -> np.ndarray:
 
 class _Stream:
     """A source of messages: the station outputs it reads (name -> vector size, or a model
-    value for an abstract port), when (every `period` s from `offset`), and `write`;
-    `timing` the plant's, for the stamps."""
+    value for an abstract port), the topics it writes (declared before the run, so a live
+    viewer is offered every channel when it connects: app/live/foxglove_out.py), when
+    (every `period` s from `offset`), and `write`; `timing` the plant's, for the stamps."""
 
     inputs: dict = {}
+    topics: tuple = ()
     period: float = 0.01
     offset: float = 0.0
     timing: PlantTiming = PlantTiming()
@@ -92,6 +94,7 @@ class _PosesStream(_Stream):
         self._epm_index = epm_body_index
         self.inputs = {"capsule.state": 13, "epm.pose": 6,
                        "contact_results": AbstractValue.Make(ContactResults())}
+        self.topics = ("/tf", "/capsule/contact/wrench", "/capsule/contact/peak_pressure")
         if epm_body_index is not None:
             self.inputs["body_poses"] = AbstractValue.Make([RigidTransform()] * num_bodies)
         if wall:   # the compliant wall's own force (its foundation realisation)
@@ -161,6 +164,7 @@ class _ImuStream(_Stream):
         self._accel_cov = _diagonal(accel.white_sigma ** 2)
         self._gyro_cov = _diagonal(gyro.white_sigma ** 2)
         self.inputs = {"capsule.imu.accel": 3, "capsule.imu.gyro": 3}
+        self.topics = ("/capsule/imu/data",)
         if with_ahrs:
             self.inputs["capsule.ahrs.q_WB"] = 4
 
@@ -196,6 +200,7 @@ class _FieldStream(_Stream):
         self._topics_frames = list(topics_frames)
         self._cov = _diagonal(noise_sigma ** 2)
         self.inputs = {port: 3 * len(self._topics_frames)}
+        self.topics = tuple(topic for topic, _ in self._topics_frames)
 
     def write(self, log, t, values):
         stamp = _ns(self.timing.sampled(self.tick(t)))
@@ -214,6 +219,7 @@ class _ContactSensorStream(_Stream):
         self.offset = READ_DELAY
         self.timing = timing
         self.inputs = {"capsule.contact_sensor.F_B": 3}
+        self.topics = ("/capsule/contact_sensor/wrench",)
 
     def write(self, log, t, values):
         log.write("/capsule/contact_sensor/wrench", "geometry_msgs/msg/WrenchStamped", {
@@ -233,6 +239,7 @@ class _PoseEstimateStream(_Stream):
         self.offset = 0.5 * config.period + READ_DELAY
         self.timing = timing
         self.inputs = {"capsule.localizer.pose": 7, "capsule.localizer.covariance": 36}
+        self.topics = ("/capsule/localizer/pose",)
 
     def write(self, log, t, values):
         pose = np.asarray(values["capsule.localizer.pose"])
@@ -262,6 +269,9 @@ class _WallPressureStream(_Stream):
         self.timing = timing
         self._layout = layout
         self.inputs = {f"{WALL_PRESSURE_SYSTEM}.map": layout.size}
+        self.topics = ("/capsule/contact/wall_pressure/peak",
+                       *(f"/capsule/contact/wall_pressure/above_{name}"
+                         for name, _ in layout.thresholds))
 
     def _image(self, log, topic, stamp, values, now):
         H, W = values.shape
@@ -377,6 +387,15 @@ class _CameraStream(_Stream):
         self._lesions_shown: set[int] = set()
         if self._lesions:
             self.inputs["capsule.camera.label_image"] = AbstractValue.Make(ImageLabel16I(W, H))
+        self.topics = ("/capsule/camera/image_raw", "/capsule/camera/camera_info",
+                       *(("/capsule/camera/depth/image_raw",
+                          "/capsule/camera/depth/camera_info") if render_depth else ()),
+                       "/capsule/lumen_truth/pixel", "/capsule/lumen_truth/point",
+                       "/capsule/lumen_truth/marker", "/capsule/lumen_truth/far_pixel",
+                       "/capsule/lumen_truth/far_marker",
+                       *(("/capsule/lumen_tracker/pixel", "/capsule/lumen_tracker/marker")
+                         if with_tracker else ()),
+                       *(("/capsule/lesions/marker",) if self._lesions else ()))
         self._last_count = None
         self.frames = 0
 

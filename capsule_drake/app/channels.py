@@ -118,8 +118,20 @@ class ChannelWriter:
     def __init__(self, sinks):
         self.sinks = list(sinks)
         self._encoders: dict[str, object] = {}
+        self._declared: set[str] = set()
         self.messages = 0
         self.dropped: list[str] = []   # one line per live output dropped
+
+    def declare(self, topics) -> None:
+        """The topics the run will write, before its first message: each is checked against
+        the table, and the outputs that have `declare(specs)` (the Foxglove server: a
+        channel advertised while a viewer is connected can lose that viewer's subscription)
+        get {topic: spec}. Once topics are declared, writing another is an error."""
+        specs = {topic: channel_of(topic) for topic in topics}
+        self._declared.update(specs)
+        for sink in list(self.sinks):
+            if hasattr(sink, "declare"):
+                sink.declare(specs)
 
     def _encoder(self, type_name: str):
         if type_name not in self._encoders:
@@ -130,6 +142,9 @@ class ChannelWriter:
     def write(self, topic: str, type_name: str, message: dict, log_time_ns: int,
               latched: bool = False) -> None:
         spec = channel_of(topic)
+        if self._declared and topic not in self._declared:
+            raise ValueError(f"{topic}: written, but not among the topics declared for the "
+                             "run (a stream's `topics`, app/channel_streams.py)")
         if spec.type_name != type_name or spec.latched != latched:
             raise ValueError(f"{topic}: written as {type_name}{' (latched)' * latched}, "
                              f"the channel table says {spec.type_name}"

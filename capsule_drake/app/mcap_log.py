@@ -126,6 +126,10 @@ class ChannelLogger(LeafSystem):
         self._scene = scene
         self._started = False
         self._ports = {}
+        # Every topic the run writes, told to the outputs before it starts (a live server
+        # offers them all to a viewer when it connects; app/live/foxglove_out.py).
+        log.declare(("/tf_static", *(("/scene/markers",) if scene is not None else ()),
+                     *(topic for stream in self._streams for topic in stream.topics)))
         for stream in self._streams:
             for name, model in stream.inputs.items():
                 if name in self._ports:

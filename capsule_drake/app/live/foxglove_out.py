@@ -1,10 +1,16 @@
 """The run's channels live in Foxglove: a WebSocket server (foxglove-sdk) on the loopback.
 
-Each channel of app/channels.py is advertised at its first message, with its ROS 2 type as a
+Each channel the run writes (app/channels.py) is advertised with its ROS 2 type as a
 `ros2msg` schema and its payload in CDR (the bytes the MCAP file holds), so Foxglove decodes
-it as it decodes the MCAP file. A latched channel (/tf_static, the scene) is sent again to a
-client that subscribes to it later. The server is an output a run may lose: a failure is one
-line and the run goes on (app/channels.py).
+it as it decodes the MCAP file. The channels are made before the server listens (the run
+declares its topics first: `declare`, then `start`), so a viewer is offered all of them in
+the advertisement it gets when it connects. A channel advertised to a viewer already
+connected can lose that viewer's subscription: foxglove-sdk (0.30) sends the advertisement
+before it records the channel for that client, and a prompt subscription is refused as
+"unknown channel" (seen here on a loaded machine, about one run in three, with the camera's
+channel advertised at its first frame). A latched channel (/tf_static, the scene) is sent
+again to a client that subscribes to it later. The server is an output a run may lose: a
+failure is one line and the run goes on (app/channels.py).
 """
 
 from __future__ import annotations
@@ -23,12 +29,6 @@ oldest queued messages dropped (foxglove-sdk's backlog, `backlog` messages), so 
 enough on a loaded machine."""
 
 
-NEW_CHANNEL_WAIT = 10.0
-"""Seconds a channel's first message waits for a viewer that takes every channel
-(`wait_for_client` > 0 only): a loaded machine's client took seconds to subscribe to the
-camera's channel, advertised after the run had started, and missed a short run's images."""
-
-
 def _listener(live: "FoxgloveLive"):
     """A foxglove ServerListener that tells `live` of each subscription (foxglove-sdk is
     imported when a server is made: a run without one does not load it)."""
@@ -42,7 +42,8 @@ def _listener(live: "FoxgloveLive"):
 
 
 class FoxgloveLive:
-    """A Foxglove WebSocket server streaming the channels given to `publish`.
+    """A Foxglove WebSocket server streaming the channels given to `publish`: made, told the
+    run's topics (`declare`), then started (`start`: listening from then on).
 
     Args:
         host: the address to listen on (the loopback unless told otherwise).
@@ -64,22 +65,30 @@ class FoxgloveLive:
         self._latched: dict[str, tuple[bytes, int]] = {}
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
-        self._taken: set[str] = set()         # topics a client has subscribed to
-        self._taken_changed = threading.Condition(self._lock)
-        self._wait = self._wait_setting = float(wait_for_client)
-        self._waits_for_new = self._wait > 0.0
-        self.host = host
+        self._wait = float(wait_for_client)
+        self.host, self.port, self._backlog = host, port, int(backlog)
+        self.server = None
+        self.messages = 0
+
+    def declare(self, specs: dict) -> None:
+        """Makes the channels of `specs` (topic -> ChannelSpec), before `start`."""
+        for topic, spec in specs.items():
+            if topic not in self._channels:
+                self._channel(topic, spec.type_name)
+
+    def start(self) -> None:
+        """Listens (once); OutputError, one line, when it cannot."""
+        if self.server is not None:
+            return
         try:
-            self.server = foxglove.start_server(name="capsule_drake", host=host, port=port,
-                                                context=self._context,
-                                                server_listener=_listener(self),
-                                                message_backlog_size=int(backlog))
+            self.server = self._foxglove.start_server(
+                name="capsule_drake", host=self.host, port=self.port, context=self._context,
+                server_listener=_listener(self), message_backlog_size=self._backlog)
         except Exception as e:   # a port in use, an address not this machine's
             reason = str(e).split(": ", 1)[-1]
-            raise OutputError(f"--foxglove: cannot listen on {host}:{port} ({reason}); give "
-                              "another port, or 0 for any free one") from None
+            raise OutputError(f"--foxglove: cannot listen on {self.host}:{self.port} "
+                              f"({reason}); give another port, or 0 for any free one") from None
         self.port = self.server.port
-        self.messages = 0
 
     @property
     def name(self) -> str:
@@ -91,8 +100,6 @@ class FoxgloveLive:
         client one time in two)."""
         with self._lock:
             latched = topic in self._latched
-            self._taken.add(topic)
-            self._taken_changed.notify_all()
         for delay in RESEND_AFTER if latched else ():
             timer = threading.Timer(delay, self._resend, (topic,))
             timer.daemon = True
@@ -123,9 +130,9 @@ class FoxgloveLive:
             with self._lock:
                 self._latched[topic] = (data, log_time_ns)
         channel = self._channels.get(topic)
-        if channel is None:
+        if channel is None:   # not declared (the run declares all it writes)
             channel = self._channel(topic, spec.type_name)
-            self._wait_for_new_channel(topic)
+        self.start()
         channel.log(data, log_time=log_time_ns)
         self.messages += 1
         if self._wait > 0.0:
@@ -134,24 +141,6 @@ class FoxgloveLive:
             while not self._subscribed.wait(0.05) and time.monotonic() < deadline:
                 pass
 
-    def _wait_for_new_channel(self, topic: str) -> None:
-        """With `wait_for_client`, once a viewer has subscribed, a channel advertised later
-        (the camera's, at its first frame) holds its first message until the viewer takes
-        it too, at most NEW_CHANNEL_WAIT seconds (or `wait_for_client`, if shorter), so a
-        viewer started with the run sees every channel from its first message. A viewer
-        that lets one wait run out (a Foxglove layout showing a few panels) is not waited
-        for again."""
-        if not self._waits_for_new or not self._subscribed.is_set():
-            return
-        deadline = time.monotonic() + min(NEW_CHANNEL_WAIT, self._wait_setting)
-        with self._lock:
-            while topic not in self._taken and time.monotonic() < deadline:
-                self._taken_changed.wait(0.05)
-            taken = topic in self._taken
-        if taken:
-            time.sleep(0.1)   # the server adds the subscription after telling its listener
-        else:
-            self._waits_for_new = False
-
     def close(self) -> None:
-        self.server.stop()
+        if self.server is not None:
+            self.server.stop()

@@ -76,8 +76,9 @@ class EpmGoalSource(LeafSystem):
 
 
 def channel_sinks(outputs):
-    """The outputs of `outputs` (OutputsConfig) that take the run's channels, made (servers
-    started, the MCAP file not yet created: at its first message)."""
+    """The outputs of `outputs` (OutputsConfig) that take the run's channels, made (the
+    Foxglove server not yet listening: it starts once told the run's topics; the MCAP file
+    not yet created: at its first message)."""
     sinks = []
     if outputs.mcap is not None:
         sinks.append(Ros2McapFile(outputs.mcap.path, outputs.mcap.compression))
@@ -103,10 +104,12 @@ def add_channel_outputs(builder, station, scenario, wall_map=None, announce=_to_
     if outputs.mcap is None and outputs.foxglove is None and outputs.ros2 is None:
         return None
     sinks = channel_sinks(outputs)
+    logger = add_channel_logger(builder, station, scenario, sinks, wall_map=wall_map)
     for sink in sinks:
+        if hasattr(sink, "start"):   # told the run's topics by the logger: now listening
+            sink.start()
         if not sink.fatal and announce is not None:
             announce(f"live: {sink.name}")
-    logger = add_channel_logger(builder, station, scenario, sinks, wall_map=wall_map)
     if outputs.ros2 is not None and outputs.ros2.epm_command:
         topics = next(s for s in sinks if hasattr(s, "dds_participant"))
         inbox = GoalInbox(hold_after=outputs.ros2.hold_after,
