@@ -26,7 +26,9 @@
    end's rim cuts the sections open; while most of the circle is left (210 degrees) the
    arc's fitted circle gives the centre (`MeshSections.arc_around`). An open end is passed
    when there is neither; the boundary loop ahead (within 3 radii, a bend may turn it
-   aside) is the end.
+   aside) is the end. Where the ray meets the wall within the cap's reach, the wall's own
+   shape tells a flat cap from a round one (`_flat_disc`: a plane piece at least a third of
+   the circle), not how near it is (a round cap met off its axis is as near as a flat one).
 4. Sections and a light smoothing spline once more, the ends held; then each end's last
    stretch is made again from the refined line (`_recast_caps`): a cubic fitted to section
    centres (arcs too, near an open end) every millimetre over the last 2 cm, followed to a
@@ -38,8 +40,13 @@
    recast from its own wandering end), so each end is taken from the pass whose last 4 cm
    are nearest their own sections' centres (`end_residual`: the true centre line is a fixed
    point of "each section normal to the line is centred on it"). A flat cap's end is then
-   made from the cap itself (`_finish_cap`): the area centroid of its disc, reached along
-   the disc's normal.
+   made from the cap itself (`_finish_cap`): the area centroid of its disc (the flat faces
+   joined to the one the line's ray meets, however wide a flared end makes it), reached
+   along the disc's normal. An open end's last stretch is made again from the wall's
+   normals (`_open_axis_end`): each normal of a tube swept by circles meets its axis,
+   flared or not, where the sections are cut open by an oblique rim; the straight line
+   they meet nearest, within 0.3 radii of the end, is followed to the loop's plane, if
+   its end is nearer its sections' centres than the line's (`end_residual`).
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
@@ -476,7 +483,20 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             line = points[::-1] if side == 0 else points
             line = _finish_cap(sections, line, reference, step)
             points = line[::-1] if side == 0 else line
-    if len(radius) != len(points):
+    changed = False
+    for side, kind in ((0, head_end), (1, tail_end)):
+        if kind != "open":
+            continue
+        line = points[::-1] if side == 0 else points
+        made = _open_axis_end(sections, line, reference, step, loops)
+        # Taken only if its end is nearer its own sections' centres than the line's
+        # (`end_residual`, as the recast passes are chosen): a fold across the window can
+        # turn the wall's normals astray.
+        if made is not line and end_residual(sections, made, reference) < \
+                end_residual(sections, line, reference):
+            changed = True
+            points = made[::-1] if side == 0 else made
+    if changed or len(radius) != len(points):
         radius = _refine(sections, points, step, keep_ends=True, max_move=0.0)[1]
     if details is not None:
         details.update(closed_share=closed_share, ends=(head_end, tail_end))
@@ -598,7 +618,10 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
         # curving back toward the rays beside this one, a round cap whose base this is.
         if ahead <= CAP_AHEAD * max(reference, last_radius):
             points.append(p + ahead * t)
-            return points, "flat cap", ahead
+            # Near the wall: a flat cap, or a round one met off its axis (a bend or a flare
+            # before it tilts the line), by the wall's own shape.
+            flat = _wall_is_flat(sections, p + ahead * t, last_radius)
+            return points, "flat cap" if flat else "round cap", ahead
         if ahead <= 1.1 * last_radius and _round_ahead(sections, p, t, last_radius, ahead):
             points.append(p + ahead * t)
             return points, "round cap", ahead
@@ -650,6 +673,53 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
         points.append(centre)
         return points, "open", float(np.linalg.norm(centre - points[-2]))
     return points, "none", 0.0
+
+
+def _piece(sections: MeshSections, mask, seed: int):
+    """The faces of `mask` joined to face `seed` through edges shared by two faces of it."""
+    edge_of = sections.face_edges.reshape(-1)
+    face_of = np.repeat(np.arange(len(sections.faces)), 3)
+    order = np.argsort(edge_of, kind="stable")
+    e, f = edge_of[order], face_of[order]
+    pair = np.flatnonzero(e[1:] == e[:-1])
+    a, b = f[pair], f[pair + 1]
+    keep = mask[a] & mask[b]
+    n = len(sections.faces)
+    graph = coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    return mask & (label == label[seed])
+
+
+def _flat_disc(sections: MeshSections, wall, radius):
+    """The faces of a flat cap's disc where a ray meets the wall at `wall`, or None: the faces
+    joined by edges to the one met that lie in its plane (within 2 % of `radius`) and turn
+    from it by less than FLAT_CAP_ANGLE, if they cover at least FLAT_CAP_SHARE of the circle
+    of `radius` (a disc is at least as wide as the tube, all of it counts however far it
+    reaches where the end flares; on a sphere only a patch of ~7 % of the circle turns by
+    less than FLAT_CAP_ANGLE, on a wall a strip)."""
+    centres = sections.vertices[sections.faces].mean(axis=1)
+    hit = int(np.argmin(np.linalg.norm(centres - wall, axis=1)))
+    normal = sections.face_normals[hit]
+    flat = (np.abs((centres - centres[hit]) @ normal) < 0.02 * radius) \
+        & (sections.face_normals @ normal > np.cos(FLAT_CAP_ANGLE))
+    disc = _piece(sections, flat, hit)
+    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    if areas[disc].sum() < FLAT_CAP_SHARE * np.pi * radius ** 2:
+        return None
+    return disc
+
+
+def _wall_is_flat(sections: MeshSections, wall, radius) -> bool:
+    """Whether the wall where a ray meets it (`wall`) is a flat cap's disc (`_flat_disc`)."""
+    return _flat_disc(sections, wall, radius) is not None
+
+
+FLAT_CAP_ANGLE = np.radians(15.0)
+"""Faces of a flat cap's disc turn from one another by less than this (mesh noise only)."""
+FLAT_CAP_SHARE = 0.3
+"""A flat cap's disc covers at least this share of the circle of the tube's radius where
+the march stops (all of it, or more where the end flares; a tilt of the disc against the
+section, or a radius taken from a fold's crest, leave well over a third)."""
 
 
 OPEN_END_AHEAD = 3.0
@@ -860,11 +930,6 @@ def _cap_sphere(sections: MeshSections, p, t, ahead):
     return p + centre, radius
 
 
-FLAT_CAP_RMS = 0.03
-"""A cap is flat if the plane fitted to its faces near the line's end fits them within this
-share of the radius (a hemisphere's: ~0.08)."""
-
-
 def _before(line, keep):
     """`line` without the stretch at its end whose points are not to be kept (only that
     stretch: a tortuous tube's far parts may fail the same test)."""
@@ -878,9 +943,11 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     The wall ahead of the line's last radius is fitted with a plane (the faces within 0.7
     radii of where the line's ray meets it). If it fits (rms within FLAT_CAP_RMS of the
     radius), the line ends at the area centroid of the disc (the faces about as flat as that
-    plane, within 1.5 radii), reached straight along the disc's normal over the last half
-    radius: the line's own direction there (a bend just before the cap tilts it; a section
-    near the disc cuts it) is not used. A round wall is left as the march made it."""
+    plane joined to the one the ray meets: all of the disc however wide, a flared end's up
+    to half as wide again as the tube before it), reached straight along the disc's normal
+    over the last half radius: the line's own direction there (a bend just before the cap
+    tilts it; a section near the disc cuts it) is not used. A round wall is left as the
+    march made it."""
     s = _arc(line)
     t = _end_tangent(line)
     local = sections.around(line[-1], t)
@@ -903,9 +970,10 @@ def _finish_cap(sections: MeshSections, line, reference, step):
         normal = -normal
     if np.sqrt(np.mean(((x - q) @ normal) ** 2)) > FLAT_CAP_RMS * radius:
         return line   # not flat: a round cap the march took for a flat one is left as it is
-    disc = ((np.abs((centres - q) @ normal) < 0.03 * radius)
-            & (np.abs(sections.face_normals @ normal) > np.cos(np.radians(15.0)))
-            & (np.linalg.norm(centres - wall, axis=1) < 1.5 * radius))
+    flat = ((np.abs((centres - q) @ normal) < 0.03 * radius)
+            & (np.abs(sections.face_normals @ normal) > np.cos(np.radians(15.0))))
+    hit = int(np.argmin(np.where(flat, np.linalg.norm(centres - wall, axis=1), np.inf)))
+    disc = _piece(sections, flat, hit)
     if disc.sum() < 10:
         return line
     end = np.average(centres[disc], axis=0, weights=areas[disc])
@@ -914,6 +982,141 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     count = max(1, int(np.ceil(0.5 * radius / step)))
     tail = start + np.outer(np.arange(0, count + 1) / count * 0.5 * radius, normal)
     return np.vstack([body, tail])
+
+
+FLAT_CAP_RMS = 0.03
+"""A cap is flat if the plane fitted to its faces near the line's end fits them within this
+share of the radius (a hemisphere's: ~0.08)."""
+
+
+AXIS_WINDOW = 0.3
+"""An open end's axis is fitted to the wall within this many radii of the end (behind it, and
+ahead of it on an oblique cut's far side) as a straight line: a tube bends no tighter than
+its radius (r * curvature < 1, or its inner wall folds over), and over 0.3 radii the
+tightest such bend leaves a straight line by at most 0.011 radii (0.2 mm in a 2 cm tube)."""
+AXIS_ITERATIONS = 6
+"""Passes of the axis's fit: where each normal line passes the axis, and which faces' normals
+miss it (their Cauchy weights), settle as the axis does."""
+AXIS_MAX_TILT = np.cos(np.radians(45.0))
+"""Faces whose normal turns more than 45 degrees toward the axis are left out of its fit:
+the rim's chamfer, a fold's steep flank; a flared wall turns by at most ~25 degrees."""
+AXIS_MIN_FACES = 30
+"""Fewer faces than this in the window leave the end as the sections made it (the line has
+four unknowns; a coarse mesh's 0.3-radius band holds 40 faces and more)."""
+
+
+def _wall_axis(sections: MeshSections, end, t, radius, back, ahead):
+    """The axis of the tube's last stretch from its wall's normals: for a section that is a
+    circle round the axis, flared or not, every normal of the wall meets the axis; a haustral
+    fold's normals turn aside alike in the three sectors. The faces within 2 radii of the
+    line through `end` along `t`, from `back` [m] behind `end` to `ahead` [m] ahead, their
+    normals facing it and within 45 degrees of square to it (AXIS_MAX_TILT): the axis, a
+    straight line, is the least-squares fit to their normal lines (each face's distance
+    from it where its normal line passes it, area-weighted, with a Cauchy weight for the
+    faces whose normal misses it), AXIS_ITERATIONS times from the line through `end` along
+    `t`. Returns a function a -> (point, unit tangent) (a [m] along `t` from
+    `end`), or None if fewer than AXIS_MIN_FACES faces are used."""
+    _, e1, e2 = _plane_basis(t)
+    centres = sections.vertices[sections.faces].mean(axis=1)
+    normals = sections.face_normals
+    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    rel = centres - end
+    a0 = rel @ t
+    side = rel - np.outer(a0, t)
+    near = (a0 >= -back - radius) & (a0 <= ahead + radius) \
+        & (np.linalg.norm(side, axis=1) < 2.0 * radius) \
+        & (np.abs(normals @ t) < AXIS_MAX_TILT) & (np.einsum("ij,ij->i", -side, normals) > 0.0)
+    if near.sum() < AXIS_MIN_FACES:
+        return None
+    p, n, w_area = rel[near], normals[near], areas[near]
+    inside = (a0[near] >= -back) & (a0[near] <= ahead)
+    coef = np.zeros(4)   # offsets along e1 and e2: c0 + c1 a each
+
+    def proj(v):   # the part of each row of v across its face's normal
+        return v - np.einsum("ij,ij->i", v, n)[:, None] * n
+
+    pe1, pe2 = proj(np.tile(e1, (len(p), 1))), proj(np.tile(e2, (len(p), 1)))
+    for _ in range(AXIS_ITERATIONS):
+        # Where each normal line passes the current axis: a there (from the point of the
+        # normal line nearest the axis point at the face's own a).
+        a = p @ t
+        q = np.outer(a, t) + np.outer(coef[0] + coef[1] * a, e1) \
+            + np.outer(coef[2] + coef[3] * a, e2)
+        lam = np.einsum("ij,ij->i", q - p, n)
+        a = (p + lam[:, None] * n) @ t
+        # The axis point at a from the normal line: (I - n n^T)(axis(a) - p), linear in the
+        # coefficients.
+        base = proj(np.outer(a, t) - p)
+        design = np.stack([pe1, pe1 * a[:, None], pe2, pe2 * a[:, None]], axis=2)  # (K, 3, 4)
+        resid = np.linalg.norm(base + design @ coef, axis=1)
+        # Faces in the window (their normals may pass the axis outside it: a fold's flanks
+        # turn along the tube), facing the axis from about the tube's distance.
+        use = inside & (lam > 0.3 * radius) & (lam < 3.0 * radius) \
+            & (a >= -back - radius) & (a <= ahead + radius)
+        if use.sum() < AXIS_MIN_FACES:
+            return None
+        scale = max(2.0 * float(np.median(resid[use])), 0.01 * radius)
+        w = np.sqrt(w_area * use / (1.0 + (resid / scale) ** 2))[:, None]
+        coef = np.linalg.lstsq((design * w[:, :, None]).reshape(-1, 4), (-base * w).reshape(-1),
+                               rcond=None)[0]
+    tangent = t + coef[1] * e1 + coef[3] * e2
+    tangent /= np.linalg.norm(tangent)
+    return lambda x: (end + x * t + (coef[0] + coef[1] * x) * e1 + (coef[2] + coef[3] * x) * e2,
+                      tangent)
+
+
+def _open_axis_end(sections: MeshSections, line, reference, step, loops):
+    """An open end's last stretch made again on its wall's axis (`_wall_axis`, fitted within
+    AXIS_WINDOW radii of the end): to where the axis crosses the plane of the end's loop (an
+    oblique cut's centre, on the axis; the true centre line ends there, the loop's own
+    centroid is off it where the tube flares). The line's points within AXIS_WINDOW radii
+    of the new end are the axis's, those up to twice that blended into it. The line is
+    returned as it is if there is no such axis (too few faces) or no crossing near the
+    loop's centre (`_plane_crossing`)."""
+    t = _end_tangent(line)
+    end = line[-1]
+    local = sections.around(end - reference * t, t)
+    radius = local.radius if local is not None else reference
+    window = AXIS_WINDOW * radius
+    rings = [ring for ring in loops
+             if np.linalg.norm(ring.mean(axis=0) - end) <= 2.0 * radius]
+    if not rings:
+        return line
+    ring = min(rings, key=lambda ring: np.linalg.norm(ring.mean(axis=0) - end))
+    # The first window about the loop's centre (within a quarter radius of the axis's
+    # crossing even where the tube flares; the sections' end may be past an oblique cut's
+    # centre, or short of it), the next about the crossing found.
+    a_end = float((ring.mean(axis=0) - end) @ t)
+    for _ in range(3):
+        curve = _wall_axis(sections, end, t, radius, window - a_end, window + a_end)
+        if curve is None:
+            return line
+        u_end = _plane_crossing(lambda u: curve(u - radius), loops, end, 2.0 * radius)
+        if u_end is None:
+            return line
+        moved = u_end - radius - a_end
+        a_end = u_end - radius
+        if abs(moved) < 0.1 * window:
+            break
+    a_line = (line - end) @ t
+    s = _arc(line)
+    tail = s > s[-1] - 4.0 * radius - abs(a_end)   # only the end's stretch is compared along t
+    body = _before(line, ~tail | (a_line < a_end - 2.0 * window))
+    if len(body) < 3:
+        return line
+    blend = line[len(body):]
+    blend = blend[(blend - end) @ t < a_end - window]
+    out = [body]
+    for p in blend:
+        a = float((p - end) @ t)
+        w = np.clip((a - (a_end - 2.0 * window)) / window, 0.0, 1.0)
+        out.append((p + w * (curve(a)[0] - p))[None, :])
+    a_from = float((out[-1][-1] - end) @ t)
+    if a_end <= a_from:
+        return line
+    count = max(1, int(np.ceil((a_end - a_from) / step)))
+    out.append(np.array([curve(x)[0] for x in np.linspace(a_from, a_end, count + 1)[1:]]))
+    return np.vstack(out)
 
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
