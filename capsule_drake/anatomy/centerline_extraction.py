@@ -76,7 +76,7 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-from .importer import _boundary_loops, geometry_of
+from .importer import geometry_of, open_end_loops
 from .tube_check import MIN_CLOSED_SHARE, NotATubeError
 
 
@@ -344,7 +344,7 @@ def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
     first = dijkstra(graph, indices=0)
     first[~np.isfinite(first)] = -1.0
     far = int(np.argmax(first))
-    loops = [loop for loop in _boundary_loops(mesh) if len(loop) >= 3]
+    loops = open_end_loops(mesh)
     if loops:
         distance = dijkstra(graph, indices=far)
         return min(loops, key=lambda loop: float(np.min(distance[loop])))
@@ -456,7 +456,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     reference = float(np.median(radius_now))
     # The open ends' boundary loops (vertices, (K, 3)), found once for both marches and the
     # recast of their last stretches.
-    loops = [np.asarray(mesh.vertices)[loop] for loop in _boundary_loops(mesh) if len(loop) >= 3]
+    loops = [np.asarray(mesh.vertices)[loop] for loop in open_end_loops(mesh)]
     tail, tail_end, tail_jump = _march(sections, loops, list(points), step, 0.001, reference)
     head, head_end, head_jump = _march(sections, loops, list(points[::-1]), step, 0.001,
                                        reference)

@@ -40,8 +40,8 @@ from .cache import GEOMETRY_VERSION, asset_paths, build_once, default_cache_root
 from .colon import TubeColon
 from .ex_vivo import TRAY_RGBA, tray_boxes, tray_mesh, write_segment
 from . import importer
-from .importer import (MeshImportError, RepairReport, _boundary_loops, _perimeter, _texture_of,
-                       check_colon_mesh, geometry_of, load_colon_mesh, repair_colon_mesh)
+from .importer import (MeshImportError, RepairReport, _texture_of, check_colon_mesh,
+                       geometry_of, load_colon_mesh, repair_colon_mesh)
 from .mesh import TexturedMesh
 from .params import ExVivo, Imported, MucosaParams
 from .texture import mucosa_texture
@@ -131,8 +131,7 @@ def import_colon_mesh(path, scale: float = 1.0, max_faces: int | None = DEFAULT_
     mesh, report = repair_colon_mesh(mesh, max_faces=max_faces, progress=say)
     geometry = geometry_of(mesh)
     try:
-        check_open_ends([_perimeter(geometry.vertices, loop)
-                         for loop in _boundary_loops(geometry) if len(loop) >= 3])
+        check_open_ends(report.open_end_perimeters)
         s, points, radius = extract_centerline(
             geometry, progress=lambda k, n: say(f"centreline, pass {k + 1} of {n}"))
         check_tube(geometry, s, points, radius)

@@ -28,6 +28,13 @@ MIN_THICKNESS_RATIO = 0.02
 # A boundary loop this short [m] is a hole to fill; a colon's open end is at least ~6 cm
 # around (1 cm radius).
 MAX_HOLE_PERIMETER = 0.03
+# A longer loop is a hole too when it lies in the wall: the surface within 1.5 R of its
+# centre (R its perimeter / 2 pi) keeps within HOLE_DEPTH R of its plane (90th percentile),
+# where an open end's wall runs away from its plane along the lumen. Measured on the
+# segmentation-like surfaces (tests/segmentation_set.py): holes of 2-4 mm radius 0.17-0.26,
+# open ends 0.92-1.20; a hole on a curved wall passes 0.5 only when it is wider than about
+# half the lumen across (a tear, which the tube check then refuses as a third end).
+HOLE_DEPTH = 0.5
 
 
 class MeshImportError(ValueError):
@@ -141,6 +148,9 @@ class RepairReport:
     filled_holes: int = 0
     flipped_normals: bool = False
     open_ends: int = 0  # boundary loops left open (a tube's two ends)
+    # Their lengths [m], measured before any decimation (the mesh as given).
+    open_end_perimeters: tuple = ()
+    stray_boundary_edges: int = 0  # open edges in no closed loop (at a non-manifold vertex)
     decimated_from: int = 0  # faces before decimation (0: not decimated)
     decimated_to: int = 0
     non_manifold_edges: int = 0  # edges shared by more than two faces (left as they are)
@@ -161,6 +171,9 @@ class RepairReport:
             out.append(f"found {self.non_manifold_edges} non-manifold edges (shared by more "
                        "than two faces; left as they are: check the mesh where the lumen "
                        "looks wrong)")
+        if self.stray_boundary_edges:
+            out.append(f"found {self.stray_boundary_edges} open edges in no loop (left as "
+                       "they are)")
         if self.decimated_from:
             out.append(f"decimated from {self.decimated_from} to {self.decimated_to} faces")
         out.append(f"{self.open_ends} open ends left open" if self.open_ends else
@@ -258,8 +271,10 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
                       max_faces: int | None = None, progress=None):
     """Repairs a copy of `mesh`: duplicate and degenerate faces removed, winding made
     consistent, holes of up to `max_hole_edges` boundary edges and `max_hole_perimeter`
-    (m) around filled (a tube's open ends, 6 cm and more around, stay open), normals turned toward the lumen (the wall is seen and touched
-    from inside), and decimated to `max_faces` triangles if it has more.
+    (m) around filled (a tube's open ends, 6 cm and more around, stay open), and longer
+    loops that lie in the wall (`_in_the_wall`: a segmentation's ragged holes), normals
+    turned toward the lumen (the wall is seen and touched from inside), and decimated to
+    `max_faces` triangles if it has more.
 
     The checks run on the geometry alone (vertices merged by position: a texture's seams
     split vertices, which would look like open edges). A texture, if the mesh has one, is
@@ -285,15 +300,21 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
     if not geometry.is_winding_consistent:
         trimesh.repair.fix_winding(geometry)
         report.fixed_winding = True
-    small = [loop for loop in _boundary_loops(geometry)
-             if 3 <= len(loop) <= max_hole_edges
+    loops, stray = _closed_loops(geometry)
+    report.stray_boundary_edges = stray
+    small = [loop for loop in loops
+             if len(loop) <= max_hole_edges
              and _perimeter(geometry.vertices, loop) <= max_hole_perimeter]
+    wide = [loop for loop in loops if not any(loop is hole for hole in small)]
+    small += [loop for loop in wide if _in_the_wall(geometry.vertices, loop)]
     if small:
         geometry = trimesh.Trimesh(geometry.vertices,
                                    np.concatenate([geometry.faces, _fans(geometry, small)]),
                                    process=False)
         report.filled_holes = len(small)
-    report.open_ends = len(_boundary_loops(geometry))
+    ends = [loop for loop in wide if not any(loop is hole for hole in small)]
+    report.open_ends = len(ends)
+    report.open_end_perimeters = tuple(_perimeter(geometry.vertices, loop) for loop in ends)
     _, uses = np.unique(geometry.edges_sorted, axis=0, return_counts=True)
     report.non_manifold_edges = int(np.sum(uses > 2))
     say("repairing: normals")
@@ -318,6 +339,48 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
         out = _decimate(out, max_faces, texture)
         report.decimated_to = len(out.faces)
     return out, report
+
+
+def open_end_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
+    """The repaired wall's open ends: its closed boundary loops longer than a hole the
+    repair fills (a decimation can leave small loops and stray open edges of its own)."""
+    loops, _ = _closed_loops(mesh)
+    return [loop for loop in loops if _perimeter(mesh.vertices, loop) > MAX_HOLE_PERIMETER]
+
+
+def _closed_loops(mesh: trimesh.Trimesh) -> tuple[list[np.ndarray], int]:
+    """The boundary's closed loops (3 edges or more), and the count of its open edges in
+    none (chains broken at a vertex where the boundary meets itself)."""
+    closing = {tuple(sorted(edge)) for edge in _boundary_edges(mesh)}
+    loops, stray = [], 0
+    for loop in _boundary_loops(mesh):
+        if len(loop) >= 3 and tuple(sorted((int(loop[0]), int(loop[-1])))) in closing:
+            loops.append(loop)
+        else:
+            stray += max(len(loop) - 1, 1)
+    return loops, stray
+
+
+def _in_the_wall(vertices, loop, depth: float = HOLE_DEPTH, sectors: int = 8) -> bool:
+    """Whether a boundary loop is a hole in the wall rather than an open end or the edge
+    of a sheet: the surface within 1.5 R of the loop's centre stays within `depth` R of
+    the loop's plane (90th percentile; R = perimeter / 2 pi), and goes on beyond the loop
+    all round it (in each of `sectors` directions in that plane there is surface between
+    1.1 R and 1.5 R from the centre). An open end's wall runs along the lumen, away from
+    the plane across it; a sheet's edge has no surface beyond it."""
+    vertices = np.asarray(vertices)
+    ring = vertices[loop]
+    centre = ring.mean(axis=0)
+    _, _, axes = np.linalg.svd(ring - centre)
+    R = _perimeter(vertices, loop) / (2.0 * np.pi)
+    offsets = vertices - centre
+    near = offsets[np.einsum("ij,ij->i", offsets, offsets) <= (1.5 * R) ** 2]
+    if np.percentile(np.abs(near @ axes[2]), 90) >= depth * R:
+        return False
+    u, v = near @ axes[0], near @ axes[1]
+    beyond = np.hypot(u, v) >= 1.1 * R
+    around = np.floor((np.arctan2(v[beyond], u[beyond]) + np.pi) / (2.0 * np.pi) * sectors)
+    return len(np.unique(np.clip(around, 0, sectors - 1))) == sectors
 
 
 def _perimeter(vertices, loop) -> float:
@@ -399,11 +462,15 @@ def _decimate(mesh: trimesh.Trimesh, max_faces: int, texture) -> trimesh.Trimesh
                      np.asarray(mesh.visual.uv)[nearest], texture[1])
 
 
+def _boundary_edges(mesh: trimesh.Trimesh) -> np.ndarray:
+    """The mesh's open edges (used by one face), sorted pairs."""
+    unique, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return unique[counts == 1]
+
+
 def _boundary_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
     """Vertex index loops of the mesh's boundary (edges used by one face)."""
-    edges = mesh.edges_sorted
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    boundary = unique[counts == 1]
+    boundary = _boundary_edges(mesh)
     if len(boundary) == 0:
         return []
     graph = {}

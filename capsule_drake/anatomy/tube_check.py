@@ -12,8 +12,8 @@ its two ends, much longer than it is wide, without branches. Checked in the impo
    thick one, with stray fragments beside it (a segmentation's noise). A triangle soup
    (every triangle its own three vertices), or a wall shredded into strips, is refused.
 1. Open ends (`check_open_ends`): the boundary loops left after small holes are filled
-   (anatomy/importer.py fills those up to 3 cm around) are a tube's open ends: at most
-   two. Three or more is a branching mesh (a Y has three ends) or a wall with a large tear.
+   (anatomy/importer.py fills those up to 3 cm around, and longer ones lying in the wall)
+   are a tube's open ends: at most two. Three or more is a branching mesh (a Y has three ends) or a wall with a large tear.
 2. Sections (`extract_centerline`, anatomy/centerline_extraction.py): the plane normal to
    the first centreline estimate (ring centroids of geodesic distance from one end) cuts a
    tube's wall in a closed loop around that line. If fewer than `MIN_CLOSED_SHARE` of
