@@ -349,13 +349,29 @@ def open_end_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
 
 
 def _closed_loops(mesh: trimesh.Trimesh) -> tuple[list[np.ndarray], int]:
-    """The boundary's closed loops (3 edges or more), and the count of its open edges in
-    none (chains broken at a vertex where the boundary meets itself)."""
-    closing = {tuple(sorted(edge)) for edge in _boundary_edges(mesh)}
-    loops, stray = [], 0
-    for loop in _boundary_loops(mesh):
-        if len(loop) >= 3 and tuple(sorted((int(loop[0]), int(loop[-1])))) in closing:
-            loops.append(loop)
+    """The boundary's closed loops (vertex indices, 3 edges or more; the boundary: edges
+    used by one face), and the count of its open edges in none (chains broken at a vertex
+    where the boundary meets itself)."""
+    unique, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    graph = {}
+    for a, b in unique[counts == 1]:
+        graph.setdefault(a, []).append(b)
+        graph.setdefault(b, []).append(a)
+    loops, stray, seen = [], 0, set()
+    for start in graph:
+        if start in seen:
+            continue
+        loop, previous, current = [start], None, start
+        seen.add(start)
+        while True:
+            following = [v for v in graph[current] if v != previous and v not in seen]
+            if not following:
+                break
+            previous, current = current, following[0]
+            seen.add(current)
+            loop.append(current)
+        if len(loop) >= 3 and start in graph[current]:
+            loops.append(np.array(loop))
         else:
             stray += max(len(loop) - 1, 1)
     return loops, stray
@@ -460,38 +476,6 @@ def _decimate(mesh: trimesh.Trimesh, max_faces: int, texture) -> trimesh.Trimesh
     _, nearest = cKDTree(np.asarray(mesh.vertices)).query(np.asarray(small.vertices))
     return _textured(np.asarray(small.vertices), np.asarray(small.faces),
                      np.asarray(mesh.visual.uv)[nearest], texture[1])
-
-
-def _boundary_edges(mesh: trimesh.Trimesh) -> np.ndarray:
-    """The mesh's open edges (used by one face), sorted pairs."""
-    unique, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
-    return unique[counts == 1]
-
-
-def _boundary_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
-    """Vertex index loops of the mesh's boundary (edges used by one face)."""
-    boundary = _boundary_edges(mesh)
-    if len(boundary) == 0:
-        return []
-    graph = {}
-    for a, b in boundary:
-        graph.setdefault(a, []).append(b)
-        graph.setdefault(b, []).append(a)
-    loops, seen = [], set()
-    for start in graph:
-        if start in seen:
-            continue
-        loop, previous, current = [start], None, start
-        seen.add(start)
-        while True:
-            following = [v for v in graph[current] if v != previous and v not in seen]
-            if not following:
-                break
-            previous, current = current, following[0]
-            seen.add(current)
-            loop.append(current)
-        loops.append(np.array(loop))
-    return loops
 
 
 def _normals_point_outward(mesh: trimesh.Trimesh) -> bool:
