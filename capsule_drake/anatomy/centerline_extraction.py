@@ -134,6 +134,8 @@ class MeshSections:
         self._v0 = triangles[:, 0]
         self._e1 = triangles[:, 1] - self._v0
         self._e2 = triangles[:, 2] - self._v0
+        self.face_centres = triangles.mean(axis=1)
+        self.face_areas = 0.5 * np.linalg.norm(np.cross(self._e1, self._e2), axis=1)
 
     def loops(self, origin, normal):
         """(sections, contains, closed): every loop of the plane section through `origin`
@@ -603,7 +605,8 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
     point, or whose centre is off by a quarter of the radius, or that is far wider than the
     last, ends the march: past an open end. The end is then the centre of a boundary loop
     (`loops`: the mesh's, vertices (K, 3)) ahead, within OPEN_END_AHEAD radii, else the last
-    point. `reference`: the tube's typical radius, if the local one cannot be measured."""
+    point, or a flat cap's disc the march stopped short of (`_flat_cap_ahead`). `reference`:
+    the tube's typical radius, if the local one cannot be measured."""
     points = list(points)
     start = sections.around(points[-1], _end_tangent(points))
     last_radius = start.radius if start is not None else reference  # the local radius
@@ -672,7 +675,46 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
             points.pop()   # marched past the end's centre
         points.append(centre)
         return points, "open", float(np.linalg.norm(centre - points[-2]))
-    return points, "none", 0.0
+    rescued = _flat_cap_ahead(sections, points, step, last_radius)
+    return rescued if rescued is not None else (points, "none", 0.0)
+
+
+FLAT_CAP_REACH = 3.0
+"""How far ahead of where the march stopped (in radii) a flat cap is looked for."""
+FLAT_CAP_HOLD = 0.5
+"""The last stretch of a line joined to a flat cap that the final passes leave as it is (in
+radii): the rest of the join is refined by its sections like the line behind it."""
+
+
+def _flat_cap_ahead(sections: MeshSections, points, step, radius):
+    """Where the march stopped short of a flat cap (in a flare before it the sections tilt,
+    their centres pull to the wide side and the march stops): the cap's disc where the ray
+    ahead meets it within FLAT_CAP_REACH radii (`_flat_disc`), and the line on to the disc's
+    area centroid along a cubic (Hermite) that leaves the march's end along its tangent and
+    meets the disc square, as a tube's axis meets its flat end. Returns (points, "flat cap",
+    the stretch held at the end: at most FLAT_CAP_HOLD radii) or None (no flat disc ahead,
+    or one turned more than 60 degrees from the line or behind it)."""
+    p, t = points[-1], _end_tangent(points)
+    ahead = sections.ray(p, t, reach=FLAT_CAP_REACH * radius)
+    if not np.isfinite(ahead):
+        return None
+    disc = _flat_disc(sections, p + ahead * t, radius)
+    if disc is None:
+        return None
+    areas = sections.face_areas[disc]
+    centre = np.average(sections.face_centres[disc], axis=0, weights=areas)
+    normal = np.average(sections.face_normals[disc], axis=0, weights=areas)
+    normal /= np.linalg.norm(normal)
+    if normal @ t < 0.0:
+        normal = -normal
+    if normal @ t < np.cos(np.radians(60.0)) or (centre - p) @ t <= 0.0:
+        return None
+    chord = float(np.linalg.norm(centre - p))
+    u = np.linspace(0.0, 1.0, max(2, int(np.ceil(chord / step))) + 1)[1:, None]
+    join = ((2 * u**3 - 3 * u**2 + 1) * p + (u**3 - 2 * u**2 + u) * chord * t
+            + (3 * u**2 - 2 * u**3) * centre + (u**3 - u**2) * chord * normal)
+    length = float(_arc(np.vstack([p, join]))[-1])
+    return list(points) + list(join), "flat cap", min(length, FLAT_CAP_HOLD * radius)
 
 
 def _piece(sections: MeshSections, mask, seed: int):
@@ -697,14 +739,13 @@ def _flat_disc(sections: MeshSections, wall, radius):
     of `radius` (a disc is at least as wide as the tube, all of it counts however far it
     reaches where the end flares; on a sphere only a patch of ~7 % of the circle turns by
     less than FLAT_CAP_ANGLE, on a wall a strip)."""
-    centres = sections.vertices[sections.faces].mean(axis=1)
+    centres = sections.face_centres
     hit = int(np.argmin(np.linalg.norm(centres - wall, axis=1)))
     normal = sections.face_normals[hit]
     flat = (np.abs((centres - centres[hit]) @ normal) < 0.02 * radius) \
         & (sections.face_normals @ normal > np.cos(FLAT_CAP_ANGLE))
     disc = _piece(sections, flat, hit)
-    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
-    if areas[disc].sum() < FLAT_CAP_SHARE * np.pi * radius ** 2:
+    if sections.face_areas[disc].sum() < FLAT_CAP_SHARE * np.pi * radius ** 2:
         return None
     return disc
 
@@ -957,9 +998,8 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     if not np.isfinite(ahead):
         return line
     wall = back + ahead * t
-    triangles = sections.vertices[sections.faces]
-    centres = triangles.mean(axis=1)
-    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    centres = sections.face_centres
+    areas = sections.face_areas
     near = np.linalg.norm(centres - wall, axis=1) < 0.7 * radius
     if near.sum() < 20:
         return line
@@ -1017,9 +1057,9 @@ def _wall_axis(sections: MeshSections, end, t, radius, back, ahead):
     `t`. Returns a function a -> (point, unit tangent) (a [m] along `t` from
     `end`), or None if fewer than AXIS_MIN_FACES faces are used."""
     _, e1, e2 = _plane_basis(t)
-    centres = sections.vertices[sections.faces].mean(axis=1)
+    centres = sections.face_centres
     normals = sections.face_normals
-    areas = 0.5 * np.linalg.norm(np.cross(sections._e1, sections._e2), axis=1)
+    areas = sections.face_areas
     rel = centres - end
     a0 = rel @ t
     side = rel - np.outer(a0, t)
