@@ -340,23 +340,23 @@ def _edge_graph(mesh: trimesh.Trimesh):
                         np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n)).tocsr()
 
 
-def _start_vertices(mesh: trimesh.Trimesh, graph) -> np.ndarray:
-    """One end of the tube: the boundary loop nearest the vertex geodesically farthest from
-    vertex 0, or that vertex alone for a closed mesh."""
+def _start_vertices(mesh: trimesh.Trimesh, graph, loops) -> np.ndarray:
+    """One end of the tube: the open end's loop (`loops`, vertex indices) nearest the vertex
+    geodesically farthest from vertex 0, or that vertex alone for a closed mesh."""
     first = dijkstra(graph, indices=0)
     first[~np.isfinite(first)] = -1.0
     far = int(np.argmax(first))
-    loops = open_end_loops(mesh)
     if loops:
         distance = dijkstra(graph, indices=far)
         return min(loops, key=lambda loop: float(np.min(distance[loop])))
     return np.array([far])
 
 
-def ring_centreline(mesh: trimesh.Trimesh, step: float):
-    """Step 1: ring centroids every `step` (m) of geodesic distance from one end."""
+def ring_centreline(mesh: trimesh.Trimesh, step: float, loops=None):
+    """Step 1: ring centroids every `step` (m) of geodesic distance from one end.
+    `loops`: the mesh's open ends (`open_end_loops`), if already found."""
     graph = _edge_graph(mesh)
-    start = _start_vertices(mesh, graph)
+    start = _start_vertices(mesh, graph, open_end_loops(mesh) if loops is None else loops)
     distance = np.min(dijkstra(graph, indices=start), axis=0) if len(start) > 1 else \
         dijkstra(graph, indices=int(start[0]))
     finite = np.isfinite(distance)
@@ -420,7 +420,8 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     cap" or "none": a mesh whose end is open but has no boundary, a thick wall's)."""
     mesh = geometry_of(mesh)
     sections = MeshSections(mesh)
-    rings = ring_centreline(mesh, step)
+    end_loops = open_end_loops(mesh)
+    rings = ring_centreline(mesh, step, end_loops)
     if len(rings) < 5:
         raise NotATubeError("not a tube: its vertices make fewer than 5 rings along it "
                             "(too small, or too coarse a mesh?)")
@@ -458,7 +459,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     reference = float(np.median(radius_now))
     # The open ends' boundary loops (vertices, (K, 3)), found once for both marches and the
     # recast of their last stretches.
-    loops = [np.asarray(mesh.vertices)[loop] for loop in open_end_loops(mesh)]
+    loops = [np.asarray(mesh.vertices)[loop] for loop in end_loops]
     tail, tail_end, tail_jump = _march(sections, loops, list(points), step, 0.001, reference)
     head, head_end, head_jump = _march(sections, loops, list(points[::-1]), step, 0.001,
                                        reference)

@@ -302,17 +302,17 @@ def repair_colon_mesh(mesh: trimesh.Trimesh, max_hole_edges: int = 64,
         report.fixed_winding = True
     loops, stray = _closed_loops(geometry)
     report.stray_boundary_edges = stray
-    small = [loop for loop in loops
-             if len(loop) <= max_hole_edges
-             and _perimeter(geometry.vertices, loop) <= max_hole_perimeter]
-    wide = [loop for loop in loops if not any(loop is hole for hole in small)]
-    small += [loop for loop in wide if _in_the_wall(geometry.vertices, loop)]
+    small, ends = [], []
+    for loop in loops:
+        hole = (len(loop) <= max_hole_edges
+                and _perimeter(geometry.vertices, loop) <= max_hole_perimeter) \
+            or _in_the_wall(geometry.vertices, loop)
+        (small if hole else ends).append(loop)
     if small:
         geometry = trimesh.Trimesh(geometry.vertices,
                                    np.concatenate([geometry.faces, _fans(geometry, small)]),
                                    process=False)
         report.filled_holes = len(small)
-    ends = [loop for loop in wide if not any(loop is hole for hole in small)]
     report.open_ends = len(ends)
     report.open_end_perimeters = tuple(_perimeter(geometry.vertices, loop) for loop in ends)
     _, uses = np.unique(geometry.edges_sorted, axis=0, return_counts=True)
