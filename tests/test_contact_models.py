@@ -24,7 +24,7 @@ from capsule_drake.schema import field_types
 PACKAGE = Path(__file__).resolve().parents[1] / "capsule_drake"
 CONTACT = PACKAGE / "physics" / "contact"
 # What the rest of the package may ask of any contact model (the models' shared interface).
-SHARED = {"label", "wall_allowance", "pressure_field", "step_bound"}
+SHARED = {"label", "wall_allowance", "wall_tears", "pressure_field", "step_bound"}
 
 
 def test_a_contact_model_touches_its_module_and_the_union_only():

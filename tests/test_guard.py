@@ -8,8 +8,9 @@ import pytest
 from capsule_drake.anatomy import load_colon
 from capsule_drake.capsule.model import capsule_model
 from capsule_drake.app.cli import main as cli_main
-from capsule_drake.io.guard import (GuardConfig, check_capsule_in_colon, check_capsule_state,
-                                    parse_guard_reason)
+from capsule_drake.io.guard import (ENDING_OF_KIND, GuardConfig, check_capsule_in_colon,
+                                    check_capsule_state, parse_guard_reason)
+from capsule_drake.physics.contact import CompliantWall, RigidWall
 from capsule_drake.io.metrics import OUTCOMES, capsule_surface_points_C
 from capsule_drake.app.run import simulate
 from capsule_drake.scenario import ScenarioError, load_scenario
@@ -54,6 +55,11 @@ def test_the_wall_check_follows_the_colon(colon):
     assert kind == "wall" and "beyond the colon wall" in text
     # The same place passes with a guard that allows more than that.
     assert check_capsule_in_colon(colon, _state(outside, q_along), _points(), 0.05) is None
+    # Through a wall that yields (the compliant wall's `wall_tears`): the wall tore.
+    kind, text = check_capsule_in_colon(colon, _state(outside, q_along), _points(), 0.005,
+                                        wall_allowance=0.002, wall_tears=True)
+    assert kind == "wall_torn" and "would have torn" in text and "2 mm the wall stretches" in text
+    assert ENDING_OF_KIND["wall_torn"] == "perforated" and ENDING_OF_KIND["wall"] == "diverged"
     # Past the start (s = 0) along the axis: out of the colon.
     before = cl.point_at(0.0) - 0.03 * cl.tangent_at(0.0)
     kind, text = check_capsule_in_colon(colon, _state(before, q_along), _points(), 0.005)
@@ -89,6 +95,31 @@ def test_a_guarded_run_stops_writes_its_logs_and_reports_no_distances(tmp_path):
         assert logs["capsule_state"].shape[1] == len(logs["times"]) >= 2
     assert (tmp_path / "run" / "scenario.yaml").is_file()
     assert not (tmp_path / "run" / "logs.parts").exists()
+
+
+def test_a_torn_wall_ends_the_run_as_a_perforation_with_its_figures(tmp_path, monkeypatch,
+                                                                    capsys):
+    # The compliant wall yields, the rigid one does not: only through the first is a capsule
+    # beyond the wall an event of the patient.
+    assert CompliantWall().wall_tears() and not RigidWall().wall_tears()
+    # A guard that a sound run on the compliant wall trips: no stretch allowed and 0.1 mm
+    # beyond the undeformed wall (the capsule settles into it by more as it lands).
+    monkeypatch.setattr(CompliantWall, "wall_allowance", lambda self, radius, colon=None: 0.0)
+    code = cli_main(["run", "--duration", "2", "--no-recording", "--quiet",
+                     "--scenario-text", "{contact: !CompliantWall {}, "
+                                        "capsule: {start_s: 0.2}, "
+                                        "guard: {max_wall_excursion: 1.0e-4}}",
+                     "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 1
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "would have torn" in lines[0], err
+    assert "figures up to it are reported" in lines[0] and "Traceback" not in err
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["status"] == "perforated" and metrics["diverged"] is False
+    # Its figures stand: the capsule's excursion is beyond the guard's 0.1 mm.
+    assert all(metrics[key] is not None for key in OUTCOMES)
+    assert metrics["max_wall_excursion_m"] > 1.0e-4
 
 
 def test_the_cli_says_why_in_one_line_and_exits_1(tmp_path, capsys):

@@ -67,7 +67,8 @@ sampled every CONTACT_SAMPLE_PERIOD.
 Episode end: terminated at the cecum (centreline station within the benchmark's
 CECUM_MARGIN of the end), on a run guard stop (io/guard.py: the state stopped being
 physical: not finite, too fast, through the wall, out of the colon; the progress term of
-the stopping step is 0 when the state diverged), or on an error of the simulation;
+the stopping step is 0 when the state diverged, kept when the compliant wall tore), or on an
+error of the simulation;
 truncated at `max_episode_seconds` of simulated time (default 600 s, the benchmark's).
 `info`: t, colon_seed, noise_seed, s, progress (s - s at the start, m), progress_fraction
 (the benchmark's "progress": furthest station reached, as a share of the colon from the

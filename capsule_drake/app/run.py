@@ -58,9 +58,9 @@ class RunResult:
     context: object = None     # context (for the loggers an `extend` added), and the
     station: object = None     # station
     channel_logger: object = None   # the MCAP file's and live outputs' (app/mcap_log.py)
-    # How the run ended: "completed" (its duration), "goal" (stop_when), "diverged" or
-    # "left_colon" (the run guard), "epm_clearance" (the EPM's clearance watch), "error"
-    # (inside the simulation), "interrupted".
+    # How the run ended: "completed" (its duration), "goal" (stop_when), "diverged",
+    # "left_colon" or "perforated" (the run guard), "epm_clearance" (the EPM's clearance
+    # watch), "error" (inside the simulation), "interrupted".
     status: str = "completed"
 
 
@@ -149,8 +149,9 @@ def paced(scenario: Scenario) -> SimulatorConfig:
 class Ending:
     """How a run ended before its time was up (or None from `Run.advance_to`: it was not)."""
 
-    # "goal" (stop_when), "diverged" or "left_colon" (the run guard), "epm_clearance" (the
-    # EPM's clearance watch), "error" (inside the simulation), "interrupted" (a signal).
+    # "goal" (stop_when), "diverged", "left_colon" or "perforated" (the run guard),
+    # "epm_clearance" (the EPM's clearance watch), "error" (inside the simulation),
+    # "interrupted" (a signal).
     status: str
     text: str                  # one line: the goal's text, or what stopped it and when
     traceback: str | None = None   # an error's
@@ -587,7 +588,8 @@ def add_guarded_station(builder: DiagramBuilder, scenario: Scenario, meshcat=Non
     monitor = add_contact_monitor(builder, station)
     guard = builder.AddNamedSystem("run_guard", RunGuard(
         colon, model.radius, model.length, scenario.guard,
-        wall_allowance=scenario.contact.wall_allowance(model.radius, colon)))
+        wall_allowance=scenario.contact.wall_allowance(model.radius, colon),
+        wall_tears=scenario.contact.wall_tears()))
     builder.Connect(station.GetOutputPort("capsule.state"), guard.get_input_port())
     return station, colon, monitor
 

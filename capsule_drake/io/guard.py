@@ -19,7 +19,10 @@ when, at the first of:
   wall (5 mm by default: the rigid wall lets the capsule into it by well under 1 mm, and a
   fold is a few millimetres thick, so 5 mm means the capsule has gone through it), plus what
   the contact model's wall gives (physics/contact/: `wall_allowance`, the compliant wall's
-  layer depth);
+  stretch to its failure strain). Through a wall that cannot yield, that is a failed
+  simulation (kind "wall", the run diverged); through a wall that yields (the contact
+  model's `wall_tears`), it is what the patient's wall would have done: stretched past its
+  failure strain, a perforation (kind "wall_torn", the run's figures up to it stand);
 - the capsule's centre past one of the colon's ends (it has left the colon).
 
 The cheap checks (finite, speed) run every `period` (10 ms); the wall check, which
@@ -71,8 +74,10 @@ DIVERGED = ("not_finite", "speed", "wall")
 # A run's ending (app/run.py, Ending.status) for each kind of guard stop: the run guard's
 # here, and the EPM's clearance watch (epm/clearance.py), which stops a run whose magnet came
 # too close to the skin (the capsule's figures still mean what they say).
+# A yielding wall stretched past its failure strain ("wall_torn") ends the run as
+# "perforated": a physical event, the run's figures up to it stand.
 ENDING_OF_KIND = {**{kind: "diverged" for kind in DIVERGED}, "left_colon": "left_colon",
-                  "epm_clearance": "epm_clearance"}
+                  "wall_torn": "perforated", "epm_clearance": "epm_clearance"}
 
 
 def guard_reason(kind: str, text: str) -> str:
@@ -106,11 +111,13 @@ def check_capsule_state(state: np.ndarray, max_speed: float) -> tuple[str, str] 
 
 
 def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
-                           max_excursion: float,
-                           wall_allowance: float = 0.0) -> tuple[str, str] | None:
+                           max_excursion: float, wall_allowance: float = 0.0,
+                           wall_tears: bool = False) -> tuple[str, str] | None:
     """(kind, text) if the capsule's centre is past one of the colon's ends, or a point of
     its surface is farther than `max_excursion` beyond the wall, and the `wall_allowance`
-    a yielding wall gives (the contact model's, physics/contact/)."""
+    a yielding wall gives (the contact model's, physics/contact/). `wall_tears`: the wall
+    yields, so a capsule beyond both has torn it ("wall_torn"), not passed through a wall
+    the simulation could not hold ("wall")."""
     p_WC = np.asarray(state[4:7], dtype=float)
     centerline = colon.centerline
     s, _, _ = centerline.closest(p_WC)
@@ -130,6 +137,13 @@ def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
         if s_worst in (0.0, centerline.length):
             return "left_colon", (f"the capsule sticks out {excursion[worst] * 1000:.1f} mm "
                                   f"past the colon's {'start (s = 0)' if s_worst == 0 else 'end'}")
+        if wall_tears:
+            return "wall_torn", (
+                f"the capsule is {excursion[worst] * 1000:.1f} mm beyond the colon wall's "
+                f"undeformed surface at s = {s * 100:.1f} cm, past the "
+                f"{wall_allowance * 1000:.3g} mm the wall stretches before it tears and the "
+                f"{max_excursion * 1000:g} mm guard.max_wall_excursion: the wall would "
+                "have torn (a perforation)")
         given = (f" beyond the {wall_allowance * 1000:.3g} mm the wall gives"
                  if wall_allowance > 0.0 else "")
         return "wall", (f"the capsule is {excursion[worst] * 1000:.1f} mm beyond the colon "
@@ -154,14 +168,17 @@ class RunGuard(LeafSystem):
         colon: the run's colon (its centreline and wall).
         capsule_radius, capsule_length: the capsule's shape (m).
         config: GuardConfig.
+        wall_allowance, wall_tears: the contact model's (check_capsule_in_colon).
     """
 
     def __init__(self, colon, capsule_radius: float, capsule_length: float,
-                 config: GuardConfig | None = None, wall_allowance: float = 0.0):
+                 config: GuardConfig | None = None, wall_allowance: float = 0.0,
+                 wall_tears: bool = False):
         super().__init__()
         self._colon = colon
         self._config = config or GuardConfig()
         self._wall_allowance = float(wall_allowance)
+        self._wall_tears = bool(wall_tears)
         self._points_C = capsule_surface_points_C(capsule_radius, capsule_length)
         self._state_port = self.DeclareVectorInputPort("capsule_state", 13)
         self.DeclarePeriodicPublishEvent(self._config.period, 0.0, self._check_state)
@@ -184,4 +201,4 @@ class RunGuard(LeafSystem):
             return EventStatus.Succeeded()  # the state check reports it
         return self._stop(context, check_capsule_in_colon(
             self._colon, state, self._points_C, self._config.max_wall_excursion,
-            self._wall_allowance))
+            self._wall_allowance, self._wall_tears))

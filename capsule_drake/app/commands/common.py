@@ -173,8 +173,10 @@ def _report_stop(result) -> None:
     m = result.metrics
     if m.get("stopped_early"):
         print(f"stopped early: {m['stopped_early']}"
-              + ("; the simulation diverged, so no distance or force is reported from it"
-                 if result.status == "diverged" else ""), file=sys.stderr)
+              + {"diverged": "; the simulation diverged, so no distance or force is "
+                             "reported from it",
+                 "perforated": "; the figures up to it are reported"}.get(result.status, ""),
+              file=sys.stderr)
 
 
 def _flags(**values) -> str:

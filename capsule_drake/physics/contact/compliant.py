@@ -158,6 +158,14 @@ class CompliantWall:
                                        else capsule_radius)
         return max(capsule_radius, FAILURE_STRAIN * radius)
 
+    def wall_tears(self) -> bool:
+        """Yes: a capsule beyond `wall_allowance` (and the guard's margin) has stretched
+        the wall past its failure strain, which a patient's wall would not survive: the run
+        guard ends the run as a perforation ("wall_torn"), its figures up to it standing.
+        The wall's force is implicit at any step (`step_bound`), so a run that diverged
+        trips the guard's speed check first."""
+        return True
+
 
 def hoop_modulus(config: CompliantWall, radius: float) -> float:
     """The wall's hoop stretch as a foundation (Pa/m): E_theta h / R^2."""

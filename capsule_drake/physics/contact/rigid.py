@@ -83,6 +83,11 @@ class RigidWall:
         """The rigid wall gives nothing: the run guard's max_wall_excursion alone."""
         return 0.0
 
+    def wall_tears(self) -> bool:
+        """No: a capsule through a wall that does not yield is a simulation that failed
+        (the run guard's "wall", a diverged run), not an event of the patient."""
+        return False
+
 
 # Bounds of the contact settings (check_contact_config).
 MAX_FRICTION = 2.0
