@@ -475,12 +475,18 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         points, radius, _ = _refine(sections, points, step, keep_ends=True,
                                     max_move=0.5 * step, hold=hold)
         points = _smooth_inside(points)
-        if final > 0:   # the march's own ends (an open end at its loop's centroid) are not
-            candidates.append((points, radius))   # candidates: only recast ones are
+        if final == 0:
+            marched = (points, radius)
+        else:   # recast ends
+            candidates.append((points, radius))
         if final < FINAL_PASSES - 1:
             points, jumps = _recast_caps(sections, points, step, (head_end, tail_end), jumps,
                                          reference, loops)
-    points, radius = _best_ends(sections, candidates, reference)
+    # The march's own end is a candidate at a round cap (a recast from a flared or bent
+    # tube's last sections can carry the line centimetres astray), not at an open end (its
+    # loop's centroid is off the axis where the tube flares or the cut is oblique).
+    points, radius = _best_ends(sections, candidates, reference, marched,
+                                (head_end == "round cap", tail_end == "round cap"))
     for side, kind in ((0, head_end), (1, tail_end)):
         if kind == "flat cap":
             line = points[::-1] if side == 0 else points
@@ -533,17 +539,23 @@ def end_residual(sections: MeshSections, line, radius: float) -> float:
     return float(np.sqrt(np.mean(np.square(gaps)))) if len(gaps) >= 5 else np.inf
 
 
-def _best_ends(sections: MeshSections, candidates, radius: float):
+def _best_ends(sections: MeshSections, candidates, radius: float, marched=None,
+               marched_at=(False, False)):
     """Of the lines the final passes made after their ends were recast ((points, radii)
     each), each end taken from the line whose end is nearest its own sections' centres
     (`end_residual`), the two halves joined half-way along. (A recast can wander: a cubic
     carried past the sections it was fitted to, then refined, then recast from its own
-    wandering end.)"""
+    wandering end.) `marched`, the line with the march's own ends, competes at the ends
+    `marched_at` (head, tail) says."""
+    candidates = list(candidates) + ([marched] if marched is not None else [])
     if len(candidates) == 1:
         return candidates[0]
-    head = min(range(len(candidates)),
+    allowed = [[k for k in range(len(candidates))
+                if k < len(candidates) - (marched is not None) or marched_at[side]]
+               for side in (0, 1)]
+    head = min(allowed[0],
                key=lambda k: end_residual(sections, candidates[k][0][::-1], radius))
-    tail = min(range(len(candidates)),
+    tail = min(allowed[1],
                key=lambda k: end_residual(sections, candidates[k][0], radius))
     if head == tail:
         return candidates[head]
