@@ -7,8 +7,9 @@ scenario's `contact` (a tagged union, as epm.driver is).
                      elastic support, with the colon's measured friction (compliant.py)
 
 Each model's module owns its wall's and capsule's contact geometry and properties, any force
-it adds, and its parts of the run guard (`wall_allowance`, `wall_tears`) and of printed figures (`label`);
-it registers itself as the "contact" block (blocks.py). What they share is in common.py.
+it adds, and its parts of the run guard (`wall_allowance`, `wall_tears`) and of printed
+figures (`label`); it registers itself as the "contact" block (blocks.py). What they share
+is in common.py.
 """
 
 from capsule_drake.physics.contact.compliant import CompliantWall
