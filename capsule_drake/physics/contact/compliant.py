@@ -162,8 +162,8 @@ class CompliantWall:
         """Yes: a capsule beyond `wall_allowance` (and the guard's margin) has stretched
         the wall past its failure strain, which a patient's wall would not survive: the run
         guard ends the run as a perforation ("wall_torn"), its figures up to it standing.
-        (A diverging integration passes the guard's speed check within a few steps, long
-        before its wall check, every 0.25 s, comes round: io/guard.py.)"""
+        (A diverging integration passes the guard's speed check within a few steps, and
+        the wall check, every 0.25 s, leaves a state that fails both to it: io/guard.py.)"""
         return True
 
 
