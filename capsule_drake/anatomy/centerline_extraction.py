@@ -547,12 +547,13 @@ def _best_ends(sections: MeshSections, candidates, radius: float, marched=None,
     carried past the sections it was fitted to, then refined, then recast from its own
     wandering end.) `marched`, the line with the march's own ends, competes at the ends
     `marched_at` (head, tail) says."""
-    candidates = list(candidates) + ([marched] if marched is not None else [])
+    allowed = [list(range(len(candidates)))] * 2
+    if marched is not None and any(marched_at):
+        allowed = [keys + [len(candidates)] if here else keys
+                   for keys, here in zip(allowed, marched_at)]
+        candidates = list(candidates) + [marched]
     if len(candidates) == 1:
         return candidates[0]
-    allowed = [[k for k in range(len(candidates))
-                if k < len(candidates) - (marched is not None) or marched_at[side]]
-               for side in (0, 1)]
     head = min(allowed[0],
                key=lambda k: end_residual(sections, candidates[k][0][::-1], radius))
     tail = min(allowed[1],
