@@ -420,6 +420,21 @@ def _moved(message: str) -> str:
     return message
 
 
+def _chosen_name(path: Path, names: list[str], name: str | None) -> str:
+    """The scenario `load_scenario` takes from a file of named ones."""
+    if name is None:
+        if len(names) == 1:
+            return names[0]
+        if "Default" in names:
+            return "Default"
+        raise ScenarioError(f"{path}: holds several scenarios ({', '.join(names)}); "
+                            "choose one with --scenario")
+    if name not in names:
+        raise ScenarioError(f"{path}: no scenario named {name!r} "
+                            f"(the file has: {', '.join(names)})")
+    return name
+
+
 def load_scenario(path: Path | str | None = None, name: str | None = None,
                   override: str | list[str] | None = None) -> Scenario:
     """Loads scenario `name` from `path` (default: diagrams/default.yaml), then layers the
@@ -427,23 +442,20 @@ def load_scenario(path: Path | str | None = None, name: str | None = None,
     order: a user's text, then a command's own flags) on top, then checks it (`validate`).
 
     Without a name, a file holding a single scenario yields it, and otherwise the one called
-    `Default`.
+    `Default`. A file whose keys are all a scenario's own fields (a run's scenario.yaml) is
+    that one scenario, unnamed: it loads as it was run.
     """
     path = Path(path) if path is not None else DEFAULT_SCENARIO_FILE
     text, doc = _document(path)
     names = list(doc)
-    if name is None:
-        if len(names) == 1:
-            name = names[0]
-        elif "Default" in names:
-            name = "Default"
-        else:
-            raise ScenarioError(f"{path}: holds several scenarios ({', '.join(names)}); "
-                                "choose one with --scenario")
-    if name not in names:
-        raise ScenarioError(f"{path}: no scenario named {name!r} "
-                            f"(the file has: {', '.join(names)})")
-    scenario = _load_one(text, f"{path} [{name}]", name, None, doc)
+    if names and set(names) <= set(field_types(Scenario)):
+        if name is not None:
+            raise ScenarioError(f"{path}: holds one unnamed scenario (as a run's scenario.yaml "
+                                f"does), not one named {name!r}; leave out --scenario")
+        scenario = _load_one(text, str(path), None, None, doc)
+    else:
+        name = _chosen_name(path, names, name)
+        scenario = _load_one(text, f"{path} [{name}]", name, None, doc)
     overrides = [override] if isinstance(override, str) else list(override or [])
     for text in overrides:
         if text:

@@ -142,6 +142,12 @@ def test_missing_file_and_unknown_name(tmp_path):
         load_scenario(tmp_path / "nope.yaml")
     with pytest.raises(ScenarioError, match="no scenario named 'Nope'"):
         load_scenario(name="Nope")
+    # A run's scenario.yaml is one unnamed scenario: asking it for a name is refused.
+    bare = tmp_path / "scenario.yaml"
+    bare.write_text(dump_scenario(load_scenario(name="Teleop")))
+    assert same(load_scenario(bare), load_scenario(name="Teleop"))
+    with pytest.raises(ScenarioError, match="one unnamed scenario.*leave out --scenario"):
+        load_scenario(bare, "Teleop")
 
 
 @pytest.mark.parametrize("text, key", [

@@ -131,6 +131,10 @@ def test_a_valid_scenario_round_trips_through_its_dump(tmp_path_factory, name, d
     path.write_text("Dumped:\n" + "".join(f"  {line}\n"
                                           for line in dump_scenario(scenario).splitlines()))
     assert dump_scenario(load_scenario(path)) == dump_scenario(scenario)
+    # As the run writes it (its fields at the top, no name), it loads as it is.
+    bare = path.with_name("scenario.yaml")
+    bare.write_text(dump_scenario(scenario))
+    assert dump_scenario(load_scenario(bare)) == dump_scenario(scenario)
 
 
 # --- A key given twice, at any depth -------------------------------------------------------
