@@ -67,6 +67,18 @@ def vertical_half_extents(m_hat_W, geometry: MagnetGeometry) -> np.ndarray:
     return half_length * cos_tilt + radius * np.sqrt(np.maximum(0.0, 1.0 - cos_tilt**2))
 
 
+def extent_turn_slope(geometry: MagnetGeometry) -> float:
+    """The most (m/rad) the magnet's vertical half extent changes per radian its moment
+    turns: the half diagonal of its cylinder (`magnet_vertical_half_extent` is
+    h cos(tilt) + r sin(tilt)); nothing for a sphere."""
+    dims = geometry.dimensions
+    if geometry.shape == "sphere":
+        return 0.0
+    if geometry.shape == "cylinder":
+        return float(np.hypot(0.5 * dims[0], 0.5 * dims[1]))
+    return float(np.hypot(0.5 * np.hypot(dims[0], dims[1]), 0.5 * dims[2]))
+
+
 def magnet_footprint_radius(geometry: MagnetGeometry) -> float:
     """Radius of a disc that covers the magnet's shadow on the skin in any orientation."""
     dims = geometry.dimensions
