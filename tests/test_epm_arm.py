@@ -257,13 +257,17 @@ def test_the_magnet_keeps_its_clearance_on_commands_faster_than_the_arm(colon, s
     waypoints = _floor_waypoints(colon, guard, 6, np.random.default_rng(seed))
     diagram, plant, source, logs, guard = _arm_diagram(
         colon, waypoints, speed=0.1, turn_rate=3.0, pause=0.15, smooth=False)
+    assert _lowest_gap(colon, diagram, logs, source.end + 0.5) > CLEARANCE - CLEARANCE_TOLERANCE
+
+
+def _lowest_gap(colon, diagram, logs, until: float) -> float:
+    """Simulates an `_arm_diagram` to `until` (s); the magnet's smallest gap to the skin (m)."""
     simulator = Simulator(diagram)
-    simulator.AdvanceTo(source.end + 0.5)
+    simulator.AdvanceTo(until)
     pose = logs["pose"].FindLog(simulator.get_context()).data()
-    gaps = np.array([skin_gap(colon, pose[:3, k], pose[3:, k], GEOMETRY)
-                     for k in range(pose.shape[1])])
-    print(f"lowest gap {1000 * gaps.min():.2f} mm (clearance {1000 * CLEARANCE:g} mm)")
-    assert gaps.min() > CLEARANCE - CLEARANCE_TOLERANCE
+    gap = min(skin_gap(colon, pose[:3, k], pose[3:, k], GEOMETRY) for k in range(pose.shape[1]))
+    print(f"lowest gap {1000 * gap:.2f} mm (clearance {1000 * CLEARANCE:g} mm)")
+    return gap
 
 
 def _command_velocity_steps(colon, config, seed=21):
@@ -354,10 +358,5 @@ def test_the_magnet_keeps_its_clearance_turning_through_the_horizontal(colon):
     posture = np.array([1.327, 1.2414, -1.1234, -1.638, -0.4665, 0.1088, -0.2868])
     diagram, plant, source, logs, guard = _arm_diagram(
         colon, [source.poses[0]], guess=posture, source=source)
-    simulator = Simulator(diagram)
-    simulator.AdvanceTo(source.end + 0.3)
-    pose = logs["pose"].FindLog(simulator.get_context()).data()
-    gaps = np.array([skin_gap(colon, pose[:3, k], pose[3:, k], GEOMETRY)
-                     for k in range(pose.shape[1])])
-    print(f"lowest gap {1000 * gaps.min():.2f} mm (clearance {1000 * CLEARANCE:g} mm)")
-    assert gaps.min() > CLEARANCE - 0.5 * CLEARANCE_TOLERANCE
+    gap = _lowest_gap(colon, diagram, logs, source.end + 0.3)
+    assert gap > CLEARANCE - 0.5 * CLEARANCE_TOLERANCE
