@@ -4,10 +4,10 @@ files.
 
     .venv/bin/python benchmarks/compliant_summary.py
 
-Per tier, tissue and navigator: the cecal intubation rate with its 95 % Wilson interval, the
-mean time to the cecum and speed to it over the runs that arrive, the mean wall-contact time,
-the wall's per-site peak pressure (mean over the runs, and the highest of any run), the
-longest any run kept one patch of mucosa above 4 kPa, and the rigid stand-in's rate on the
+Per tier, tissue and navigator, the results pages' summary (result_tables.summary: the cecal
+intubation rate with its 95 % Wilson interval, the mean time to the cecum and speed to it
+over the runs that arrive, the mean wall-contact time and per-site peak pressure), then the
+highest per-site peak of any run, the longest any run kept one patch of mucosa above 4 kPa, and the rigid stand-in's rate on the
 same seeds (typed: those runs were not kept as result files; docs/results/navigation.md
 gives their dates and tables). Runs that did not finish (crashed, timed out) are left out.
 The standard tier ran before the followers' lift was fixed at 0.9 (on those seeds, with
@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsule_drake.app.benchmark.result_tables import read_rows
-from capsule_drake.app.benchmark.tables import wilson_interval
+from capsule_drake.app.benchmark.result_tables import markdown, read_rows, summary
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STANDARD = "compliant_standard_2026-11-29.csv"
@@ -51,34 +50,28 @@ GROUPS = (
 )
 
 
-def figure(value: float, digits: int = 1) -> str:
-    return "-" if not np.isfinite(value) else f"{value:.{digits}f}"
+# The results pages' summary columns (result_tables.summary) shown here, then this table's own.
+SHOWN = ("cecum", "95 % interval", "time to cecum (s)", "speed (mm/s)", "wall contact (s)",
+         "site peak (kPa)")
+COLUMNS = ("tier and tissue", "navigator") + SHOWN + (
+    "highest site peak (kPa)", "longest on one patch > 4 kPa, most of any run (s)",
+    "rigid stand-in's cecum")
 
 
-def row(tier: str, navigator: str, name: str, kept, rigid: str) -> str:
+def row(tier: str, navigator: str, name: str, kept, rigid: str) -> dict:
     rows = [r for r in read_rows([RESULTS / name]) if r["navigator"] == navigator
             and (kept is None or r[kept[0]] == kept[1])]
-    arrived = [r for r in rows if r["reached_cecum"]]
-    low, high = wilson_interval(len(arrived), len(rows))
-    time = np.mean([r["time_to_cecum_s"] for r in arrived]) if arrived else np.nan
-    speed = (np.mean([10.0 * r["progress_cm"] / r["time_to_cecum_s"] for r in arrived])
-             if arrived else np.nan)
-    contact = np.nanmean([r["wall_contact_s"] for r in rows])
-    peaks = [r["site_peak_pressure_kPa"] for r in rows]
-    longest = np.nanmax([r["site_ischaemia_s"] for r in rows])
-    return (f"| {tier} | {navigator} | {len(arrived)}/{len(rows)} | {low:.2f}-{high:.2f} | "
-            f"{figure(time)} | {figure(speed)} | {figure(contact)} | "
-            f"{figure(np.nanmean(peaks), 0)} / {figure(np.nanmax(peaks), 0)} | "
-            f"{figure(longest, 0)} | {rigid} |")
+    shown, = summary(rows)
+    return {"tier and tissue": tier, "navigator": navigator,
+            **{column: shown[column] for column in SHOWN},
+            "highest site peak (kPa)": f"{np.nanmax([r['site_peak_pressure_kPa'] for r in rows]):.0f}",
+            "longest on one patch > 4 kPa, most of any run (s)":
+                f"{np.nanmax([r['site_ischaemia_s'] for r in rows]):.0f}",
+            "rigid stand-in's cecum": rigid}
 
 
 def main():
-    print("| tier and tissue | navigator | cecum | 95 % interval | time to cecum (s) | "
-          "speed (mm/s) | wall contact (s) | site peak, mean / highest (kPa) | longest on "
-          "one patch > 4 kPa, most of any run (s) | rigid stand-in's cecum |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for group in GROUPS:
-        print(row(*group))
+    print(markdown([row(*group) for group in GROUPS], COLUMNS))
 
 
 if __name__ == "__main__":

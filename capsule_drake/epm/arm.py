@@ -385,13 +385,10 @@ class EpmArmController(LeafSystem):
         axes = [turn_toward_many(axis, m_target,
                                  np.linspace(0.0, 1.0, 2 + int(angle / SAMPLE_TURN)))]
         rate = 0.0 if omega is None else float(np.linalg.norm(omega))
-        if rate > 1e-9:
+        if rate > 1e-9:   # the axis's turn (`twist`) is across it: a great circle
             ahead = rate * self.turn_lookahead
-            k = np.asarray(omega, dtype=float) / rate
             phi = np.linspace(0.0, ahead, 2 + int(ahead / SAMPLE_TURN))[:, None]
-            across = np.cross(k, axis)
-            axes.append(axis * np.cos(phi) + across * np.sin(phi)
-                        + np.outer(np.ones(len(phi)), k * (k @ axis)) * (1.0 - np.cos(phi)))
+            axes.append(axis * np.cos(phi) + np.cross(omega / rate, axis) * np.sin(phi))
         extents = vertical_half_extents(np.concatenate(axes), self._guard.geometry)
         return max(0.0, float(extents.max())
                    - magnet_vertical_half_extent(axis, self._guard.geometry))

@@ -162,8 +162,9 @@ class CompliantWall:
         """Yes: a capsule beyond `wall_allowance` (and the guard's margin) has stretched
         the wall past its failure strain, which a patient's wall would not survive: the run
         guard ends the run as a perforation ("wall_torn"), its figures up to it standing.
-        (A diverging integration passes the guard's speed check within a few steps, and
-        the wall check, every 0.25 s, leaves a state that fails both to it: io/guard.py.)"""
+        (A diverging integration is reported as diverged, not torn: it passes the guard's
+        speed check within a few steps, and the wall check defers to that check on a state
+        that fails both, io/guard.py.)"""
         return True
 
 
