@@ -471,19 +471,14 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
                   for kind, line in ((head_end, head), (tail_end, tail)))
     if fixed[0]:
         head = _closed_before(sections, head, len(points))
-        head_jump = float(np.linalg.norm(head[-1] - head[-2]))
     if fixed[1]:
         tail = _closed_before(sections, tail, len(points))
-        tail_jump = float(np.linalg.norm(tail[-1] - tail[-2]))
     points = np.array(head[::-1][:-len(points)] + tail)
     points = _resample(points, step, smoothing=1e-12) if len(points) > 10 else points
     # A cap's last stretch is the ray's: its sections (across a round cap, any line through
     # its centre is a line of section centres) are not refined; once the line behind it is,
     # its tangent there is more accurate than the march's, and the ray is cast again.
     jumps = [head_jump, tail_jump]
-    # (A square cut's end is not recast: its loop's centroid is the end.)
-    recast = tuple("square cut" if square else kind
-                   for square, kind in zip(fixed, (head_end, tail_end)))
     candidates = []
     for final in range(FINAL_PASSES):
         hold = tuple(j + 0.5 * step if j > 0 else 0.0 for j in jumps)
@@ -495,8 +490,8 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         else:   # recast ends
             candidates.append((points, radius))
         if final < FINAL_PASSES - 1:
-            points, jumps = _recast_caps(sections, points, step, recast, jumps, reference,
-                                         loops)
+            points, jumps = _recast_caps(sections, points, step, (head_end, tail_end), jumps,
+                                         reference, loops)
     # The march's own end is a candidate at a round cap (a recast from a flared or bent
     # tube's last sections can carry the line centimetres astray), not at an open end (its
     # loop's centroid is off the axis where the tube flares or the cut is oblique).
@@ -509,7 +504,7 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             points = line[::-1] if side == 0 else line
     changed = False
     for side, kind in ((0, head_end), (1, tail_end)):
-        if kind != "open" or fixed[side]:
+        if kind != "open":
             continue
         line = points[::-1] if side == 0 else points
         made = _open_axis_end(sections, line, reference, step, loops)
@@ -880,7 +875,7 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference, l
     jumps)."""
     jumps = list(jumps)
     for side in (0, 1):
-        if jumps[side] <= 0.0 or ends[side] not in ("round cap", "open", "square cut"):
+        if jumps[side] <= 0.0 or ends[side] not in ("round cap", "open"):
             continue
         line = points[::-1] if side == 0 else points
         s = _arc(line)
@@ -889,20 +884,6 @@ def _recast_caps(sections: MeshSections, points, step, ends, jumps, reference, l
             continue
         local = sections.around(body[-1], _end_tangent(body))
         radius = local.radius if local is not None else reference
-        if ends[side] == "square cut":
-            # A square cut's end is its loop's centroid: the stretch to it follows the cubic
-            # of the section centres behind it, through the end.
-            end = line[-1]
-            u_end = float(np.linalg.norm(end - body[-1]))
-            curve = _end_fit(sections, body, through=(u_end, end), arcs=radius)
-            if u_end <= step or curve is None:
-                continue
-            count = int(np.ceil(u_end / step))
-            extension = [curve(u)[0] for u in np.linspace(0.0, u_end, count + 1)[1:-1]]
-            points = np.vstack([body] + ([np.asarray(extension)] if extension else [])
-                               + [end[None, :]])
-            points = points[::-1] if side == 0 else points
-            continue
         if ends[side] == "open":
             # The stretch to the end, whose sections the end cuts open: the cubic of the
             # section centres behind it, to where it crosses the plane of the end's loop
