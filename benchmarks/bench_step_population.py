@@ -24,19 +24,10 @@ import statistics
 import sys
 import time
 
+from population_flexures import seeds_of   # (this folder: "0-9" or "0,2,4")
+
 FIELDS = ["seed", "step_ms", "status", "advance_cm", "site_peak_kPa", "excursion_mm",
           "cpu_s", "stopped"]
-
-
-def seeds_of(text: str) -> list[int]:
-    out = []
-    for part in text.split(","):
-        if "-" in part:
-            a, b = part.split("-")
-            out += list(range(int(a), int(b) + 1))
-        else:
-            out.append(int(part))
-    return out
 
 
 def run(scenario_name: str, seed: int, step_ms: float, duration: float) -> dict:

@@ -20,12 +20,10 @@ import functools
 import time
 
 
-def wrap(timers, cls, name, label=None):
-    original = getattr(cls, name)
-    label = label or f"{cls.__name__.split('_')[0]}.{name}"
-
+def timed(timers, label, original):
+    """`original`, its time and calls added to timers[label]."""
     @functools.wraps(original)
-    def timed(*args, **kwargs):
+    def call(*args, **kwargs):
         start = time.perf_counter()
         try:
             return original(*args, **kwargs)
@@ -33,22 +31,16 @@ def wrap(timers, cls, name, label=None):
             timers[label][0] += time.perf_counter() - start
             timers[label][1] += 1
 
-    setattr(cls, name, timed)
+    return call
+
+
+def wrap(timers, cls, name, label=None):
+    label = label or f"{cls.__name__.split('_')[0]}.{name}"
+    setattr(cls, name, timed(timers, label, getattr(cls, name)))
 
 
 def wrap_function(timers, module, name):
-    original = getattr(module, name)
-
-    @functools.wraps(original)
-    def timed(*args, **kwargs):
-        start = time.perf_counter()
-        try:
-            return original(*args, **kwargs)
-        finally:
-            timers[f"kernel {name}"][0] += time.perf_counter() - start
-            timers[f"kernel {name}"][1] += 1
-
-    setattr(module, name, timed)
+    setattr(module, name, timed(timers, f"kernel {name}", getattr(module, name)))
 
 
 def instrument(timers):
