@@ -686,8 +686,7 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
     wide = max(last_radius, reference)
     best = None
     for ring in loops:
-        seg = np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1)
-        centre = np.sum(0.5 * (ring + np.roll(ring, 1, axis=0)) * seg[:, None], axis=0) / seg.sum()
+        centre = _loop_centroid(ring)
         along = float((centre - p) @ t)
         side = float(np.linalg.norm(centre - p - along * t))
         # Near, not off to the side more than it is ahead (a bend turns it), and ahead or
@@ -713,6 +712,18 @@ the 20 open ends of seeds 40000-40094: cut square, 0-6 degrees (the loop's centr
 Not always: haustral_oblique_mm's 30 degree cut through folds reads 5.8 degrees."""
 
 
+def _loop_segments(ring):
+    """(midpoints (K, 3), lengths (K,)) of a closed loop's segments (vertices (K, 3))."""
+    previous = np.roll(ring, 1, axis=0)
+    return 0.5 * (ring + previous), np.linalg.norm(ring - previous, axis=1)
+
+
+def _loop_centroid(ring):
+    """A closed loop's centroid as a curve (its segments' midpoints, length-weighted)."""
+    mid, lengths = _loop_segments(ring)
+    return np.sum(mid * lengths[:, None], axis=0) / lengths.sum()
+
+
 def _square_cut(end, loops) -> bool:
     """Whether the boundary loop (vertices, (K, 3)) nearest `end` is a cut square to the
     tube. A section of a tube whose wall is alike all round its axis (round, or with folds
@@ -724,10 +735,8 @@ def _square_cut(end, loops) -> bool:
     if not loops:
         return False
     ring = min(loops, key=lambda ring: float(np.linalg.norm(ring.mean(axis=0) - end)))
-    following = np.roll(ring, -1, axis=0)
-    lengths = np.linalg.norm(following - ring, axis=1)
-    mid = 0.5 * (ring + following)
-    d = mid - lengths @ mid / lengths.sum()
+    mid, lengths = _loop_segments(ring)
+    d = mid - _loop_centroid(ring)
     moments = np.linalg.eigvalsh((d * lengths[:, None]).T @ d)   # ascending
     return bool(moments[2] * np.cos(SQUARE_CUT) ** 2 <= moments[1])
 
