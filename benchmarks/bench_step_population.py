@@ -13,6 +13,11 @@ the largest excursion beyond the undeformed wall (mm), CPU seconds. Then per ste
 completed, the medians of the completed runs' advance and site peak, the largest
 excursion, and the median CPU seconds. `--summary A.csv B.csv ...` prints that table
 from rows written before (runs made in several processes), running nothing.
+
+`--bristles-at MS` holds the friction's bristles at the stiffness they have at a step of MS
+ms whatever the step (foundation.TANGENTIAL_TURN scaled by step / MS in this process): the
+bristles' stiffness is a regularisation set per step, and this tells its share of the
+step's effect from the rest.
 """
 
 import argparse
@@ -26,13 +31,19 @@ import time
 
 from population_flexures import seeds_of   # (this folder: "0-9" or "0,2,4")
 
+TANGENTIAL_TURN = 0.5   # foundation.TANGENTIAL_TURN as shipped (checked in main)
 FIELDS = ["seed", "step_ms", "status", "advance_cm", "site_peak_kPa", "excursion_mm",
           "cpu_s", "stopped"]
 
 
-def run(scenario_name: str, seed: int, step_ms: float, duration: float) -> dict:
+def run(scenario_name: str, seed: int, step_ms: float, duration: float,
+        bristles_at: float | None = None) -> dict:
     from capsule_drake.app.run import simulate
+    from capsule_drake.physics.contact import foundation
     from capsule_drake.scenario import load_scenario
+
+    if bristles_at is not None:   # omega = TURN / step: the same omega at every step
+        foundation.TANGENTIAL_TURN = TANGENTIAL_TURN * step_ms / bristles_at
 
     scenario = load_scenario(name=scenario_name,
                              override=f"{{colon: {{seed: {seed}}}, duration: {duration!r}}}")
@@ -80,6 +91,8 @@ def main():
     parser.add_argument("--steps", default="1,2,5", help="plant steps (ms), comma separated")
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--csv", help="write the rows here")
+    parser.add_argument("--bristles-at", type=float, metavar="MS",
+                        help="the bristles' stiffness of an MS ms step at every step")
     parser.add_argument("--summary", nargs="+", metavar="CSV",
                         help="print the table of rows written before; run nothing")
     args = parser.parse_args()
@@ -90,10 +103,14 @@ def main():
                 rows += list(csv.DictReader(f))
         print(summary(rows))
         return
+    from capsule_drake.physics.contact import foundation
+    if foundation.TANGENTIAL_TURN != TANGENTIAL_TURN:
+        sys.exit(f"foundation.TANGENTIAL_TURN is {foundation.TANGENTIAL_TURN}, this script "
+                 f"assumes {TANGENTIAL_TURN}: update it")
     rows = []
     for seed in seeds_of(args.seeds):
         for step in (float(s) for s in args.steps.split(",")):
-            rows.append(run(args.scenario, seed, step, args.duration))
+            rows.append(run(args.scenario, seed, step, args.duration, args.bristles_at))
             print(json.dumps(rows[-1]), flush=True)
     if args.csv:
         with open(args.csv, "w", newline="") as f:

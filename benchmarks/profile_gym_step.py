@@ -1,6 +1,6 @@
 """Where a Gymnasium environment step's time goes, system by system.
 
-    .venv/bin/python benchmarks/profile_gym_step.py [--steps 100] [--colon 0]
+    .venv/bin/python benchmarks/profile_gym_step.py [--steps 100] [--colon 0] [--floor]
 
 The environment (capsule_drake/ColonNavigation-v0, default observations, random actions
 from reset seed 0) is stepped `steps` times after 5 steps of warm-up, with the Python
@@ -12,6 +12,12 @@ environment step. The times are inclusive (a callback that evaluates another's o
 includes it) and the timers add ~1 us a call; no cProfile, whose own cost per call is
 larger than many of these callbacks. The line above the table: the environment steps per
 CPU second of this process, timers included.
+
+With --floor, instead: what the framework itself costs a plant step, with none of this
+project's systems: a discrete MultibodyPlant (2 ms, SAP, hydroelastic with fallback) with one
+free capsule-sized body, with and without two collision geometries, and the same with 1, 5
+and 10 trivial Python systems updated every step (each call's dispatch from Drake into
+Python). The environment's 50 plant steps a step have this floor whatever its systems do.
 """
 
 import argparse
@@ -72,11 +78,64 @@ def instrument(timers):
             wrap(timers, cls, name)
 
 
+def floor(seconds: float = 10.0):
+    """Microseconds of CPU per plant step of bare plants (module docstring, --floor)."""
+    from pydrake.geometry import Box, Capsule
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
+                                         MultibodyPlantConfig)
+    from pydrake.multibody.tree import SpatialInertia
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder, LeafSystem
+
+    step = 2e-3
+
+    class Tick(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareDiscreteState(1)
+            self.DeclarePeriodicDiscreteUpdateEvent(step, 0.0, self._update)
+
+        def _update(self, context, discrete_state):
+            pass
+
+    print(f"{'plant':<44}{'us per plant step':>18}")
+    for geometry, ticks in ((False, 0), (True, 0), (True, 1), (True, 5), (True, 10)):
+        builder = DiagramBuilder()
+        plant, _ = AddMultibodyPlant(MultibodyPlantConfig(
+            time_step=step, discrete_contact_approximation="lagged",
+            contact_model="hydroelastic_with_fallback"), builder)
+        body = plant.AddRigidBody("capsule", SpatialInertia.SolidCylinderWithMass(
+            0.012, 0.0055, 0.031, [0.0, 0.0, 1.0]))
+        if geometry:
+            friction = CoulombFriction(0.3, 0.3)
+            plant.RegisterCollisionGeometry(body, RigidTransform(), Capsule(0.0055, 0.02),
+                                            "capsule", friction)
+            plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0, 0, 1.0]),
+                                            Box(0.01, 0.01, 0.01), "box", friction)
+        plant.Finalize()
+        for _ in range(ticks):
+            builder.AddSystem(Tick())
+        simulator = Simulator(builder.Build())
+        simulator.Initialize()
+        cpu = time.process_time()
+        simulator.AdvanceTo(seconds)
+        cpu = time.process_time() - cpu
+        label = ("one free body" + (", two geometries" if geometry else "")
+                 + (f", {ticks} Python system{'s' if ticks > 1 else ''}" if ticks else ""))
+        print(f"{label:<44}{1e6 * cpu / round(seconds / step):>18.1f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--colon", type=int, default=0)
+    parser.add_argument("--floor", action="store_true",
+                        help="the framework's own cost a plant step (module docstring)")
     args = parser.parse_args()
+    if args.floor:
+        floor()
+        return
     timers = collections.defaultdict(lambda: [0.0, 0])
     instrument(timers)
     import gymnasium
