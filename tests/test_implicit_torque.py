@@ -11,6 +11,15 @@ from capsule_drake.physics.magnetics import dipole_pair_interaction_float
 RNG = np.random.default_rng(7)
 
 
+def _rows(M):
+    """A matrix as the compiled algebra takes it: a tuple of its rows."""
+    return tuple(tuple(row) for row in np.asarray(M, dtype=float).tolist())
+
+
+def _vec(v):
+    return tuple(np.asarray(v, dtype=float).tolist())
+
+
 def _rotation():
     q, _ = np.linalg.qr(RNG.normal(size=(3, 3)))
     return q * np.sign(np.linalg.det(q))
@@ -23,24 +32,24 @@ def _spd():
 
 def test_the_float_algebra_is_numpys():
     for _ in range(20):
-        a, b = RNG.normal(size=3), RNG.normal(size=3)
+        a, b = _vec(RNG.normal(size=3)), _vec(RNG.normal(size=3))
         np.testing.assert_allclose(cross3(a, b), np.cross(a, b), atol=1e-14)
         M, R, I, S = RNG.normal(size=(3, 3)), _rotation(), _spd(), _spd()
-        np.testing.assert_allclose(mat_vec(M.tolist(), a), M @ a, atol=1e-14)
-        np.testing.assert_allclose(rotate_symmetric(R.tolist(), I.tolist()), R @ I @ R.T,
+        np.testing.assert_allclose(mat_vec(_rows(M), a), M @ a, atol=1e-14)
+        np.testing.assert_allclose(rotate_symmetric(_rows(R), _rows(I)), R @ I @ R.T,
                                    atol=1e-13)
-        np.testing.assert_allclose(minus_scaled(I.tolist(), 0.3, S.tolist()), I - 0.3 * S,
+        np.testing.assert_allclose(minus_scaled(_rows(I), 0.3, _rows(S)), I - 0.3 * S,
                                    atol=1e-14)
-        np.testing.assert_allclose(solve_spd3(cholesky3(I.tolist()), b),
+        np.testing.assert_allclose(solve_spd3(cholesky3(_rows(I)), b),
                                    np.linalg.solve(I, b), rtol=1e-12)
-    assert cholesky3((-np.eye(3)).tolist()) is None   # not positive definite
+    assert cholesky3(_rows(-np.eye(3))) is None   # not positive definite
 
 
 def test_the_stiffness_is_the_torques_derivative_as_the_body_turns():
     """Turning the body by a small angle about each axis changes the torque about its
     centre of mass by K times that angle (central differences, an independent route)."""
     m, p, r = (0.0, 0.2, 1.2), (0.01, 0.0, 0.12), (0.0, 0.0, 0.004)
-    others = [((0.0, 0.0, 970.0), (0.0, 0.0, 0.0))]
+    others = (((0.0, 0.0, 970.0), (0.0, 0.0, 0.0)),)
     K = np.array(rotational_stiffness(m, p, r, others, 1e-3))
 
     def torque(angle_vector):
@@ -75,9 +84,9 @@ def test_the_step_is_the_linearly_implicit_formula():
     R, I_B = _rotation(), np.diag([1.1e-6, 1.1e-6, 0.4e-6])
     K = -0.02 * _spd()
     tau_M, f_W, r = RNG.normal(size=3) * 1e-3, RNG.normal(size=3) * 0.1, RNG.normal(size=3) * 1e-3
-    w, previous = RNG.normal(size=3), list(RNG.normal(size=6) * 1e-3)
-    tau, tau_cm, w_out = implicit_torque(tuple(tau_M), tuple(f_W), tuple(r), K.tolist(),
-                                         R.tolist(), I_B.tolist(), w.tolist(), previous, h)
+    w, previous = RNG.normal(size=3), _vec(RNG.normal(size=6) * 1e-3)
+    tau, tau_cm, w_out = implicit_torque(_vec(tau_M), _vec(f_W), _vec(r), _rows(K),
+                                         _rows(R), _rows(I_B), _vec(w), previous, h)
     S = 0.5 * (K + K.T)
     I_W = R @ I_B @ R.T
     tau0 = tau_M + np.cross(r, f_W)

@@ -298,7 +298,8 @@ def test_the_pendulum_turned_against_the_field_is_not_held_back():
     assert away[1] > away[0] > 0.02
     assert away[-1] > 0.5
     S = np.array([[-2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]])
-    np.testing.assert_allclose(restoring_part(S.tolist(), np.eye(3).tolist()),
+    np.testing.assert_allclose(restoring_part(tuple(map(tuple, S.tolist())),
+                                              tuple(map(tuple, np.eye(3).tolist()))),
                                np.diag([-2.0, 0.0, 0.0]), atol=1e-12)
 
 

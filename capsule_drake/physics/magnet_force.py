@@ -393,7 +393,7 @@ def MagneticForce_(T):
             (implicit_torque.implicit_torque)."""
             values = self._cache.Eval(context)
             velocities = self._velocities_port.Eval(context)
-            state = context.get_discrete_state(self._implicit_state).value().tolist()
+            state = tuple(context.get_discrete_state(self._implicit_state).value().tolist())
             started = state[-1] > 0.0
             h = self._implicit_step
             out = []
@@ -401,13 +401,13 @@ def MagneticForce_(T):
                 magnet = self._magnets[i]
                 R = values.R_WB[i]
                 inertia = self._inertias[magnet.body_index]
-                w = velocities[magnet.body_index].rotational().tolist()
+                w = tuple(velocities[magnet.body_index].rotational().tolist())
                 # Lever arm from the centre of mass to the magnet centre, in world.
                 r = mat_vec(R, inertia.p_McmM_B[i])
                 K = rotational_stiffness(
                     values.m_W[i], values.p_WM[i], r,
-                    [(values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
-                     if j != i], self._min_distance)
+                    tuple((values.m_W[j], values.p_WM[j]) for j in range(len(self._magnets))
+                          if j != i), self._min_distance)
                 previous = state[6 * k:6 * k + 6] if started else None
                 out.append(implicit_torque(values.tau_W[i], values.f_W[i], r, K, R,
                                            inertia.I_B, w, previous, h))
