@@ -67,7 +67,10 @@ class ContactStats(LeafSystem):
         - stats
 
     contact_load: (1) N. stats: [peak load (N), time above `threshold` (s)], sampled every
-    `period` (s).
+    `period` (s): an unrestricted update, as the plant's own step and the wall's pressure
+    map (physics/wall_pressure.py), so it reads the state before the step, where the
+    plant's step has just evaluated the wall's contact and the magnet (a discrete update
+    would read them afresh at the state after the other updates).
     """
 
     def __init__(self, period: float, threshold: float):
@@ -77,16 +80,15 @@ class ContactStats(LeafSystem):
         self._load = self.DeclareVectorInputPort("contact_load", 1)
         self._state = self.DeclareDiscreteState(BasicVector(np.zeros(2)))
         self.DeclareStateOutputPort("stats", self._state)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, 0.0, self._update)
 
-    def _update(self, context, discrete_state):
+    def _update(self, context, state):
         peak, time = context.get_discrete_state(self._state).value()
         load = float(self._load.Eval(context)[0])
         if not math.isfinite(load):
             load = 0.0
-        discrete_state.set_value(self._state, [max(peak, load),
-                                               time + (self._period if load > self._threshold
-                                                       else 0.0)])
+        state.get_mutable_discrete_state(self._state).set_value(
+            [max(peak, load), time + (self._period if load > self._threshold else 0.0)])
 
 
 def rotate(vector, rotation_vector) -> np.ndarray:
