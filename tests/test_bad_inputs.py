@@ -453,7 +453,11 @@ HANG_PRONE = {"device /dev/zero", "named pipe", "nesting 20000 deep", "alias bom
               "--mcap /dev/full, --force"}
 
 
-@pytest.mark.parametrize("name,args,culprit", CASES, ids=[c[0] for c in CASES])
+# The hang-prone cases run in a process of their own (3-4 s each, most of it the import):
+# the full suite's, not the fast loop's.
+@pytest.mark.parametrize("name,args,culprit", [
+    pytest.param(*c, marks=pytest.mark.slow) if c[0] in HANG_PRONE else c for c in CASES],
+    ids=[c[0] for c in CASES])
 def test_a_bad_input_gives_one_line(name, args, culprit, bad_files, tmp_path, capsys):
     argv = _argv(args, bad_files, tmp_path / "out")
     if argv[0] in ("run", "teleop", "record") and "--out" not in argv:
@@ -567,6 +571,7 @@ def test_a_foxglove_port_in_use_is_one_line_and_nothing_runs(tmp_path, capsys):
     assert not (tmp_path / "run" / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_force_without_out_replaces_a_previous_mcap_log(tmp_path, monkeypatch, capsys):
     # --force does something without --out when there is an --mcap to replace.
     monkeypatch.chdir(tmp_path)
@@ -715,6 +720,7 @@ def test_a_full_disk_leaves_nothing_that_blocks_the_retry(tmp_path, capsys):
             "wall_pressure.png"]
 
 
+@pytest.mark.slow
 def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, capsys,
                                                                     monkeypatch):
     # The MCAP log's disk is full when its first chunk is written (the room check is told
@@ -751,6 +757,7 @@ def test_an_mcap_log_a_full_disk_cut_short_does_not_block_the_retry(tmp_path, ca
         assert "MCAP log: " in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_disk_that_fills_during_the_run_loses_no_logs(tmp_path, capsys, monkeypatch):
     # 4 MB: room for the logs, not for the 16 MB recording. The room check is told there
     # is plenty, as if another program filled the disk during the run.
@@ -777,6 +784,7 @@ def _file_size_limit(size):
     return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
 
 
+@pytest.mark.slow
 def test_an_mcap_log_that_cannot_be_written_is_reported_as_failed(tmp_path):
     # The run's own files (for 3 s: logs.npz ~44 kB, wall_pressure.png ~31 kB) fit under
     # 60 kB; the MCAP log does not (its first chunk holds the scene's colon, ~2 MB): writing
@@ -797,6 +805,7 @@ def test_an_mcap_log_that_cannot_be_written_is_reported_as_failed(tmp_path):
     assert load_logs(out)["times"][-1] < 0.1   # stopped at the MCAP's first chunk
 
 
+@pytest.mark.slow
 def test_force_replaces_a_previous_mcap_log_only(tmp_path, capsys):
     mcap = tmp_path / "run.mcap"
     args = RUN[:-1] + ["0.05", "--mcap", str(mcap)]

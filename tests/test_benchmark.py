@@ -520,6 +520,7 @@ def test_the_intubation_interval_is_wilsons():
     assert (low, high) == pytest.approx((1 - 0.1611, 1.0), abs=6e-5)
 
 
+@pytest.mark.slow
 def test_the_population_tier_draws_its_patients():
     """--tier population: the seeds 1000-1029 and a colon drawn from the population; the
     standard tier's colons are the procedural ones of seeds 0-9."""

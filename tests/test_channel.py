@@ -230,6 +230,7 @@ def test_passivity_control_stabilises_a_stiff_wall_behind_100_ms_round_trip():
         assert np.abs(force).max() <= 3.3 + 1e-12
 
 
+@pytest.mark.slow
 def test_with_zero_delay_the_scheme_barely_changes_the_force_of_a_slow_contact():
     """The same wall and hand, no added delay (the loop still has 3 periods of latency),
     target in at 2 mm/s to 3 mm, held 0.5 s, out at 2 mm/s.

@@ -349,6 +349,7 @@ def test_params_yaml_round_trip():
         yaml_load_typed(schema=ColonParams, data="{no_such_field: 1}")
 
 
+@pytest.mark.slow
 def test_collision_mesh_follows_the_folds():
     # Sampled over the collision triangles (not only at vertices), the wall the simulation
     # sees stays within ~0.5 mm of the analytic wall, folds included: the adaptive ring

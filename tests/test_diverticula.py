@@ -171,6 +171,7 @@ def test_only_diverticula_shape_the_colon():
     assert len(drawn.lesions.placed) == len(expected)
 
 
+@pytest.mark.slow
 def test_the_label_image_shows_each_sac_through_its_neck():
     """The label image's pixels of a diverticulum are its neck's rim projected through the
     lens model and filled (everything seen through the opening is the sac, and the sac is

@@ -196,6 +196,7 @@ def test_arm_tracks_slow_epm_trajectories_within_1_mm_and_1_degree(colon, seed):
     assert np.all(np.abs(v.T) <= plant.GetVelocityUpperLimits()[arm] + 1e-6)
 
 
+@pytest.mark.slow
 def test_unreachable_commands_are_clamped_and_reported_not_a_crash(colon):
     start = _random_waypoints(colon, 1, np.random.default_rng(5))[0]
     far = start.copy()
@@ -217,6 +218,7 @@ def test_unreachable_commands_are_clamped_and_reported_not_a_crash(colon):
         np.all(q.T <= plant.GetPositionUpperLimits())
 
 
+@pytest.mark.slow
 def test_clearance_holds_when_the_epm_is_commanded_into_the_abdomen(colon):
     start = _random_waypoints(colon, 1, np.random.default_rng(8))[0]
     deep = start.copy()
@@ -284,6 +286,7 @@ def _command_velocity_steps(colon, config, seed=21):
     return np.abs(np.diff(v, axis=1)).max()
 
 
+@pytest.mark.slow
 def test_joint_velocity_commands_change_by_at_most_the_joint_acceleration(colon):
     """The differential IK's joint velocities jump when its active constraints switch; the
     controller reaches them at joint_acceleration (all joints by one share). Joints slowed

@@ -146,6 +146,7 @@ def test_the_shaped_path_stays_over_the_floor_whatever_is_commanded(limits, dome
            MotionLimits, st.floats(0.1, 1.0), st.floats(0.5, 10.0), st.floats(0.5, 5.0))),
        x=st.floats(0.3, 0.35), z_up=st.floats(0.0, 0.05),
        moment_end=moment)
+@pytest.mark.slow
 def test_a_command_across_the_belly_goes_over_it_and_arrives(limits, x, z_up, moment_end):
     # Flank to flank at the floor: the straight way is through the dome; the shaper rises,
     # crosses and comes down onto the command, which it reaches exactly.

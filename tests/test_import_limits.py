@@ -189,6 +189,7 @@ def test_the_limit_holds_for_every_format(tmp_path, monkeypatch, suffix):
         load_colon_mesh(path)
 
 
+@pytest.mark.slow
 def test_a_large_import_in_a_run_says_what_it_is_doing(tmp_path, monkeypatch, capsys):
     """Imported on first use in a scenario (no progress bar there), an import of more than
     NOTE_FACES triangles says each stage on stderr as it starts; here with NOTE_FACES

@@ -40,6 +40,7 @@ def _imported_or_refused(mesh, truth, tmp_path, name):
     return wall
 
 
+@pytest.mark.slow
 def test_a_segmented_capped_tube_imports_within_2_mm_or_is_refused(tmp_path):
     """small_coarse (30 cm, a hemispherical and a flat cap) at 1 mm voxels, 0.3 mm noise,
     two holes, 20k faces (measured: imported, 0.9 mm)."""
@@ -65,6 +66,7 @@ def test_a_segmented_open_tube_imports_within_2_mm_or_is_refused(tmp_path):
         assert wall.report.open_ends == 2
 
 
+@pytest.mark.slow
 def test_the_segmented_surface_is_the_tube_within_a_voxel():
     """Without noise, holes or decimation, the surface meshed from the blurred volume lies
     within a voxel of the tube's own (1 mm voxels; measured: median 0.16 mm, at most

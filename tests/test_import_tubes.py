@@ -173,6 +173,7 @@ def _capsule():
     return model.radius, 2.0 * model.half_length
 
 
+@pytest.mark.slow
 def test_the_start_is_checked_inside_an_imported_tube(folder):
     """On an imported open tube (ends open at s = 0 and L): the capsule must sit a capsule
     radius inside an open end; on one with a flat cap, its tip may reach the cap."""
@@ -342,6 +343,7 @@ def test_rest_problem_says_what_a_settled_capsule_does(lying, standing):
                         out), out
 
 
+@pytest.mark.slow
 def test_start_candidates_are_level_places_and_closed_ends_first(lying, tmp_path):
     """After the start asked for: in a valley, its bottom; in a capped tube standing on
     end, its closed ends; then starts spread along the colon, none closer than 2 cm to

@@ -167,6 +167,7 @@ def test_a_sensor_at_its_rail_is_flagged_and_excluded_rather_than_trusted():
     assert trusted[0] > 10 * found[0] and trusted[1] > np.radians(30.0), (found, trusted)
 
 
+@pytest.mark.slow
 def test_static_poses_over_the_workspace_are_located():
     """A grid of EPM-capsule geometries as the follower makes them (the EPM 15-30 cm away,
     up to 10 cm to the side; the capsule's heading and roll random), each with a fresh draw

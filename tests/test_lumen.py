@@ -245,6 +245,7 @@ def test_detector_on_rendered_frames_against_the_lumen_truth(rendered_frames, de
     assert summary["false_positive_rate"] < 0.2
 
 
+@pytest.mark.slow
 def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, capsys):
     from capsule_drake.app.cli import main
 
@@ -279,6 +280,7 @@ def test_eval_lumen_cli_scores_a_users_detector_and_saves_the_sheet(tmp_path, ca
     assert "--conditions" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_station_tracks_the_lumen_and_feeds_the_pseudo_force():
     """WithSensors: camera -> lumen tracker -> pseudo-force, in the running station."""
     from capsule_drake.station import make_station

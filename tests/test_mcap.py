@@ -423,6 +423,7 @@ def test_imu_frame_sees_gravity_up(recorded):
     assert tilt < 10.0 and total < 20.0
 
 
+@pytest.mark.slow
 def test_interrupted_run_leaves_a_finished_file_without_camera_topics(tmp_path):
     # Default with an IMU and the Hall array (no camera), Ctrl-C at 0.3 s inside the
     # simulation: the run's close hook finishes the file, which reads back whole, with the

@@ -50,6 +50,7 @@ def test_a_dropped_station_is_freed_after_simulating():
     assert_freed(refs)
 
 
+@pytest.mark.slow
 def test_a_guarded_station_with_the_camera_and_its_worker_is_freed():
     # As a run and the Gymnasium environment build it: the station in a builder with the
     # contact monitor and the run guard. WithSensors: the camera (lens, walls, renderers,

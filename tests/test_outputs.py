@@ -57,6 +57,7 @@ def test_an_existing_folder_is_refused_unless_forced(tmp_path):
         claim_folder(tmp_path / "file")
 
 
+@pytest.mark.slow
 def test_the_cli_refuses_to_overwrite_a_run(tmp_path, capsys):
     out = tmp_path / "run"
     args = ["run", "--duration", "0.05", "--no-recording", "--quiet", "--out", str(out)]
@@ -231,6 +232,7 @@ def _render_workers() -> list[int]:
     return found
 
 
+@pytest.mark.slow
 def test_a_failed_build_closes_the_render_worker_and_the_extensions_already_added(tmp_path):
     # A camera with latency draws in a worker process; an extension that fails after another
     # was added: the run is not started, the worker has ended and the first one is closed.

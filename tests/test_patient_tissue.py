@@ -194,6 +194,7 @@ BEFORE_LESION_1000 = (("0-IIa", "sigmoid"),   # kind, segment; size (mm), along,
                       (4.1521501693025336, 0.011441775949128541, 341.7977376121882))
 
 
+@pytest.mark.slow
 def test_the_populations_other_streams_are_unchanged():
     for seed, (total, sex, flexures) in BEFORE.items():
         for request in ({}, {"tissue": "soft_sticky"}, {"tissue_percentile": 80.0}):

@@ -89,6 +89,7 @@ class _TagLoader(yaml.SafeLoader):
 _TagLoader.add_multi_constructor("!", lambda loader, tag, node: loader.construct_mapping(node))
 
 
+@pytest.mark.slow
 def test_every_key_a_run_writes_is_in_the_scenario_reference(pages):
     page = pages["reference/scenario.md"]
     for name in ("Default", "OneOfEverything", "OneOfEverythingElse"):
@@ -119,6 +120,7 @@ def _config_fields(cls, key=""):
                 yield from _config_fields(option, where + suffix)
 
 
+@pytest.mark.slow
 def test_every_field_of_every_config_is_in_the_scenario_reference(pages):
     page = pages["reference/scenario.md"]
     fields = set(_config_fields(Scenario))

@@ -164,6 +164,7 @@ def test_cli_bad_input_is_one_line_and_nonzero(tmp_path, text, key):
     assert len(lines) == 1 and key in lines[0], proc.stderr
 
 
+@pytest.mark.slow
 def test_cli_missing_file(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "capsule_drake.app.cli", "run",
                            str(tmp_path / "missing.yaml")], capture_output=True, text=True)

@@ -88,6 +88,7 @@ def test_default_drag_with_the_arm_advances_as_with_the_stage(drag_run):
     assert arm["min_epm_skin_gap_m"] >= 0.02 - 1e-3
 
 
+@pytest.mark.slow
 def test_the_kinematic_stage_puts_the_epm_where_the_path_says_as_the_servos_do():
     """The default stage is kinematic: no stage joints in the plant (the capsule's 6
     velocities only), the EPM exactly on its path, and the capsule moved as by the
@@ -115,6 +116,7 @@ def test_the_kinematic_stage_puts_the_epm_where_the_path_says_as_the_servos_do()
     assert np.linalg.norm(finals[True] - finals[False]) < 1e-3
 
 
+@pytest.mark.slow
 def test_the_implicit_magnet_torque_runs_the_default_drag_at_four_times_the_explicit_bound():
     """magnet_force.implicit: the Default drag at a 4 ms plant step (the explicit bound is
     1.11 ms) stays inside the wall and moves the capsule as at 1 ms: after 3 s, within 3 mm
@@ -177,7 +179,10 @@ def test_cli_run_writes_metrics_and_recording(tmp_path):
 # Measured wall times (2 cores, colons cached): OneOfEverything ~2 s, OneOfEverythingElse
 # ~3 s (~11 s when it first imports the ex vivo colon), the others 1-4 s.
 @pytest.mark.parametrize("name", [
-    "Default", "WithSensors", "Navigation", "NavigationDetected", "NavigationSensors",
+    "Default", "WithSensors", "Navigation",
+    # ~4-5 s each: the full suite's (the fast loop keeps Navigation's follower).
+    pytest.param("NavigationDetected", marks=pytest.mark.slow),
+    pytest.param("NavigationSensors", marks=pytest.mark.slow),
     # ~27-68 s on a fresh cache (their colons carry lesions, fluid, an ex vivo segment):
     # the full suite's, not the fast loop's.
     pytest.param("OneOfEverything", marks=pytest.mark.slow),

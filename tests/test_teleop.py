@@ -442,6 +442,7 @@ def test_teleop_over_udp_moves_the_epm_and_a_lost_link_holds_it():
         device.close()
 
 
+@pytest.mark.slow
 def test_teleop_from_the_browser_follows_the_sliders():
     meshcat = Meshcat(MeshcatParams(port=0))
     scenario = load_scenario(name="Teleop", override=(

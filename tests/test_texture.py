@@ -35,6 +35,7 @@ def _dark_lines(rgb: np.ndarray, margin: float = 10.0) -> np.ndarray:
     return green.astype(float) < background - margin
 
 
+@pytest.mark.slow
 def test_same_seed_same_texture_other_seed_other_texture(texture):
     again = mucosa_texture(MucosaParams(), [0, 2])
     np.testing.assert_array_equal(again.rgb, texture.rgb)
@@ -153,6 +154,7 @@ def test_assets_textured_and_collision_unchanged(tmp_path):
         (other_assets.visual_obj.parent / "colon_mucosa.png").read_bytes()
 
 
+@pytest.mark.slow
 def test_vtk_renders_the_texture(tmp_path):
     """Drake's VTK engine applies the MTL's texture: the wall looks pink-red, not Kd white."""
     from pydrake.geometry import (ClippingRange, ColorRenderCamera, GeometryInstance,

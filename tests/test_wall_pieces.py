@@ -169,6 +169,7 @@ def test_pieces_bridge_fold_feet_only_a_little(colon, pieces):
     assert np.max(intrusion) <= 6.0e-3
 
 
+@pytest.mark.slow
 def test_deterministic(colon, pieces):
     again = wall_pieces(colon)
     assert len(again) == len(pieces)
