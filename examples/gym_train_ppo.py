@@ -83,11 +83,20 @@ class Egocentric(gymnasium.ObservationWrapper):
 class EgocentricAction(gymnasium.Wrapper):
     """The action's move [0:3] and turn [3:6] given in the capsule's frame, turned into the
     world's for the environment (the bounds per component are the environment's: a full
-    action along a diagonal of B is clipped component by component in W)."""
+    action along a diagonal of B is clipped component by component in W). With
+    `turn=False` the action is the move alone (3,), and the EPM's moment keeps its direction
+    (the Default drag's way: the magnet carried, not turned)."""
 
-    def __init__(self, env):
+    def __init__(self, env, turn: bool = True, base=None, residual_scale: float = 1.0):
         super().__init__(env)
         self._R_WB = np.eye(3)
+        self._turn = turn
+        # Residual learning: the policy's action, times residual_scale, is added to a
+        # scripted action `base` (in B) before it is clipped to the bounds.
+        self._base = None if base is None else np.asarray(base, dtype=float)
+        self._scale = float(residual_scale)
+        if not turn:
+            self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), np.float32)
 
     def _remember(self, observation):
         self._R_WB = _rotation(observation["truth"][:4])
@@ -99,29 +108,44 @@ class EgocentricAction(gymnasium.Wrapper):
 
     def step(self, action):
         action = np.asarray(action, dtype=float)
-        world = np.concatenate([self._R_WB @ action[:3], self._R_WB @ action[3:6]])
+        if self._base is not None:
+            action = np.clip(self._base + self._scale * action, -1.0, 1.0)
+        turn = self._R_WB @ action[3:6] if self._turn else np.zeros(3)
+        world = np.concatenate([self._R_WB @ action[:3], turn])
         observation, reward, terminated, truncated, info = self.env.step(
             np.clip(world, -1.0, 1.0).astype(np.float32))
         self._remember(observation)
         return observation, reward, terminated, truncated, info
 
 
-def make_env(colons=tuple(range(10)), episode_seconds: float = 30.0):
+RESIDUAL_SCALE = 0.5
+"""With --residual: the policy's share of the action, beside the scripted forward move."""
+
+
+def make_env(colons=tuple(range(10)), episode_seconds: float = 30.0, turn: bool = False,
+             residual: bool = False, control_period: float = 0.1):
     """The training environment: the navigation task on `colons`, `episode_seconds` long,
-    observed and driven from the capsule's frame."""
+    observed and driven from the capsule's frame (the EPM moved only, unless `turn`); with
+    `residual`, the policy's action is a correction (x RESIDUAL_SCALE) to `_forward`'s."""
     env = gymnasium.make(ENV_ID, observations=("epm", "truth"), colons=tuple(colons),
-                         max_episode_seconds=float(episode_seconds))
-    return Egocentric(EgocentricAction(env))
+                         max_episode_seconds=float(episode_seconds),
+                         control_period=float(control_period))
+    base = None
+    if residual:
+        base = _forward(None) if turn else _forward(None)[:3]
+    return Egocentric(EgocentricAction(env, turn, base, RESIDUAL_SCALE))
 
 
 class _Factory:
     """A picklable environment factory for the spawned workers."""
 
-    def __init__(self, colons, episode_seconds):
+    def __init__(self, colons, episode_seconds, turn, residual, control_period):
         self.colons, self.episode_seconds = tuple(colons), episode_seconds
+        self.turn, self.residual, self.control_period = turn, residual, control_period
 
     def __call__(self):
-        return make_env(self.colons, self.episode_seconds)
+        return make_env(self.colons, self.episode_seconds, self.turn, self.residual,
+                        self.control_period)
 
 
 class LearningCurve(gymnasium.vector.VectorWrapper):
@@ -190,7 +214,7 @@ def _ppo(env, seed: int, rollouts: int):
     cfg = PPO_CFG(rollouts=rollouts, learning_epochs=8, mini_batches=4,
                   discount_factor=0.99, gae_lambda=0.95, learning_rate=3e-4,
                   ratio_clip=0.2, value_clip=0.2, entropy_loss_scale=0.0,
-                  value_loss_scale=0.5, grad_norm_clip=0.5,
+                  value_loss_scale=0.5, grad_norm_clip=0.5, time_limit_bootstrap=True,
                   observation_preprocessor=RunningStandardScaler,
                   observation_preprocessor_kwargs={"size": env.observation_space,
                                                    "device": env.device},
@@ -200,6 +224,43 @@ def _ppo(env, seed: int, rollouts: int):
     cfg.experiment.checkpoint_interval = 0
     memory = RandomMemory(memory_size=rollouts, num_envs=env.num_envs, device=env.device)
     return PPO(models=models, memory=memory, observation_space=env.observation_space,
+               action_space=env.action_space, device=env.device, cfg=cfg)
+
+
+def _sac(env, seed: int, batch: int = 256, learning_starts: int = 1000):
+    """skrl's SAC (Haarnoja et al. 2018) for `env`: a Gaussian policy and two critics (with
+    their targets), each 2 x 64 tanh, observations standardised as they run; one gradient
+    step per vector step, from a replay memory of all the run's transitions."""
+    from skrl.agents.jax.sac import SAC, SAC_CFG
+    from skrl.memories.jax import RandomMemory
+    from skrl.resources.preprocessors.jax import RunningStandardScaler
+    from skrl.utils import set_seed
+    from skrl.utils.model_instantiators.jax import deterministic_model, gaussian_model
+
+    set_seed(seed)
+    policy_layers = [{"name": "net", "input": "OBSERVATIONS", "layers": [64, 64],
+                      "activations": "tanh"}]
+    critic_layers = [{"name": "net", "input": "concatenate([OBSERVATIONS, ACTIONS])",
+                      "layers": [64, 64], "activations": "tanh"}]
+    spaces_ = {"observation_space": env.observation_space, "action_space": env.action_space,
+               "device": env.device}
+    models = {"policy": gaussian_model(**spaces_, clip_actions=True, initial_log_std=-0.5,
+                                       min_log_std=-5.0, max_log_std=1.0,
+                                       network=policy_layers, output="ACTIONS")}
+    for name in ("critic_1", "critic_2", "target_critic_1", "target_critic_2"):
+        models[name] = deterministic_model(**spaces_, network=critic_layers, output="ONE")
+    for model in models.values():
+        model.init_state_dict(role="")
+    cfg = SAC_CFG(gradient_steps=1, batch_size=batch, discount_factor=0.99, polyak=0.005,
+                  learning_rate=3e-4, learning_starts=learning_starts, learn_entropy=True,
+                  initial_entropy_value=0.2,
+                  observation_preprocessor=RunningStandardScaler,
+                  observation_preprocessor_kwargs={"size": env.observation_space,
+                                                   "device": env.device})
+    cfg.experiment.write_interval = 0
+    cfg.experiment.checkpoint_interval = 0
+    memory = RandomMemory(memory_size=200_000, num_envs=env.num_envs, device=env.device)
+    return SAC(models=models, memory=memory, observation_space=env.observation_space,
                action_space=env.action_space, device=env.device, cfg=cfg)
 
 
@@ -262,7 +323,8 @@ def _export(agent, path):
 
 
 def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: float,
-          seed: int, rollouts: int):
+          seed: int, rollouts: int, algorithm: str = "ppo", turn: bool = False,
+          residual: bool = False, control_period: float = 0.1):
     """Trains for `minutes` of wall time (or `steps` environment steps over all workers) and
     writes out/curve.csv, out/policy.npz and out/config.json."""
     from skrl.envs.wrappers.jax import wrap_env
@@ -270,17 +332,19 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
 
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump({"envs": envs, "minutes": minutes, "steps": steps,
+        json.dump({"algorithm": algorithm, "turn": turn, "residual": residual,
+                   "control_period": control_period, "envs": envs, "minutes": minutes, "steps": steps,
                    "episode_seconds": episode_seconds, "seed": seed, "rollouts": rollouts,
                    "colons": list(range(10))}, f, indent=1)
-    factory = _Factory(range(10), episode_seconds)
+    factory = _Factory(range(10), episode_seconds, turn, residual, control_period)
     vector = gymnasium.vector.AsyncVectorEnv(
         [factory] * envs, context="spawn",
         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
     curve = LearningCurve(vector, os.path.join(out, "curve.csv"))
     env = wrap_env(curve, wrapper="gymnasium", verbose=False)
     env._seed = seed
-    agent = _ppo(env, seed, rollouts)
+    agent = (_ppo(env, seed, rollouts) if algorithm == "ppo" else
+             _sac(env, seed, learning_starts=min(1000, (steps or 10**9) // 2)))
     # The trainer counts its own steps (one per vector step); with a time budget, as many
     # as fit: estimated from the first rollout's pace, then stopped at the deadline.
     total = steps // envs if steps else 10**9
@@ -326,27 +390,42 @@ def _episode(env, act, seed: int):
             return 100.0 * furthest, contact, peak, info["ended"]
 
 
+def _forward(observation):
+    """A scripted baseline: the EPM moved along the capsule's axis at full speed, its moment
+    left as it is (the egocentric action [0, 0, 1, 0, 0, 0])."""
+    return np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+
+
 def evaluate(out, held_out, episode_seconds: float):
-    """The trained policy and the follower ("autonomy-truth") on the held-out colons, each for
-    `episode_seconds`; writes out/evaluation.csv and returns its rows."""
+    """The trained policy, the scripted `_forward` and the follower ("autonomy-truth") on the
+    held-out colons, each for `episode_seconds`; writes out/evaluation.csv and returns its
+    rows."""
     from capsule_drake.app.benchmark import Task, run_task
 
     policy = MeanPolicy(os.path.join(out, "policy.npz"))
+    with open(os.path.join(out, "config.json")) as f:
+        config = json.load(f)
+    turn, residual = config.get("turn", False), config.get("residual", False)
+    period = config.get("control_period", 0.1)
+    size = 6 if turn else 3
+    # in the residual form, the scripted move is the environment's own: its policy acts 0
+    forward = (lambda o: np.zeros(size)) if residual else (lambda o: _forward(o)[:size])
     rows = []
     for colon in held_out:
-        env = make_env((colon,), episode_seconds)
-        advance, contact, peak, ended = _episode(env, policy, seed=0)
+        env = make_env((colon,), episode_seconds, turn, residual, period)
+        for driver, act in (("trained", policy), ("forward", forward)):
+            advance, contact, peak, ended = _episode(env, act, seed=0)
+            rows.append({"colon": colon, "driver": driver, "advance_cm": round(advance, 2),
+                         "contact_s": round(contact, 2), "peak_load_N": round(peak, 3),
+                         "ended": ended})
         env.close()
-        rows.append({"colon": colon, "driver": "ppo", "advance_cm": round(advance, 2),
-                     "contact_s": round(contact, 2), "peak_load_N": round(peak, 3),
-                     "ended": ended})
         follower = run_task(Task("autonomy-truth", colon, duration=episode_seconds))["row"]
         rows.append({"colon": colon, "driver": "follower",
                      "advance_cm": follower["progress_cm"],
                      "contact_s": follower["wall_contact_s"],
                      "peak_load_N": follower["peak_contact_force_N"],
                      "ended": follower["status"]})
-        for row in rows[-2:]:
+        for row in rows[-3:]:
             print(", ".join(f"{k} {v}" for k, v in row.items()), flush=True)
     with open(os.path.join(out, "evaluation.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, list(rows[0]))
@@ -386,12 +465,14 @@ def plot(out, path):
         with open(evaluation) as f:
             scored = list(csv.DictReader(f))
         colons = sorted({int(r["colon"]) for r in scored})
-        for k, driver in enumerate(("ppo", "follower")):
+        labels = {"trained": "trained policy", "forward": "scripted: EPM along the axis",
+                  "follower": "lumen follower"}
+        for k, driver in enumerate(labels):
             advance = [next(float(r["advance_cm"]) for r in scored
                             if int(r["colon"]) == c and r["driver"] == driver)
                        for c in colons]
-            axes[2].bar(np.arange(len(colons)) + 0.4 * k - 0.2, advance, 0.4,
-                        label="trained policy" if driver == "ppo" else "lumen follower")
+            axes[2].bar(np.arange(len(colons)) + 0.27 * (k - 1), advance, 0.27,
+                        label=labels[driver])
         axes[2].set_xticks(range(len(colons)), [str(c) for c in colons])
         axes[2].set_xlabel("held-out colon")
         axes[2].set_ylabel("advance (cm)")
@@ -416,9 +497,16 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=None,
                         help="environment steps (over all workers) instead of --minutes")
     parser.add_argument("--episode-seconds", type=float, default=30.0)
-    parser.add_argument("--rollouts", type=int, default=256,
+    parser.add_argument("--rollouts", type=int, default=128,
                         help="steps per worker between PPO updates")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--algorithm", choices=("ppo", "sac"), default="ppo")
+    parser.add_argument("--turn", action="store_true",
+                        help="the policy turns the EPM's moment too (6 actions, not 3)")
+    parser.add_argument("--control-period", type=float, default=0.1,
+                        help="simulated seconds per action (the environment's step)")
+    parser.add_argument("--residual", action="store_true",
+                        help="the policy learns a correction to the scripted forward move")
     parser.add_argument("--evaluate", metavar="DIR", default=None,
                         help="evaluate the policy trained in DIR instead of training")
     parser.add_argument("--held-out", default="10-19", help="colons to evaluate on")
@@ -437,7 +525,8 @@ def main(argv=None):
             plot(args.evaluate, args.plot)
         return
     rows = train(args.out, args.envs, args.minutes, args.steps, args.episode_seconds,
-                 args.seed, args.rollouts)
+                 args.seed, args.rollouts, args.algorithm, args.turn, args.residual,
+                 args.control_period)
     print(f"{len(rows)} episodes; curve in {os.path.join(args.out, 'curve.csv')}")
     if args.plot:
         plot(args.out, args.plot)

@@ -103,4 +103,16 @@ def test_a_short_training_writes_its_curve_and_a_policy_that_acts_as_skrl_s(tmp_
     # here, that it loads and acts within the action's bounds
     policy = _example().MeanPolicy(out / "policy.npz")
     action = policy(np.zeros(15))
-    assert action.shape == (6,) and np.all(np.abs(action) <= 1.0)
+    assert action.shape == (3,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_without_turning_the_action_is_the_move_alone():
+    example = _example()
+    q = _quaternion([1.0, 0.0, 0.0], -np.pi / 2)    # the capsule's axis (B z) along world +y
+    truth = np.concatenate([q, np.zeros(9)]).astype(np.float32)
+    stub = _Stub({"truth": truth, "epm": np.zeros(6, np.float32)})
+    env = example.EgocentricAction(stub, turn=False)
+    assert env.action_space.shape == (3,)
+    env.reset()
+    env.step(np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(stub.actions[-1], [0.0, 1.0, 0.0, 0.0, 0.0, 0.0], atol=1e-6)
