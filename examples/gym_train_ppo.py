@@ -2,27 +2,33 @@
 and scores it against the lumen follower on colons it never saw.
 
     pip install -e '.[learn]'        # skrl, JAX (CPU), flax, optax
-    .venv/bin/python examples/gym_train_ppo.py --minutes 25 --envs 2 --out runs/ppo
+    .venv/bin/python examples/gym_train_ppo.py --residual --control-period 0.5 --rollouts 64 \
+        --minutes 25 --envs 2 --out runs/ppo
     .venv/bin/python examples/gym_train_ppo.py --evaluate runs/ppo --plot runs/ppo/curve.png
 
 The task is the environment's own (capsule_drake/ColonNavigation-v0: its reward is 1 per cm
 advanced along the centreline, less the time in contact with the wall and the contact load
-above 0.5 N), in episodes of `--episode-seconds` simulated seconds (default 30: 300 steps)
-on the benchmark's colons 0-9. The policy is privileged, as the follower it is scored
-against ("autonomy-truth", which steers by the lumen's truth on the capsule's true pose): it
-observes the capsule's true pose and the EPM's, both in the capsule's frame (`Egocentric`),
-and its action is the environment's, its move and turn given in the capsule's frame too
-(`EgocentricAction`), so that what it learns does not depend on where in the abdomen the
-colon runs. PPO (Schulman et al. 2017) as skrl implements it, with a 2 x 64 tanh network for
-the mean action and the value; nothing of it was tuned on the held-out colons.
+above 0.5 N), in episodes of `--episode-seconds` simulated seconds (default 30) on the
+benchmark's colons 0-9, one action every `--control-period` s (the environment's step,
+default 0.1). The policy is privileged, as the follower it is scored against
+("autonomy-truth", which steers by the lumen's truth on the capsule's true pose): it observes
+the capsule's true pose and the EPM's, both in the capsule's frame (`Egocentric`), and its
+action is the EPM's move in the capsule's frame too (`EgocentricAction`; with `--turn`, the
+turn of its moment as well), so that what it learns does not depend on where in the abdomen
+the colon runs. With `--residual` the action, times RESIDUAL_SCALE, corrects a scripted move
+(`_forward`: the EPM carried along the capsule's axis at full speed) rather than being the
+move itself (residual reinforcement learning, Johannink et al. 2019). PPO (Schulman et al.
+2017) as skrl implements it (`--algorithm sac`: SAC), 2 x 64 tanh networks; nothing of it was
+tuned on the held-out colons.
 
 What it writes in `--out`: `curve.csv` (each finished training episode: the environment
 steps taken by then over all workers, wall time, colon, return, advance in cm),
 `policy.npz` (the trained mean-action network's weights and the observation scaler, enough
 to act without skrl), `config.json` (the command's settings). `--evaluate DIR` runs the
-trained policy (its mean action) and the follower on the held-out colons for the same
-simulated seconds and writes `evaluation.csv` beside it: per colon and driver, the advance
-(cm), the time in contact (s) and the peak contact load (N).
+trained policy (its mean action), the scripted move alone and the follower on the held-out
+colons (`--held-out`, default 10-19) for the same simulated seconds and writes
+`evaluation.csv` beside it: per colon and driver, the furthest advance (cm), the time in
+contact (s) and the peak contact load (N); `--plot PNG` draws the curve and those advances.
 
 Training runs `--envs` worker processes (gymnasium's AsyncVectorEnv, spawned), each keeping
 its colons' diagrams built across resets (the environment's cache). `--steps N` stops after N
