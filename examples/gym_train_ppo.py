@@ -313,7 +313,7 @@ def _export(agent, path):
     for i, name in enumerate(kernels):
         arrays[f"w{i}"] = params[name]
         arrays[f"b{i}"] = params[name[:-len("kernel")] + "bias"]
-    scaler = agent._observation_preprocessor
+    scaler = agent._observation_preprocessor   # (skrl keeps it on the agent, unexported)
     arrays["obs_mean"] = np.asarray(scaler.running_mean)
     arrays["obs_var"] = np.asarray(scaler.running_variance)
     np.savez(path, **arrays)
@@ -339,8 +339,8 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "config.json"), "w") as f:
         json.dump({"algorithm": algorithm, "turn": turn, "residual": residual,
-                   "control_period": control_period, "envs": envs, "minutes": minutes, "steps": steps,
-                   "episode_seconds": episode_seconds, "seed": seed, "rollouts": rollouts,
+                   "control_period": control_period, "envs": envs, "minutes": minutes,
+                   "steps": steps, "episode_seconds": episode_seconds, "seed": seed, "rollouts": rollouts,
                    "colons": list(range(10))}, f, indent=1)
     factory = _Factory(range(10), episode_seconds, turn, residual, control_period)
     vector = gymnasium.vector.AsyncVectorEnv(
@@ -348,11 +348,11 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
     curve = LearningCurve(vector, os.path.join(out, "curve.csv"))
     env = wrap_env(curve, wrapper="gymnasium", verbose=False)
-    env._seed = seed
+    env._seed = seed   # (skrl's wrapper seeds the vector's first reset from this)
     agent = (_ppo(env, seed, rollouts) if algorithm == "ppo" else
              _sac(env, seed, learning_starts=min(1000, (steps or 10**9) // 2)))
-    # The trainer counts its own steps (one per vector step); with a time budget, as many
-    # as fit: estimated from the first rollout's pace, then stopped at the deadline.
+    # The trainer counts its own steps (one per vector step); with a time budget it is given
+    # more than can fit and stopped at the deadline, after the agent's step that passes it.
     total = steps // envs if steps else 10**9
     deadline = time.perf_counter() + 60.0 * minutes if not steps else math.inf
     trainer = SequentialTrainer(env=env, agents=agent,
