@@ -80,8 +80,8 @@ What differs:
   - what each computes in C/C++ against Python: in Drake, the plant, contact query and SAP
     solve are C++, and the station's Python systems (the magnet force with its implicit
     torque, the kinematic stage's pose, the EPM's drawn frame, its guard and clearance
-    watch) run inside the Simulator's step events; in the peer, MuJoCo's step (collision, constraint solve,
-    integration) is C, and per step Python evaluates the EPM's trajectory (Drake's
+    watch) run inside the Simulator's step events; in the peer, MuJoCo's step (collision,
+    constraint solve, integration) is C, and per step Python evaluates the EPM's trajectory (Drake's
     PiecewisePolynomial), the dipole wrench and implicit torque (the project's Numba-compiled
     functions) and writes xfrc_applied: that Python is inside the peer's timed loop.
 
@@ -441,7 +441,7 @@ class Ours:
         return float(np.linalg.norm(total))
 
 
-# --- measurement ------------------------------------------------------------------------------------
+# --- measurement ----------------------------------------------------------------------------------
 
 def paired_repeat(engines, colon, sim_seconds: float, chunk: float):
     """(seconds of wall clock each engine spent over `sim-seconds` after the warm-up, each

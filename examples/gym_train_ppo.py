@@ -340,7 +340,8 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
     with open(os.path.join(out, "config.json"), "w") as f:
         json.dump({"algorithm": algorithm, "turn": turn, "residual": residual,
                    "control_period": control_period, "envs": envs, "minutes": minutes,
-                   "steps": steps, "episode_seconds": episode_seconds, "seed": seed, "rollouts": rollouts,
+                   "steps": steps, "episode_seconds": episode_seconds, "seed": seed,
+                   "rollouts": rollouts,
                    "colons": list(range(10))}, f, indent=1)
     factory = _Factory(range(10), episode_seconds, turn, residual, control_period)
     vector = gymnasium.vector.AsyncVectorEnv(
