@@ -1,7 +1,7 @@
 """A MuJoCo peer of the Default drag: the same tube, capsule and magnets, for a real-time factor
 measured beside this project's in the same run.
 
-    pip install mujoco          # the peer's only extra (MuJoCo 3 or later)
+    pip install -e '.[peer]'    # the peer's only extra (MuJoCo 3 or later)
     .venv/bin/python benchmarks/peer_mujoco.py [--sim-seconds 10] [--repeats 3] [--csv FILE]
 
 Method. One process builds both: the project's Default station exactly as
@@ -137,7 +137,7 @@ def import_mujoco():
     try:
         import mujoco
     except ImportError:
-        sys.exit("peer_mujoco.py needs MuJoCo: pip install mujoco")
+        sys.exit("peer_mujoco.py needs MuJoCo: .venv/bin/pip install -e '.[peer]' (or pip install mujoco)")
     return mujoco
 
 
