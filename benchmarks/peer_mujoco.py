@@ -137,7 +137,8 @@ def import_mujoco():
     try:
         import mujoco
     except ImportError:
-        sys.exit("peer_mujoco.py needs MuJoCo: .venv/bin/pip install -e '.[peer]' (or pip install mujoco)")
+        sys.exit("peer_mujoco.py needs MuJoCo: .venv/bin/pip install -e '.[peer]' "
+                 "(or pip install mujoco)")
     return mujoco
 
 
