@@ -16,10 +16,10 @@ the capsule's true pose and the EPM's, both in the capsule's frame (`Egocentric`
 action is the EPM's move in the capsule's frame too (`EgocentricAction`; with `--turn`, the
 turn of its moment as well), so that what it learns does not depend on where in the abdomen
 the colon runs. With `--residual` the action, times RESIDUAL_SCALE, corrects a scripted move
-(`_forward`: the EPM carried along the capsule's axis at full speed) rather than being the
+(FORWARD: the EPM carried along the capsule's axis at full speed) rather than being the
 move itself (residual reinforcement learning, Johannink et al. 2019). PPO (Schulman et al.
-2017) as skrl implements it (`--algorithm sac`: SAC), 2 x 64 tanh networks; nothing of it was
-tuned on the held-out colons.
+2017) as skrl implements it, 2 x 64 tanh networks; nothing of it was tuned on the held-out
+colons.
 
 What it writes in `--out`: `curve.csv` (each finished training episode: the environment
 steps taken by then over all workers, wall time, colon, return, advance in cm),
@@ -46,20 +46,14 @@ import time
 import gymnasium
 import numpy as np
 
+from capsule_drake.capsule.model import rotation_from_quaternion
+
 ENV_ID = "capsule_drake:capsule_drake/ColonNavigation-v0"
 # Scales of the egocentric observation: the EPM's offset (m), the capsule's speed (m/s) and
 # turn rate (rad/s), so that each feature is of order 1 (the observation scaler does the rest).
 OFFSET_SCALE = 0.1
 SPEED_SCALE = 0.01
 TURN_SCALE = 1.0
-
-
-def _rotation(q):
-    """Rotation matrix of a quaternion (w, x, y, z) (normalised here)."""
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 class Egocentric(gymnasium.ObservationWrapper):
@@ -75,7 +69,7 @@ class Egocentric(gymnasium.ObservationWrapper):
     def observation(self, observation):
         truth = observation["truth"].astype(float)
         epm = observation["epm"].astype(float)
-        R_WB = _rotation(truth[:4])
+        R_WB = rotation_from_quaternion(truth[:4])
         to_B = R_WB.T
         return np.concatenate([
             to_B @ (epm[:3] - truth[4:7]) / OFFSET_SCALE,
@@ -105,7 +99,7 @@ class EgocentricAction(gymnasium.Wrapper):
             self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), np.float32)
 
     def _remember(self, observation):
-        self._R_WB = _rotation(observation["truth"][:4])
+        self._R_WB = rotation_from_quaternion(observation["truth"][:4])
 
     def reset(self, **kwargs):
         observation, info = self.env.reset(**kwargs)
@@ -126,19 +120,22 @@ class EgocentricAction(gymnasium.Wrapper):
 
 RESIDUAL_SCALE = 0.5
 """With --residual: the policy's share of the action, beside the scripted forward move."""
+FORWARD = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+"""The scripted move, an egocentric action: the EPM carried along the capsule's axis at full
+speed, its moment left as it is."""
 
 
 def make_env(colons=tuple(range(10)), episode_seconds: float = 30.0, turn: bool = False,
              residual: bool = False, control_period: float = 0.1):
     """The training environment: the navigation task on `colons`, `episode_seconds` long,
     observed and driven from the capsule's frame (the EPM moved only, unless `turn`); with
-    `residual`, the policy's action is a correction (x RESIDUAL_SCALE) to `_forward`'s."""
+    `residual`, the policy's action is a correction (x RESIDUAL_SCALE) to FORWARD."""
     env = gymnasium.make(ENV_ID, observations=("epm", "truth"), colons=tuple(colons),
                          max_episode_seconds=float(episode_seconds),
                          control_period=float(control_period))
     base = None
     if residual:
-        base = _forward(None) if turn else _forward(None)[:3]
+        base = FORWARD if turn else FORWARD[:3]
     return Egocentric(EgocentricAction(env, turn, base, RESIDUAL_SCALE))
 
 
@@ -233,43 +230,6 @@ def _ppo(env, seed: int, rollouts: int):
                action_space=env.action_space, device=env.device, cfg=cfg)
 
 
-def _sac(env, seed: int, batch: int = 256, learning_starts: int = 1000):
-    """skrl's SAC (Haarnoja et al. 2018) for `env`: a Gaussian policy and two critics (with
-    their targets), each 2 x 64 tanh, observations standardised as they run; one gradient
-    step per vector step, from a replay memory of all the run's transitions."""
-    from skrl.agents.jax.sac import SAC, SAC_CFG
-    from skrl.memories.jax import RandomMemory
-    from skrl.resources.preprocessors.jax import RunningStandardScaler
-    from skrl.utils import set_seed
-    from skrl.utils.model_instantiators.jax import deterministic_model, gaussian_model
-
-    set_seed(seed)
-    policy_layers = [{"name": "net", "input": "OBSERVATIONS", "layers": [64, 64],
-                      "activations": "tanh"}]
-    critic_layers = [{"name": "net", "input": "concatenate([OBSERVATIONS, ACTIONS])",
-                      "layers": [64, 64], "activations": "tanh"}]
-    spaces_ = {"observation_space": env.observation_space, "action_space": env.action_space,
-               "device": env.device}
-    models = {"policy": gaussian_model(**spaces_, clip_actions=True, initial_log_std=-0.5,
-                                       min_log_std=-5.0, max_log_std=1.0,
-                                       network=policy_layers, output="ACTIONS")}
-    for name in ("critic_1", "critic_2", "target_critic_1", "target_critic_2"):
-        models[name] = deterministic_model(**spaces_, network=critic_layers, output="ONE")
-    for model in models.values():
-        model.init_state_dict(role="")
-    cfg = SAC_CFG(gradient_steps=1, batch_size=batch, discount_factor=0.99, polyak=0.005,
-                  learning_rate=3e-4, learning_starts=learning_starts, learn_entropy=True,
-                  initial_entropy_value=0.2,
-                  observation_preprocessor=RunningStandardScaler,
-                  observation_preprocessor_kwargs={"size": env.observation_space,
-                                                   "device": env.device})
-    cfg.experiment.write_interval = 0
-    cfg.experiment.checkpoint_interval = 0
-    memory = RandomMemory(memory_size=200_000, num_envs=env.num_envs, device=env.device)
-    return SAC(models=models, memory=memory, observation_space=env.observation_space,
-               action_space=env.action_space, device=env.device, cfg=cfg)
-
-
 def _flat_params(tree, prefix=""):
     """A flax parameter tree as {"a/b/kernel": array}."""
     out = {}
@@ -329,8 +289,8 @@ def _export(agent, path):
 
 
 def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: float,
-          seed: int, rollouts: int, algorithm: str = "ppo", turn: bool = False,
-          residual: bool = False, control_period: float = 0.1):
+          seed: int, rollouts: int, turn: bool = False, residual: bool = False,
+          control_period: float = 0.1):
     """Trains for `minutes` of wall time (or `steps` environment steps over all workers) and
     writes out/curve.csv, out/policy.npz and out/config.json."""
     from skrl.envs.wrappers.jax import wrap_env
@@ -338,7 +298,7 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
 
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump({"algorithm": algorithm, "turn": turn, "residual": residual,
+        json.dump({"algorithm": "ppo", "turn": turn, "residual": residual,
                    "control_period": control_period, "envs": envs, "minutes": minutes,
                    "steps": steps, "episode_seconds": episode_seconds, "seed": seed,
                    "rollouts": rollouts,
@@ -350,8 +310,7 @@ def train(out, envs: int, minutes: float, steps: int | None, episode_seconds: fl
     curve = LearningCurve(vector, os.path.join(out, "curve.csv"))
     env = wrap_env(curve, wrapper="gymnasium", verbose=False)
     env._seed = seed   # (skrl's wrapper seeds the vector's first reset from this)
-    agent = (_ppo(env, seed, rollouts) if algorithm == "ppo" else
-             _sac(env, seed, learning_starts=min(1000, (steps or 10**9) // 2)))
+    agent = _ppo(env, seed, rollouts)
     # The trainer counts its own steps (one per vector step); with a time budget it is given
     # more than can fit and stopped at the deadline, after the agent's step that passes it.
     total = steps // envs if steps else 10**9
@@ -397,14 +356,8 @@ def _episode(env, act, seed: int):
             return 100.0 * furthest, contact, peak, info["ended"]
 
 
-def _forward(observation):
-    """A scripted baseline: the EPM moved along the capsule's axis at full speed, its moment
-    left as it is (the egocentric action [0, 0, 1, 0, 0, 0])."""
-    return np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-
-
 def evaluate(out, held_out, episode_seconds: float):
-    """The trained policy, the scripted `_forward` and the follower ("autonomy-truth") on the
+    """The trained policy, the scripted FORWARD move and the follower ("autonomy-truth") on the
     held-out colons, each for `episode_seconds`; writes out/evaluation.csv and returns its
     rows."""
     from capsule_drake.app.benchmark import Task, run_task
@@ -416,11 +369,11 @@ def evaluate(out, held_out, episode_seconds: float):
     period = config.get("control_period", 0.1)
     size = 6 if turn else 3
     # in the residual form, the scripted move is the environment's own: its policy acts 0
-    forward = (lambda o: np.zeros(size)) if residual else (lambda o: _forward(o)[:size])
+    scripted = np.zeros(size) if residual else FORWARD[:size]
     rows = []
     for colon in held_out:
         env = make_env((colon,), episode_seconds, turn, residual, period)
-        for driver, act in (("trained", policy), ("forward", forward)):
+        for driver, act in (("trained", policy), ("forward", lambda o: scripted)):
             advance, contact, peak, ended = _episode(env, act, seed=0)
             rows.append({"colon": colon, "driver": driver, "advance_cm": round(advance, 2),
                          "contact_s": round(contact, 2), "peak_load_N": round(peak, 3),
@@ -508,7 +461,6 @@ def main(argv=None):
     parser.add_argument("--rollouts", type=int, default=128,
                         help="steps per worker between PPO updates")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--algorithm", choices=("ppo", "sac"), default="ppo")
     parser.add_argument("--turn", action="store_true",
                         help="the policy turns the EPM's moment too (6 actions, not 3)")
     parser.add_argument("--control-period", type=float, default=0.1,
@@ -533,8 +485,7 @@ def main(argv=None):
             plot(args.evaluate, args.plot)
         return
     rows = train(args.out, args.envs, args.minutes, args.steps, args.episode_seconds,
-                 args.seed, args.rollouts, args.algorithm, args.turn, args.residual,
-                 args.control_period)
+                 args.seed, args.rollouts, args.turn, args.residual, args.control_period)
     print(f"{len(rows)} episodes; curve in {os.path.join(args.out, 'curve.csv')}")
     if args.plot:
         plot(args.out, args.plot)

@@ -51,7 +51,7 @@ class _Stub(gymnasium.Env):
 def test_the_egocentric_observation_is_the_world_seen_from_the_capsule():
     example = _example()
     q = _quaternion([1.0, -2.0, 0.5], 1.1)
-    R_WB = example._rotation(q)
+    R_WB = example.rotation_from_quaternion(q)
     # an independent rotation: Rodrigues' formula
     k = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
