@@ -484,8 +484,12 @@ def main(argv=None):
         if args.plot:
             plot(args.evaluate, args.plot)
         return
-    rows = train(args.out, args.envs, args.minutes, args.steps, args.episode_seconds,
-                 args.seed, args.rollouts, args.turn, args.residual, args.control_period)
+    try:
+        rows = train(args.out, args.envs, args.minutes, args.steps, args.episode_seconds,
+                     args.seed, args.rollouts, args.turn, args.residual, args.control_period)
+    except KeyboardInterrupt:   # train() has written the curve so far and the policy
+        sys.exit(f"gym_train_ppo: interrupted; the curve and the policy so far are in "
+                 f"{args.out}")
     print(f"{len(rows)} episodes; curve in {os.path.join(args.out, 'curve.csv')}")
     if args.plot:
         plot(args.out, args.plot)
