@@ -1306,3 +1306,111 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
         good = np.flatnonzero(~np.isnan(radius))
         radius = np.interp(np.arange(len(radius)), good, radius[good])
     return np.array(new).reshape(-1, 3), radius, found
+
+
+ROUND_CAP_BODY = 0.008
+"""Length [m] of tube behind a round cap's pole fitted with it (`_fit_round_cap`)."""
+ROUND_CAP_INSIDE = 0.1
+"""Weight of the wall standing inside the fitted capsule end (folds) against the wall on
+or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
+ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
+"""Starting tilts [degrees] of the capsule end's axis from the line's end tangent (each
+but 0 at six azimuths): the fit's cost has more than one minimum where folds cross it."""
+
+
+def _capsule_end_residuals(x, a0, e1, e2, faces, weights, inside):
+    c, r, taper = x[:3], x[5], x[6]
+    a = a0 + x[3] * e1 + x[4] * e2
+    a = a / np.linalg.norm(a)
+    d = faces - c
+    z = d @ a
+    cap = np.linalg.norm(d, axis=1) - r
+    body = np.linalg.norm(d - np.outer(z, a), axis=1) - (r + taper * z)
+    res = np.where(z >= 0.0, cap, body)
+    return weights * np.where(res < 0.0, inside * res, res)
+
+
+def _fit_round_cap(sections: MeshSections, line, radius: float, body: float = ROUND_CAP_BODY,
+                   tilts=ROUND_CAP_TILTS):
+    """The end of a tube closed by a round cap, fitted to the wall as a capsule's end: a
+    hemisphere of radius r about a centre c on an axis a (its pole c + r a), and behind
+    it, for `body` [m], a tube whose radius changes linearly along a (a flared end's last
+    centimetre). Faces (by their centres, weighted by their areas) near the cap; a robust
+    loss (soft L1, 0.5 mm) and the wall inside the fit down-weighted (`ROUND_CAP_INSIDE`);
+    the faces chosen again about each fit (four times). Started from the line's end
+    (radius `radius`, its centre a radius back along the end tangent) with the axis tilted
+    by `tilts`; the start with the smallest robust cost is kept.
+
+    Returns (centre, axis, r, cost) or None if too few faces are near the end."""
+    from scipy.optimize import least_squares
+
+    line = np.asarray(line)
+    end = line[-1]
+    t = _end_tangent(line)
+    _, u, v = _plane_basis(t)
+    starts = [t]
+    for tilt in tilts:
+        if tilt == 0.0:
+            continue
+        for phi in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
+            starts.append(np.cos(np.radians(tilt)) * t + np.sin(np.radians(tilt)) *
+                          (np.cos(phi) * u + np.sin(phi) * v))
+    centres, areas = sections.face_centres, sections.face_areas
+    near = np.linalg.norm(centres - end, axis=1) < 3.0 * radius + body
+    centres, areas = centres[near], areas[near]
+    if len(centres) < 50:
+        return None
+    best = None
+    for a0 in starts:
+        c, a, r, taper = end - radius * t, a0, radius, 0.0
+        for _ in range(4):
+            d = centres - c
+            z = d @ a
+            side = np.linalg.norm(d - np.outer(z, a), axis=1)
+            pick = (z > -body) & (z < 1.6 * r) & (side < 1.6 * r)
+            if pick.sum() < 50:
+                break
+            _, e1, e2 = _plane_basis(a)
+            weights = np.sqrt(areas[pick] / np.mean(areas[pick]))
+            fit = least_squares(
+                _capsule_end_residuals, np.r_[c, 0.0, 0.0, r, taper],
+                args=(a, e1, e2, centres[pick], weights, ROUND_CAP_INSIDE),
+                loss="soft_l1", f_scale=5e-4, x_scale=np.r_[[1e-3] * 3, 0.1, 0.1, 1e-3, 0.1])
+            c, r, taper = fit.x[:3], fit.x[5], fit.x[6]
+            a = a + fit.x[3] * e1 + fit.x[4] * e2
+            a /= np.linalg.norm(a)
+        else:
+            cost = 2.0 * fit.cost / pick.sum()
+            if r > 0.3 * radius and (best is None or cost < best[3]):
+                best = (c, a, float(r), cost)
+    return best
+
+
+def _round_cap_end(sections: MeshSections, line, radius, step, body: float = ROUND_CAP_BODY,
+                   blend: float = 0.03):
+    """A round cap's end made from its fitted capsule end (`_fit_round_cap`): the line
+    up to where the fitted body begins, then along the fitted axis to the pole; the last
+    `blend` [m] before the body made again as the cubic Hermite curve from the line's
+    point and tangent there to the body's start along the axis (the line behind a cap
+    found astray leans toward it). `line` unchanged if no fit."""
+    line = np.asarray(line)
+    fit = _fit_round_cap(sections, line, radius, body)
+    if fit is None:
+        return line
+    c, a, r, _ = fit
+    z = (line - c) @ a
+    keep = _before(line, z < -body)
+    if len(keep) < 5:
+        return line
+    start = c - body * a
+    s = _arc(keep)
+    head = keep[s <= s[-1] - blend] if s[-1] > blend + 5 * step else keep[:2]
+    p0 = head[-1]
+    t0 = _end_tangent(head) if len(head) >= 5 else a
+    gap = float(np.linalg.norm(start - p0))
+    h = np.linspace(0.0, 1.0, max(3, int(np.ceil(gap / step)) + 1))[1:-1, None]
+    hermite = ((2 * h ** 3 - 3 * h ** 2 + 1) * p0 + (h ** 3 - 2 * h ** 2 + h) * gap * t0 +
+               (-2 * h ** 3 + 3 * h ** 2) * start + (h ** 3 - h ** 2) * gap * a)
+    ray = c + np.arange(-body, r + 1e-9, step)[:, None] * a
+    ray = np.vstack([ray, c + r * a]) if np.linalg.norm(ray[-1] - (c + r * a)) > 1e-6 else ray
+    return np.vstack([head, hermite, ray])
