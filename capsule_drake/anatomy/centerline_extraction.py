@@ -1381,9 +1381,25 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float = RO
             a /= np.linalg.norm(a)
         else:
             cost = 2.0 * fit.cost / pick.sum()
-            if r > 0.3 * radius and (best is None or cost < best[3]):
+            if r > 0.3 * radius and (best is None or cost < best[3]) and \
+                    _closed_around(sections, c, a, r):
                 best = (c, a, float(r), cost)
     return best
+
+
+def _closed_around(sections: MeshSections, c, a, r) -> bool:
+    """Whether a fitted cap is the wall's: rays from its centre `c` along its axis `a` and
+    at 45 degrees to it (six) all meet the wall within 1.3 r, the axial one beyond 0.7 r (a
+    fit slid along the tube, or turned across it, looks down the lumen)."""
+    _, u, v = _plane_basis(a)
+    axial = sections.ray(c, a, reach=2.0 * r)
+    if not 0.7 * r <= axial <= 1.3 * r:
+        return False
+    for phi in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
+        d = a + np.cos(phi) * u + np.sin(phi) * v
+        if sections.ray(c, d, reach=2.0 * r) > 1.3 * r:
+            return False
+    return True
 
 
 def _round_cap_end(sections: MeshSections, line, radius, step, body: float = ROUND_CAP_BODY,
