@@ -1308,11 +1308,14 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
     return np.array(new).reshape(-1, 3), radius, found
 
 
-ROUND_CAP_BODY = 0.008
-"""Length [m] of tube behind a round cap's pole fitted with it (`_fit_round_cap`)."""
+ROUND_CAP_BODIES = (0.004, 0.008, 0.012)
+"""Lengths [m] of tube behind a round cap's hemisphere fitted with it (`_fit_round_cap`),
+one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)."""
 ROUND_CAP_INSIDE = 0.1
 """Weight of the wall standing inside the fitted capsule end (folds) against the wall on
 or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
+ROUND_CAP_FACES = 4000
+"""Most faces near a round cap its fit uses (a fixed random sample of a finer mesh's)."""
 ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
 """Starting tilts [degrees] of the capsule end's axis from the line's end tangent (each
 but 0 at six azimuths): the fit's cost has more than one minimum where folds cross it."""
@@ -1330,7 +1333,7 @@ def _capsule_end_residuals(x, a0, e1, e2, faces, weights, inside):
     return weights * np.where(res < 0.0, inside * res, res)
 
 
-def _fit_round_cap(sections: MeshSections, line, radius: float, body: float = ROUND_CAP_BODY,
+def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
                    tilts=ROUND_CAP_TILTS):
     """The end of a tube closed by a round cap, fitted to the wall as a capsule's end: a
     hemisphere of radius r about a centre c on an axis a (its pole c + r a), and behind
@@ -1360,6 +1363,9 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float = RO
     centres, areas = centres[near], areas[near]
     if len(centres) < 50:
         return None
+    if len(centres) > ROUND_CAP_FACES:  # a fine mesh: a fixed sample of its faces
+        keep = np.random.default_rng(0).choice(len(centres), ROUND_CAP_FACES, replace=False)
+        centres, areas = centres[keep], areas[keep]
     best = None
     for a0 in starts:
         c, a, r, taper = end - radius * t, a0, radius, 0.0
@@ -1402,18 +1408,32 @@ def _closed_around(sections: MeshSections, c, a, r) -> bool:
     return True
 
 
-def _round_cap_end(sections: MeshSections, line, radius, step, body: float = ROUND_CAP_BODY,
-                   blend: float = 0.03):
+def _capsule_end(sections: MeshSections, line, radius: float):
+    """The round cap's end fitted with each body length of ROUND_CAP_BODIES
+    (`_fit_round_cap`; the folds, a flare's curve or a ring fold across the body can tilt
+    one fit's axis while its cost stays low): (centre, axis, r, body) of the fit whose
+    pole is nearest the other fits' poles (summed), or None if no fit."""
+    fits = [(fit, body) for body in ROUND_CAP_BODIES
+            if (fit := _fit_round_cap(sections, line, radius, body)) is not None]
+    if not fits:
+        return None
+    poles = np.array([c + r * a for (c, a, r, _), _ in fits])
+    spread = np.linalg.norm(poles[:, None] - poles[None], axis=2).sum(axis=1)
+    (c, a, r, _), body = fits[int(np.argmin(spread))]
+    return c, a, r, body
+
+
+def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.03):
     """A round cap's end made from its fitted capsule end (`_fit_round_cap`): the line
     up to where the fitted body begins, then along the fitted axis to the pole; the last
     `blend` [m] before the body made again as the cubic Hermite curve from the line's
     point and tangent there to the body's start along the axis (the line behind a cap
     found astray leans toward it). `line` unchanged if no fit."""
     line = np.asarray(line)
-    fit = _fit_round_cap(sections, line, radius, body)
+    fit = _capsule_end(sections, line, radius)
     if fit is None:
         return line
-    c, a, r, _ = fit
+    c, a, r, body = fit
     z = (line - c) @ a
     keep = _before(line, z < -body)
     if len(keep) < 5:
