@@ -239,28 +239,40 @@ class MeshSections:
     def ray(self, origin, direction, reach=np.inf):
         """Distance along the ray to the nearest face it meets within `reach`
         (Moller-Trumbore), or inf."""
-        direction = np.asarray(direction, dtype=float)
-        direction = direction / np.linalg.norm(direction)
-        rel = self._v0 - origin
-        if np.isfinite(reach):  # faces whose first corner is near the ray's reach
-            size = np.linalg.norm(self._e1, axis=1) + np.linalg.norm(self._e2, axis=1)
-            near = np.linalg.norm(rel, axis=1) <= reach + size
-            if not near.any():
-                return np.inf
-            e1, e2, v0 = self._e1[near], self._e2[near], self._v0[near]
-        else:
-            e1, e2, v0 = self._e1, self._e2, self._v0
-        p = np.cross(direction, e2)
-        det = np.einsum("ij,ij->i", e1, p)
-        ok = np.abs(det) > 1e-18
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tvec = origin - v0
-        u = np.einsum("ij,ij->i", tvec, p) * inv
-        q = np.cross(tvec, e1)
-        v = (q @ direction) * inv
-        dist = np.einsum("ij,ij->i", e2, q) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (dist > 1e-9) & (dist <= reach)
-        return float(dist[hit].min()) if hit.any() else np.inf
+        return _ray(self._v0, self._e1, self._e2, origin, direction, reach)
+
+    def near(self, centre, reach):
+        """The faces with a corner within `reach` of `centre`, as (first corners, edges,
+        edges) for `_ray`: rays from near `centre` tested against them alone."""
+        near = np.linalg.norm(self._v0 - centre, axis=1) <= reach
+        return self._v0[near], self._e1[near], self._e2[near]
+
+
+def _ray(v0_all, e1_all, e2_all, origin, direction, reach=np.inf):
+    """Distance along the ray to the nearest of the triangles (first corners, two edges)
+    it meets within `reach` (Moller-Trumbore), or inf."""
+    direction = np.asarray(direction, dtype=float)
+    direction = direction / np.linalg.norm(direction)
+    rel = v0_all - origin
+    if np.isfinite(reach):  # faces whose first corner is near the ray's reach
+        size = np.linalg.norm(e1_all, axis=1) + np.linalg.norm(e2_all, axis=1)
+        near = np.linalg.norm(rel, axis=1) <= reach + size
+        if not near.any():
+            return np.inf
+        e1, e2, v0 = e1_all[near], e2_all[near], v0_all[near]
+    else:
+        e1, e2, v0 = e1_all, e2_all, v0_all
+    p = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-18
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tvec = origin - v0
+    u = np.einsum("ij,ij->i", tvec, p) * inv
+    q = np.cross(tvec, e1)
+    v = (q @ direction) * inv
+    dist = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (dist > 1e-9) & (dist <= reach)
+    return float(dist[hit].min()) if hit.any() else np.inf
 
 
 def section_loop(mesh, origin: np.ndarray, normal: np.ndarray, sections=None):
@@ -505,6 +517,17 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             line = _finish_cap(sections, line, reference, step)
             points = line[::-1] if side == 0 else line
     changed = False
+    for side, kind in ((0, head_end), (1, tail_end)):
+        if kind != "round cap":
+            continue
+        line, radii = (points[::-1], radius[::-1]) if side == 0 else (points, radius)
+        near_end = radii[-15:-5] if len(radii) > 20 else radii
+        made = _round_cap_end(sections, line, float(np.median(near_end)), step)
+        if made is not line:
+            changed = True
+            made = _resample(made, step, smoothing=1e-12)
+            points = made[::-1] if side == 0 else made
+            radius = _refine(sections, points, step, keep_ends=True, max_move=0.0)[1]
     for side, kind in ((0, head_end), (1, tail_end)):
         if kind != "open":
             continue
@@ -1314,6 +1337,8 @@ one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)
 ROUND_CAP_INSIDE = 0.1
 """Weight of the wall standing inside the fitted capsule end (folds) against the wall on
 or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
+ROUND_CAP_BAND = 0.001
+"""The wall within this distance [m] of the envelope's fit polishes it (`_fit_round_cap`)."""
 ROUND_CAP_FACES = 4000
 """Most faces near a round cap its fit uses (a fixed random sample of a finer mesh's)."""
 ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
@@ -1321,16 +1346,44 @@ ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
 but 0 at six azimuths): the fit's cost has more than one minimum where folds cross it."""
 
 
-def _capsule_end_residuals(x, a0, e1, e2, faces, weights, inside):
+def _capsule_end_parts(x, a0, e1, e2, faces):
     c, r, taper = x[:3], x[5], x[6]
-    a = a0 + x[3] * e1 + x[4] * e2
-    a = a / np.linalg.norm(a)
+    n = a0 + x[3] * e1 + x[4] * e2
+    a = n / np.linalg.norm(n)
     d = faces - c
     z = d @ a
-    cap = np.linalg.norm(d, axis=1) - r
-    body = np.linalg.norm(d - np.outer(z, a), axis=1) - (r + taper * z)
-    res = np.where(z >= 0.0, cap, body)
-    return weights * np.where(res < 0.0, inside * res, res)
+    q = d - np.outer(z, a)
+    rho = np.linalg.norm(q, axis=1)
+    dist = np.linalg.norm(d, axis=1)
+    cap = z >= 0.0
+    gap = np.where(cap, dist - r, rho - (r + taper * z))
+    return n, a, d, z, q, rho, dist, cap, gap
+
+
+def _capsule_end_residuals(x, a0, e1, e2, faces, weights, inside):
+    """Each face's distance from the capsule end x = (centre, axis tilts along e1 and e2
+    from a0, r, taper): from the sphere where it is ahead of the centre, else from the
+    body's axis less the body's radius; times `weights`, and `inside` where negative."""
+    gap = _capsule_end_parts(x, a0, e1, e2, faces)[-1]
+    return weights * np.where(gap < 0.0, inside * gap, gap)
+
+
+def _capsule_end_jacobian(x, a0, e1, e2, faces, weights, inside):
+    """The derivative of `_capsule_end_residuals` by x, in closed form."""
+    n, a, d, z, q, rho, dist, cap, gap = _capsule_end_parts(x, a0, e1, e2, faces)
+    taper = x[6]
+    jac = np.zeros((len(faces), 7))
+    q_hat = q / np.maximum(rho, 1e-12)[:, None]
+    jac[:, :3] = np.where(cap[:, None], -d / np.maximum(dist, 1e-12)[:, None],
+                          -q_hat + taper * a)
+    by_axis = -z[:, None] * q_hat - taper * d   # by a unit change of the axis
+    project = (np.eye(3) - np.outer(a, a)) / np.linalg.norm(n)
+    jac[:, 3] = np.where(cap, 0.0, by_axis @ (project @ e1))
+    jac[:, 4] = np.where(cap, 0.0, by_axis @ (project @ e2))
+    jac[:, 5] = -1.0
+    jac[:, 6] = np.where(cap, 0.0, -z)
+    scale = weights * np.where(gap < 0.0, inside, 1.0)
+    return scale[:, None] * jac
 
 
 def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
@@ -1345,8 +1398,6 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
     by `tilts`; the start with the smallest robust cost is kept.
 
     Returns (centre, axis, r, cost) or None if too few faces are near the end."""
-    from scipy.optimize import least_squares
-
     line = np.asarray(line)
     end = line[-1]
     t = _end_tangent(line)
@@ -1366,44 +1417,71 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
     if len(centres) > ROUND_CAP_FACES:  # a fine mesh: a fixed sample of its faces
         keep = np.random.default_rng(0).choice(len(centres), ROUND_CAP_FACES, replace=False)
         centres, areas = centres[keep], areas[keep]
+    walls = sections.near(end, 6.0 * radius + body)   # for the rays of `_closed_around`
     best = None
     for a0 in starts:
-        c, a, r, taper = end - radius * t, a0, radius, 0.0
-        for _ in range(4):
-            d = centres - c
-            z = d @ a
-            side = np.linalg.norm(d - np.outer(z, a), axis=1)
-            pick = (z > -body) & (z < 1.6 * r) & (side < 1.6 * r)
-            if pick.sum() < 50:
-                break
+        fit = _capsule_fit(centres, areas, (end - radius * t, a0, radius, 0.0), body,
+                           ROUND_CAP_INSIDE)
+        if fit is not None and 0.3 * radius < fit[2] < 2.0 * radius and \
+                (best is None or fit[4] < best[4]) and _closed_around(walls, *fit[:3]):
+            best = fit
+    if best is None:
+        return None
+    # The envelope's kink (the wall inside weighs a tenth) can hold the axis a degree or
+    # two off: polished with the wall within ROUND_CAP_BAND of the fit, inside or out,
+    # weighed alike (folds stand farther in).
+    polished = _capsule_fit(centres, areas, best[:4], body, 1.0, band=ROUND_CAP_BAND)
+    if polished is not None and _closed_around(walls, *polished[:3]):
+        best = polished
+    c, a, r, _, cost = best
+    return c, a, float(r), cost
+
+
+def _capsule_fit(centres, areas, start, body, inside, band=None, iterations=4):
+    """(centre, axis, r, taper, cost) of the capsule end (`_fit_round_cap`) fitted to the
+    faces (`centres`, `areas`) from `start` (centre, axis, r, taper), the faces within
+    reach of it chosen again about each fit, `iterations` times; with `band` [m], only
+    those whose distance from it is within `band`. None if fewer than 50 faces."""
+    from scipy.optimize import least_squares
+
+    c, a, r, taper = start
+    for _ in range(iterations):
+        d = centres - c
+        z = d @ a
+        side = np.linalg.norm(d - np.outer(z, a), axis=1)
+        pick = (z > -body) & (z < 1.6 * r) & (side < 1.6 * r)
+        if band is not None:
             _, e1, e2 = _plane_basis(a)
-            weights = np.sqrt(areas[pick] / np.mean(areas[pick]))
-            fit = least_squares(
-                _capsule_end_residuals, np.r_[c, 0.0, 0.0, r, taper],
-                args=(a, e1, e2, centres[pick], weights, ROUND_CAP_INSIDE),
-                loss="soft_l1", f_scale=5e-4, x_scale=np.r_[[1e-3] * 3, 0.1, 0.1, 1e-3, 0.1])
-            c, r, taper = fit.x[:3], fit.x[5], fit.x[6]
-            a = a + fit.x[3] * e1 + fit.x[4] * e2
-            a /= np.linalg.norm(a)
-        else:
-            cost = 2.0 * fit.cost / pick.sum()
-            if r > 0.3 * radius and (best is None or cost < best[3]) and \
-                    _closed_around(sections, c, a, r):
-                best = (c, a, float(r), cost)
-    return best
+            gap = _capsule_end_residuals(np.r_[c, 0.0, 0.0, r, taper], a, e1, e2, centres,
+                                         np.ones(len(centres)), 1.0)
+            pick &= np.abs(gap) < band
+        if pick.sum() < 50:
+            return None
+        _, e1, e2 = _plane_basis(a)
+        weights = np.sqrt(areas[pick] / np.mean(areas[pick]))
+        fit = least_squares(
+            _capsule_end_residuals, np.r_[c, 0.0, 0.0, r, taper], jac=_capsule_end_jacobian,
+            args=(a, e1, e2, centres[pick], weights, inside),
+            loss="soft_l1", f_scale=5e-4, x_scale=np.r_[[1e-3] * 3, 0.1, 0.1, 1e-3, 0.1])
+        c, r, taper = fit.x[:3], fit.x[5], fit.x[6]
+        a = a + fit.x[3] * e1 + fit.x[4] * e2
+        a = a / np.linalg.norm(a)
+    return c, a, r, taper, 2.0 * fit.cost / pick.sum()
 
 
-def _closed_around(sections: MeshSections, c, a, r) -> bool:
+def _closed_around(sections, c, a, r) -> bool:
     """Whether a fitted cap is the wall's: rays from its centre `c` along its axis `a` and
     at 45 degrees to it (six) all meet the wall within 1.3 r, the axial one beyond 0.7 r (a
-    fit slid along the tube, or turned across it, looks down the lumen)."""
+    fit slid along the tube, or turned across it, looks down the lumen). `sections`: a
+    MeshSections, or the faces `MeshSections.near` gives (round c, reach over 1.3 r)."""
+    faces = sections.near(c, 3.0 * r) if isinstance(sections, MeshSections) else sections
     _, u, v = _plane_basis(a)
-    axial = sections.ray(c, a, reach=2.0 * r)
+    axial = _ray(*faces, c, a, reach=1.3 * r)
     if not 0.7 * r <= axial <= 1.3 * r:
         return False
     for phi in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
         d = a + np.cos(phi) * u + np.sin(phi) * v
-        if sections.ray(c, d, reach=2.0 * r) > 1.3 * r:
+        if _ray(*faces, c, d, reach=1.3 * r) > 1.3 * r:
             return False
     return True
 
