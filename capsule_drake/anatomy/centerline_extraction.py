@@ -1337,8 +1337,6 @@ one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)
 ROUND_CAP_INSIDE = 0.1
 """Weight of the wall standing inside the fitted capsule end (folds) against the wall on
 or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
-ROUND_CAP_BAND = 0.001
-"""The wall within this distance [m] of the envelope's fit polishes it (`_fit_round_cap`)."""
 ROUND_CAP_FACES = 4000
 """Most faces near a round cap its fit uses (a fixed random sample of a finer mesh's)."""
 ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
@@ -1427,21 +1425,14 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
             best = fit
     if best is None:
         return None
-    # The envelope's kink (the wall inside weighs a tenth) can hold the axis a degree or
-    # two off: polished with the wall within ROUND_CAP_BAND of the fit, inside or out,
-    # weighed alike (folds stand farther in).
-    polished = _capsule_fit(centres, areas, best[:4], body, 1.0, band=ROUND_CAP_BAND)
-    if polished is not None and _closed_around(walls, *polished[:3]):
-        best = polished
     c, a, r, _, cost = best
     return c, a, float(r), cost
 
 
-def _capsule_fit(centres, areas, start, body, inside, band=None, iterations=4):
+def _capsule_fit(centres, areas, start, body, inside, iterations=4):
     """(centre, axis, r, taper, cost) of the capsule end (`_fit_round_cap`) fitted to the
     faces (`centres`, `areas`) from `start` (centre, axis, r, taper), the faces within
-    reach of it chosen again about each fit, `iterations` times; with `band` [m], only
-    those whose distance from it is within `band`. None if fewer than 50 faces."""
+    reach of it chosen again about each fit, `iterations` times. None if fewer than 50."""
     from scipy.optimize import least_squares
 
     c, a, r, taper = start
@@ -1450,11 +1441,6 @@ def _capsule_fit(centres, areas, start, body, inside, band=None, iterations=4):
         z = d @ a
         side = np.linalg.norm(d - np.outer(z, a), axis=1)
         pick = (z > -body) & (z < 1.6 * r) & (side < 1.6 * r)
-        if band is not None:
-            _, e1, e2 = _plane_basis(a)
-            gap = _capsule_end_residuals(np.r_[c, 0.0, 0.0, r, taper], a, e1, e2, centres,
-                                         np.ones(len(centres)), 1.0)
-            pick &= np.abs(gap) < band
         if pick.sum() < 50:
             return None
         _, e1, e2 = _plane_basis(a)
