@@ -1337,6 +1337,10 @@ one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)
 ROUND_CAP_INSIDE = 0.1
 """Weight of the wall standing inside the fitted capsule end (folds) against the wall on
 or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
+ROUND_CAP_AGREE = 0.0015
+"""A line whose end is this near [m] the fitted pole is kept as it is (`_round_cap_end`):
+the sections' line is the more accurate where it found the cap (a tube curving within the
+fitted body tilts the fit's axis by a fraction of a degree)."""
 ROUND_CAP_FACES = 4000
 """Most faces near a round cap its fit uses (a fixed random sample of a finer mesh's)."""
 ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
@@ -1498,6 +1502,8 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
     if fit is None:
         return line
     c, a, r, body = fit
+    if np.linalg.norm(line[-1] - (c + r * a)) < ROUND_CAP_AGREE:
+        return line
     z = (line - c) @ a
     keep = _before(line, z < -body)
     if len(keep) < 5:
