@@ -47,6 +47,15 @@
    flared or not, where the sections are cut open by an oblique rim; the straight line
    they meet nearest, within 0.3 radii of the end, is followed to the loop's plane, if
    its end is nearer its sections' centres than the line's (`end_residual`).
+6. A round cap's end is fitted to the wall as a capsule's end (`_fit_round_cap`): a
+   hemisphere and, behind it, a tube whose radius changes linearly, by a robust least
+   squares on the faces near the end in which the wall inside the fit (folds) weighs a
+   tenth, from several starting axes, kept only if rays from its centre meet the wall all
+   round; fitted with 4, 8 and 12 mm of tube, the fit whose pole agrees best with the
+   others' is kept (`_capsule_end`). Where the line's end is 1.5 mm or more from its pole
+   (a march that left a flared or bent cap astray: inside a bulb any line through its
+   middle is a line of section centres), the line is taken to where the fitted tube
+   begins, joined to it by a cubic over 3 cm, and along the fitted axis to the pole.
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
