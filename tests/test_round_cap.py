@@ -95,7 +95,8 @@ def test_a_fit_down_an_open_lumen_is_refused():
     tube = trimesh.Trimesh(tube.vertices, tube.faces[keep], process=False)
     sections = ce.MeshSections(tube)
     line = np.column_stack([np.zeros(30), np.zeros(30), np.linspace(-0.07, 0.075, 30)])
-    assert not ce._closed_around(sections, np.array([0.0, 0.0, 0.08]), np.array([0.0, 0.0, 1.0]),
+    assert not ce._closed_around(sections.near(np.array([0.0, 0.0, 0.08]), 3 * RADIUS),
+                                 np.array([0.0, 0.0, 0.08]), np.array([0.0, 0.0, 1.0]),
                                  RADIUS)
     made = ce._round_cap_end(sections, line, RADIUS, 0.005)
     assert made is line or np.allclose(made, line)

@@ -527,17 +527,18 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
             line = _finish_cap(sections, line, reference, step)
             points = line[::-1] if side == 0 else line
     changed = False
+    # The radius 25-75 mm before each end, taken before either end is made again.
+    end_radii = [float(np.median(r[-15:-5] if len(r) > 20 else r))
+                 for r in (radius[::-1], radius)]
     for side, kind in ((0, head_end), (1, tail_end)):
         if kind != "round cap" or not FIT_ROUND_CAPS:
             continue
-        line, radii = (points[::-1], radius[::-1]) if side == 0 else (points, radius)
-        near_end = radii[-15:-5] if len(radii) > 20 else radii
-        made = _round_cap_end(sections, line, float(np.median(near_end)), step)
+        line = points[::-1] if side == 0 else points
+        made = _round_cap_end(sections, line, end_radii[side], step)
         if made is not line:
             changed = True
             made = _resample(made, step, smoothing=1e-12)
             points = made[::-1] if side == 0 else made
-            radius = _refine(sections, points, step, keep_ends=True, max_move=0.0)[1]
     for side, kind in ((0, head_end), (1, tail_end)):
         if kind != "open":
             continue
@@ -1346,7 +1347,7 @@ FIT_ROUND_CAPS = False
 module's docstring). Off: measured on random tubes it mends most round caps the march left
 astray (fresh seeds 130000/140000: 83 -> 89 of 120 within 2 mm), but on the segmented
 capped tube (tests/test_import_segmentation.py) it takes a voxelised flat cap, which the
-march calls round, for a larger sphere (0.9 -> 12.2 mm); it needs a gate for that first."""
+march calls round, for a larger sphere (0.6 -> 12.2 mm); it needs a gate for that first."""
 ROUND_CAP_BODIES = (0.004, 0.008, 0.012)
 """Lengths [m] of tube behind a round cap's hemisphere fitted with it (`_fit_round_cap`),
 one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)."""
@@ -1475,12 +1476,10 @@ def _capsule_fit(centres, areas, start, body, inside, iterations=4):
     return c, a, r, taper, 2.0 * fit.cost / pick.sum()
 
 
-def _closed_around(sections, c, a, r) -> bool:
+def _closed_around(faces, c, a, r) -> bool:
     """Whether a fitted cap is the wall's: rays from its centre `c` along its axis `a` and
     at 45 degrees to it (six) all meet the wall within 1.3 r, the axial one beyond 0.7 r (a
-    fit slid along the tube, or turned across it, looks down the lumen). `sections`: a
-    MeshSections, or the faces `MeshSections.near` gives (round c, reach over 1.3 r)."""
-    faces = sections.near(c, 3.0 * r) if isinstance(sections, MeshSections) else sections
+    fit slid along the tube, or turned across it, looks down the lumen). `faces`: the faces near c, as `MeshSections.near` gives them (reaching beyond 1.3 r)."""
     _, u, v = _plane_basis(a)
     axial = _ray(*faces, c, a, reach=1.3 * r)
     if not 0.7 * r <= axial <= 1.3 * r:
