@@ -1,6 +1,7 @@
 """A round cap's end fitted as a capsule's end (anatomy/centerline_extraction.py,
 `_fit_round_cap`, `_capsule_end`, `_round_cap_end`), checked on closed-form shapes: a capsule
-whose pole is known, the same with inward folds on its body, and an open tube it must refuse."""
+whose pole is known, the same with inward folds on its body, an open tube it must refuse, and
+a blunt flat cap whose line it must keep."""
 
 import functools
 
@@ -122,3 +123,35 @@ def test_the_fits_jacobian_is_the_residuals_derivative():
     smooth = (np.abs(gap[3]) > 1e-5) & (np.abs(gap[-1]) > 1e-5)
     assert smooth.sum() > 0.9 * len(faces)
     np.testing.assert_allclose(jac[smooth], numeric[smooth], atol=1e-6)
+
+
+def _blunt_cap(fillet: float):
+    """A tube of RADIUS along z closed at z = HEIGHT / 2 by a flat disc whose rim is rounded
+    with radius `fillet` (a segmentation's voxels and blur blunt a flat cap so), remeshed to
+    2 mm edges."""
+    z = np.arange(-0.5 * HEIGHT, 0.5 * HEIGHT - fillet, 0.002)
+    t = np.linspace(0.0, 0.5 * np.pi, 16)
+    rho = np.arange(RADIUS - fillet, 0.0, -0.002)[1:]
+    profile = np.vstack([[[0.0, -0.5 * HEIGHT]], np.column_stack([np.full_like(z, RADIUS), z]),
+                         np.column_stack([RADIUS - fillet + fillet * np.cos(t),
+                                          0.5 * HEIGHT - fillet + fillet * np.sin(t)]),
+                         np.column_stack([rho, np.full_like(rho, 0.5 * HEIGHT)]),
+                         [[0.0, 0.5 * HEIGHT]]])
+    mesh = trimesh.creation.revolve(profile, sections=96)
+    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, 0.002)
+    return trimesh.Trimesh(vertices, faces)
+
+
+@pytest.mark.slow
+def test_a_blunt_flat_cap_fitted_as_a_larger_sphere_keeps_the_line(monkeypatch):
+    """A flat cap with its rim rounded by a quarter of the radius, which the march can call
+    round: the 4 mm fit takes it for a larger sphere whose pole lies in the corner, where
+    the made line's sections are no longer centred on it (`end_residual`); the line, ending
+    on the disc's centre, is kept. Without that check the end would move by millimetres."""
+    sections = ce.MeshSections(_blunt_cap(0.25 * RADIUS))
+    line = np.column_stack([np.zeros(30), np.zeros(30), np.linspace(-0.03, 0.5 * HEIGHT, 30)])
+    made = ce._round_cap_end(sections, line, RADIUS, 0.005)
+    assert np.linalg.norm(made[-1] - line[-1]) < 5e-4
+    monkeypatch.setattr(ce, "ROUND_CAP_SECTIONS", np.inf)
+    unchecked = ce._round_cap_end(sections, line, RADIUS, 0.005)
+    assert np.linalg.norm(unchecked[-1] - line[-1]) > 0.004

@@ -47,8 +47,7 @@
    flared or not, where the sections are cut open by an oblique rim; the straight line
    they meet nearest, within 0.3 radii of the end, is followed to the loop's plane, if
    its end is nearer its sections' centres than the line's (`end_residual`).
-6. (With FIT_ROUND_CAPS, off for now.) A round cap's end is fitted to the wall as a
-   capsule's end (`_fit_round_cap`): a
+6. A round cap's end is fitted to the wall as a capsule's end (`_fit_round_cap`): a
    hemisphere and, behind it, a tube whose radius changes linearly, by a robust least
    squares on the faces near the end in which the wall inside the fit (folds) weighs a
    tenth, from several starting axes, kept only if rays from its centre meet the wall all
@@ -56,7 +55,10 @@
    others' is kept (`_capsule_end`). Where the line's end is 1.5 mm or more from its pole
    (a march that left a flared or bent cap astray: inside a bulb any line through its
    middle is a line of section centres), the line is taken to where the fitted tube
-   begins, joined to it by a cubic over 3 cm, and along the fitted axis to the pole.
+   begins, joined to it by a cubic over 3 cm, and along the fitted axis to the pole,
+   unless that end leaves its own sections' centres by a tenth of the radius more than the
+   line's did (`end_residual`; a voxelised flat cap, blunt enough to be called round, is
+   fitted as a larger sphere whose pole sits in the corner).
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
@@ -537,7 +539,6 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         made = _round_cap_end(sections, line, end_radii[side], step)
         if made is not line:
             changed = True
-            made = _resample(made, step, smoothing=1e-12)
             points = made[::-1] if side == 0 else made
     for side, kind in ((0, head_end), (1, tail_end)):
         if kind != "open":
@@ -1342,12 +1343,9 @@ def _refine(sections: MeshSections, points, step, keep_ends=False, max_move=None
     return np.array(new).reshape(-1, 3), radius, found
 
 
-FIT_ROUND_CAPS = False
+FIT_ROUND_CAPS = True
 """Whether `extract_centerline` ends a round cap at its fitted capsule end (step 6 of the
-module's docstring). Off: measured on random tubes it mends most round caps the march left
-astray (fresh seeds 130000/140000: 83 -> 89 of 120 within 2 mm), but on the segmented
-capped tube (tests/test_import_segmentation.py) it takes a voxelised flat cap, which the
-march calls round, for a larger sphere (0.6 -> 12.2 mm); it needs a gate for that first."""
+module's docstring; off, the march's end is kept)."""
 ROUND_CAP_BODIES = (0.004, 0.008, 0.012)
 """Lengths [m] of tube behind a round cap's hemisphere fitted with it (`_fit_round_cap`),
 one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)."""
@@ -1358,6 +1356,12 @@ ROUND_CAP_AGREE = 0.0015
 """A line whose end is this near [m] the fitted pole is kept as it is (`_round_cap_end`):
 the sections' line is the more accurate where it found the cap (a tube curving within the
 fitted body tilts the fit's axis by a fraction of a degree)."""
+ROUND_CAP_SECTIONS = 0.1
+"""A capsule end is taken only if its last 4 cm are at most this share of the radius
+further from their own sections' centres than the line's (`end_residual`): a round cap's
+true line is centred by its sections as well as any other (measured on seeds 110000 and
+120000: the fitted ends taken were at most 1.2 mm worse, r/10 = 1.2-3 mm; the segmented
+capped tube's blunt cap fitted as a larger sphere, 2.6-3.6 mm worse, r/10 = 1.6 mm)."""
 ROUND_CAP_FACES = 4000
 """Most faces near a round cap its fit uses (a fixed random sample of a finer mesh's)."""
 ROUND_CAP_TILTS = (0.0, 15.0, 30.0)
@@ -1534,4 +1538,10 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
                (-2 * h ** 3 + 3 * h ** 2) * start + (h ** 3 - h ** 2) * gap * a)
     ray = c + np.arange(-body, r + 1e-9, step)[:, None] * a
     ray = np.vstack([ray, c + r * a]) if np.linalg.norm(ray[-1] - (c + r * a)) > 1e-6 else ray
-    return np.vstack([head, hermite, ray])
+    made = _resample(np.vstack([head, hermite, ray]), step, smoothing=1e-12)
+    # Kept only if its sections still centre it (`end_residual`): a blunt cap fitted as a
+    # larger sphere puts the pole in the corner, where the sections tilt away by millimetres.
+    if end_residual(sections, made, radius) > \
+            end_residual(sections, line, radius) + ROUND_CAP_SECTIONS * radius:
+        return line
+    return made
