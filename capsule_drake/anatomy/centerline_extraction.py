@@ -59,6 +59,13 @@
    unless that end leaves its own sections' centres by a tenth of the radius more than the
    line's did (`end_residual`; a voxelised flat cap, blunt enough to be called round, is
    fitted as a larger sphere whose pole sits in the corner).
+7. An open end's last 5 cm are settled on their own sections (`_settle_open_end`): each
+   point to the centre of its section (a closed loop, or an arc of at least 180 degrees
+   where the rim cuts it), a cubic through those centres leaving the line behind along
+   it, cut at the plane of the end's loop, twelve times; kept if its end is nearer its
+   sections' centres than the line's (`end_residual`). A flare or a bend before the rim
+   leaves the passes' sections there cut open, and the line they leave can bulge by
+   millimetres while its end is right.
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
@@ -548,6 +555,15 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         # Taken only if its end is nearer its own sections' centres than the line's
         # (`end_residual`, as the recast passes are chosen): a fold across the window can
         # turn the wall's normals astray.
+        if made is not line and end_residual(sections, made, reference) < \
+                end_residual(sections, line, reference):
+            changed = True
+            points = made[::-1] if side == 0 else made
+    for side, kind in ((0, head_end), (1, tail_end)):
+        if kind != "open" or not SETTLE_OPEN_ENDS:
+            continue
+        line = points[::-1] if side == 0 else points
+        made = _settle_open_end(sections, line, reference, step, loops)
         if made is not line and end_residual(sections, made, reference) < \
                 end_residual(sections, line, reference):
             changed = True
@@ -1266,6 +1282,73 @@ def _open_axis_end(sections: MeshSections, line, reference, step, loops):
     count = max(1, int(np.ceil((a_end - a_from) / step)))
     out.append(np.array([curve(x)[0] for x in np.linspace(a_from, a_end, count + 1)[1:]]))
     return np.vstack(out)
+
+
+SETTLE_OPEN_ENDS = True
+"""Whether `extract_centerline` settles each open end's last stretch on its own sections
+(`_settle_open_end`, step 7 of the module's docstring)."""
+SETTLE_LENGTH = 0.05
+"""The stretch [m] before an open end that `_settle_open_end` makes again."""
+SETTLE_PASSES = 12
+"""Passes of `_settle_open_end` (each: centre, fit the cubic, cut at the loop's plane)."""
+SETTLE_ANCHOR = 20.0
+"""Weight of the line's last 8 points behind the settled stretch in its cubic (against 1
+for each section centre): the stretch leaves the line along it."""
+
+
+def _settle_open_end(sections: MeshSections, line, radius, step, loops):
+    """An open end's last SETTLE_LENGTH made again as a fixed point of "each section
+    normal to the line is centred on it" (`end_residual`'s test), which the passes behind
+    the end do not reach where a flare or a bend before the rim leaves the sections cut
+    open: repeatedly, each point of the stretch goes to the centre of its section (a closed
+    loop, or an arc of at least 180 degrees), a cubic in arc length is fitted to those
+    centres and to the line's last 8 points behind the stretch (weighted SETTLE_ANCHOR),
+    and the stretch is that cubic up to the plane of the end's loop (`_plane_crossing`).
+    The line is returned as it is if it is shorter than three stretches, if fewer than
+    four sections are found, or if the cubic does not cross the loop near its centre."""
+    line = np.asarray(line)
+    s = _arc(line)
+    if s[-1] < 3.0 * SETTLE_LENGTH:
+        return line
+    base = line[s <= s[-1] - SETTLE_LENGTH]
+    s_base = _arc(base)
+    anchor, u_anchor = base[-8:], s_base[-8:] - s_base[-1]
+    current = line
+    for _ in range(SETTLE_PASSES):
+        s_now = _arc(current)
+        tangents = _tangents(current)
+        centres, u = [], []
+        for k in np.flatnonzero(s_now > s_base[-1]):
+            p, t = current[k], tangents[k]
+            section = sections.around(p, t) or sections.arc_around(p, t, 2.0 * radius,
+                                                                     min_span=np.pi)
+            if section is None:
+                continue
+            centre = _centre(section, p, t)
+            if np.linalg.norm(centre - p) <= 0.5 * radius:
+                centres.append(centre)
+                u.append(s_now[k] - s_base[-1])
+        if len(centres) < 4:
+            return line
+        weights = np.r_[[SETTLE_ANCHOR] * len(anchor), np.ones(len(centres))]
+        x = np.vstack([anchor, centres])
+        coef = np.linalg.lstsq(np.vander(np.r_[u_anchor, u], 4) * weights[:, None],
+                               x * weights[:, None], rcond=None)[0]
+
+        def curve(v, coef=coef):
+            d = np.array([3.0 * v * v, 2.0 * v, 1.0]) @ coef[:3]
+            return np.vander([v], 4)[0] @ coef, d / np.linalg.norm(d)
+
+        # The crossing is looked for from 1.5 radii before the stretch's length to as far
+        # beyond it (`_plane_crossing` searches 1.5 times its reach from where it starts).
+        u_from = max(0.0, SETTLE_LENGTH - 1.5 * radius)
+        u_end = _plane_crossing(lambda v: curve(u_from + v), loops, current[-1], 2.0 * radius)
+        if u_end is None:
+            return line
+        u_end += u_from
+        v = np.linspace(0.0, u_end, max(3, int(np.ceil(u_end / step)) + 1))[1:]
+        current = np.vstack([base, [curve(x)[0] for x in v]])
+    return current
 
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
