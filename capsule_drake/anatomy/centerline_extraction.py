@@ -540,7 +540,9 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     end_radii = [float(np.median(r[-15:-5] if len(r) > 20 else r))
                  for r in (radius[::-1], radius)]
     for side, kind in ((0, head_end), (1, tail_end)):
-        if kind != "round cap" or not FIT_ROUND_CAPS:
+        # An end the march left as "none" (no loop, no cap met: it stopped where a flared
+        # end widened past it) is closed all the same: fitted as a round cap.
+        if kind not in ("round cap", "none") or not FIT_ROUND_CAPS:
             continue
         line = points[::-1] if side == 0 else points
         made = _round_cap_end(sections, line, end_radii[side], step)
@@ -1598,7 +1600,9 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
     up to where the fitted body begins, then along the fitted axis to the pole; the last
     `blend` [m] before the body made again as the cubic Hermite curve from the line's
     point and tangent there to the body's start along the axis (the line behind a cap
-    found astray leans toward it). `line` unchanged if no fit."""
+    found astray leans toward it), resampled every `step`. `line` unchanged if no fit,
+    or if the made end is ROUND_CAP_SECTIONS radii or more further from its own sections'
+    centres than the line's (`end_residual`)."""
     line = np.asarray(line)
     fit = _capsule_end(sections, line, radius)
     if fit is None:
