@@ -47,7 +47,8 @@
    flared or not, where the sections are cut open by an oblique rim; the straight line
    they meet nearest, within 0.3 radii of the end, is followed to the loop's plane, if
    its end is nearer its sections' centres than the line's (`end_residual`).
-6. A round cap's end is fitted to the wall as a capsule's end (`_fit_round_cap`): a
+6. A round cap's end (and an end the march left with no loop or cap: a closed end, flared
+   past what its sections allow) is fitted to the wall as a capsule's end (`_fit_round_cap`): a
    hemisphere and, behind it, a tube whose radius changes linearly, by a robust least
    squares on the faces near the end in which the wall inside the fit (folds) weighs a
    tenth, from several starting axes, kept only if rays from its centre meet the wall all
