@@ -550,27 +550,21 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         if made is not line:
             changed = True
             points = made[::-1] if side == 0 else made
-    for side, kind in ((0, head_end), (1, tail_end)):
-        if kind != "open":
-            continue
-        line = points[::-1] if side == 0 else points
-        made = _open_axis_end(sections, line, reference, step, loops)
-        # Taken only if its end is nearer its own sections' centres than the line's
-        # (`end_residual`, as the recast passes are chosen): a fold across the window can
-        # turn the wall's normals astray.
-        if made is not line and end_residual(sections, made, reference) < \
-                end_residual(sections, line, reference):
-            changed = True
-            points = made[::-1] if side == 0 else made
-    for side, kind in ((0, head_end), (1, tail_end)):
-        if kind != "open" or not SETTLE_OPEN_ENDS:
-            continue
-        line = points[::-1] if side == 0 else points
-        made = _settle_open_end(sections, line, reference, step, loops)
-        if made is not line and end_residual(sections, made, reference) < \
-                end_residual(sections, line, reference):
-            changed = True
-            points = made[::-1] if side == 0 else made
+    # Each open end made again from the wall's normals, then settled on its own sections;
+    # each taken only if its end is nearer its own sections' centres than the line's
+    # (`end_residual`, as the recast passes are chosen): a fold across the window can turn
+    # the wall's normals astray.
+    remakes = (_open_axis_end,) + ((_settle_open_end,) if SETTLE_OPEN_ENDS else ())
+    for remake in remakes:
+        for side, kind in ((0, head_end), (1, tail_end)):
+            if kind != "open":
+                continue
+            line = points[::-1] if side == 0 else points
+            made = remake(sections, line, reference, step, loops)
+            if made is not line and end_residual(sections, made, reference) < \
+                    end_residual(sections, line, reference):
+                changed = True
+                points = made[::-1] if side == 0 else made
     if changed or len(radius) != len(points):
         radius = _refine(sections, points, step, keep_ends=True, max_move=0.0)[1]
     if details is not None:
