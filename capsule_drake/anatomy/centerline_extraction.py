@@ -384,13 +384,23 @@ def _start_vertices(mesh: trimesh.Trimesh, graph, loops) -> np.ndarray:
     return np.array([far])
 
 
-def ring_centreline(mesh: trimesh.Trimesh, step: float, loops=None):
+def ring_centreline(mesh: trimesh.Trimesh, step: float, loops=None, other_end=False):
     """Step 1: ring centroids every `step` (m) of geodesic distance from one end.
-    `loops`: the mesh's open ends (`open_end_loops`), if already found."""
+    `loops`: the mesh's open ends (`open_end_loops`), if already found. `other_end`: from
+    the end geodesically farthest from that one instead (its open loop, if it has one)."""
     graph = _edge_graph(mesh)
-    start = _start_vertices(mesh, graph, open_end_loops(mesh) if loops is None else loops)
-    distance = np.min(dijkstra(graph, indices=start), axis=0) if len(start) > 1 else \
-        dijkstra(graph, indices=int(start[0]))
+    loops = open_end_loops(mesh) if loops is None else loops
+    start = _start_vertices(mesh, graph, loops)
+    distance = _geodesic_from(graph, start)
+    if other_end:
+        far = int(np.argmax(np.where(np.isfinite(distance), distance, -1.0)))
+        to_far = dijkstra(graph, indices=far)
+        others = [loop for loop in loops if not np.array_equal(loop, start)]
+        nearest = min(others, key=lambda loop: float(np.min(to_far[loop])), default=None)
+        # The other open end's loop if it is at that end, else the farthest vertex (a cap).
+        start = nearest if nearest is not None and \
+            float(np.min(to_far[nearest])) < 0.5 * distance[far] else np.array([far])
+        distance = _geodesic_from(graph, start)
     finite = np.isfinite(distance)
     vertices = np.asarray(mesh.vertices)[finite]
     distance = distance[finite]
@@ -401,6 +411,12 @@ def ring_centreline(mesh: trimesh.Trimesh, step: float, loops=None):
         if len(ring) >= 3:
             points.append(ring.mean(axis=0))
     return np.array(points).reshape(-1, 3)
+
+
+def _geodesic_from(graph, start) -> np.ndarray:
+    """Edge-graph distance of every vertex from the nearest of the vertices `start`."""
+    return np.min(dijkstra(graph, indices=start), axis=0) if len(start) > 1 else \
+        dijkstra(graph, indices=int(start[0]))
 
 
 def _arc(points):
@@ -453,33 +469,29 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     mesh = geometry_of(mesh)
     sections = MeshSections(mesh)
     end_loops = open_end_loops(mesh)
-    rings = ring_centreline(mesh, step, end_loops)
-    if len(rings) < 5:
-        raise NotATubeError("not a tube: its vertices make fewer than 5 rings along it "
-                            "(too small, or too coarse a mesh?)")
-    points = _resample(rings, step)
-    radius = None
-    closed_share, closed_count = None, (0, 0)
-    for iteration in range(iterations):
-        if progress is not None:
-            progress(iteration, iterations)
-        new, radius, found = _refine(sections, points, step)
-        # Over the middle 80 % of the line (its ends may be a cut's ragged edge); the best
-        # of the passes (a long tortuous tube's first line may leave a bend's sections
-        # open; a sheet's are never closed).
-        middle = found[len(found) // 10:len(found) - len(found) // 10]
-        share = float(np.mean(middle)) if len(middle) else 0.0
-        if closed_share is None or share > closed_share:
-            closed_share, closed_count = share, (int(middle.sum()), len(middle))
-        if len(new) < 5:
+    # The first line: the rings of one end, through a smoothing spline whose smoothing is
+    # chosen by cross-validation. That choice can straighten a bend centimetres off the
+    # rings (it turned on 5e-9 m of rounding in one tube), so if the line's sections do not
+    # close round it, the rings are followed with the light smoothing of the later passes;
+    # failing that, the rings of the other end.
+    rings = {}
+    for other_end, smoothing in ((False, None), (False, SMOOTHING_LAMBDA),
+                                 (True, SMOOTHING_LAMBDA)):
+        if other_end not in rings:
+            rings[other_end] = ring_centreline(mesh, step, end_loops, other_end=other_end)
+        if len(rings[other_end]) < 5:
+            raise NotATubeError("not a tube: its vertices make fewer than 5 rings along it "
+                                "(too small, or too coarse a mesh?)")
+        points, radius, closed_share, closed_count = _first_line(
+            sections, _resample(rings[other_end], step, smoothing=smoothing), step,
+            iterations, progress)
+        if smoothing is None:
+            first = closed_count   # what the refusal reports, as before the retries
+        if closed_share >= MIN_CLOSED_SHARE and radius is not None:
             break
-        moved = _distance_between(points, new)
-        points = _resample(new, step, smoothing=SMOOTHING_LAMBDA)
-        if moved < INTERIOR_TOLERANCE:
-            break
-    if closed_share < MIN_CLOSED_SHARE or len(new) < 5:
+    else:
         raise NotATubeError(
-            f"not a tube: only {closed_count[0]} of the {closed_count[1]} plane sections across "
+            f"not a tube: only {first[0]} of the {first[1]} plane sections across "
             "the middle of its middle line are closed loops around it (at least "
             f"{MIN_CLOSED_SHARE:.0%} of a tube's are): an open sheet, or a branching mesh?")
     # Cut each end back by a radius (the sections there may still lean on the end) and
@@ -570,6 +582,31 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     if details is not None:
         details.update(closed_share=closed_share, ends=(head_end, tail_end))
     return _arc(points), points, radius
+
+
+def _first_line(sections: MeshSections, points, step, iterations, progress=None):
+    """Step 2 from a first line: (points, radius, closed_share, (closed, stations)), the
+    line refined on its sections until it moves less than INTERIOR_TOLERANCE, with the
+    share of its middle 80 % of stations whose section is a closed loop round it (the best
+    of the passes: a long tortuous tube's first line may leave a bend's sections open; a
+    sheet's are never closed). radius is None if a pass kept fewer than 5 points."""
+    radius = None
+    closed_share, closed_count = 0.0, (0, 0)
+    for iteration in range(iterations):
+        if progress is not None:
+            progress(iteration, iterations)
+        new, radius, found = _refine(sections, points, step)
+        middle = found[len(found) // 10:len(found) - len(found) // 10]
+        share = float(np.mean(middle)) if len(middle) else 0.0
+        if iteration == 0 or share > closed_share:
+            closed_share, closed_count = share, (int(middle.sum()), len(middle))
+        if len(new) < 5:
+            return points, None, closed_share, closed_count
+        moved = _distance_between(points, new)
+        points = _resample(new, step, smoothing=SMOOTHING_LAMBDA)
+        if moved < INTERIOR_TOLERANCE:
+            break
+    return points, radius, closed_share, closed_count
 
 
 END_CHECK_LENGTH = 0.04
