@@ -124,6 +124,22 @@ def check_tube(mesh: trimesh.Trimesh, s, points, radius) -> None:
     centres = np.asarray(mesh.triangles_center)
     areas = np.asarray(mesh.area_faces)
     distance, nearest = cKDTree(line).query(centres)
+    # Beyond an end (an oblique cut's far rim reaches past the line's end along it by up to
+    # the radius times the cut's slope, a flare widens it where the end's radius is held
+    # from the sections behind it), the larger of the distances across and along the end's
+    # axis: a branch beyond the end is far along it, a rim is not.
+    if len(line) > 1:
+        for end, inward in ((0, line[min(5, len(line) - 1)]), (len(line) - 1,
+                                                               line[max(0, len(line) - 6)])):
+            at = nearest == end
+            if not at.any():
+                continue
+            axis = line[end] - inward
+            axis /= np.linalg.norm(axis)
+            offset = centres[at] - line[end]
+            along = offset @ axis
+            across = np.linalg.norm(offset - along[:, None] * axis, axis=1)
+            distance[at] = np.maximum(across, np.abs(along))
     far = distance > BRANCH_RADII * widest[nearest] + 0.005
     share = float(areas[far].sum() / areas.sum()) if areas.sum() > 0 else 0.0
     if share > MAX_OFF_AREA:
