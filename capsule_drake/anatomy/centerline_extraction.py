@@ -71,12 +71,12 @@
    sections' centres than the line's (`end_residual`). A flare or a bend before the rim
    leaves the passes' sections there cut open, and the line they leave can bulge by
    millimetres while its end is right.
-8. Every open end finishes on the plane of its loop (`_reach_loop_plane`): the true centre
-   line of a cut tube ends where it meets the cut. A line that stopped more than 1 mm short
-   (or went past) is taken there along its end's tangent, if the crossing is well inside
-   the loop. An end the march left with no loop or cap met but with a boundary loop within
-   two radii (a flared, oblique end after a bend, whose sections widen and tilt past what
-   the march allows) is an open end.
+8. An end the march left with no loop or cap met but with a boundary loop within two radii
+   (a flared end cut obliquely after a bend, whose sections widen and tilt past what the
+   march allows) is an open end, and finishes on the plane of its loop
+   (`_reach_loop_plane`; the true centre line of a cut tube ends where it meets the cut):
+   taken there along its end's tangent if it stopped more than 1 mm short (cut there if it
+   passed it), if the crossing is well inside the loop.
 
 The true centreline of a capped tube, as measured in the tests, is the curve continued
 straight into the cap to its wall: to a hemisphere's apex, to a flat cap's disc.
@@ -520,10 +520,11 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
     # A march that stopped with a boundary loop near (a flared end cut obliquely after a
     # bend widens, and tilts its sections, past what the march allows before the loop is
     # ahead of it) ended at an open end all the same.
-    head_end, tail_end = (
-        "open" if kind == "none" and any(
-            np.linalg.norm(ring.mean(axis=0) - line[-1]) <= 2.0 * reference for ring in loops)
-        else kind for kind, line in ((head_end, head), (tail_end, tail)))
+    stopped = tuple(kind == "none" and any(
+        np.linalg.norm(ring.mean(axis=0) - line[-1]) <= 2.0 * reference for ring in loops)
+        for kind, line in ((head_end, head), (tail_end, tail)))
+    head_end, tail_end = ("open" if short else kind
+                          for kind, short in zip((head_end, tail_end), stopped))
     # An open end cut square to the tube (`_square_cut`): its loop's centroid is the lumen's
     # centre, flared or not, and the smoothing leaves it there (the recast and the wall's
     # axis still compete for the end, as at any open end: the test can take a folded tube's
@@ -594,11 +595,13 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
                     end_residual(sections, line, reference):
                 changed = True
                 points = made[::-1] if side == 0 else made
-    # Each open end, wherever the remakes left it, ends on its loop's plane. (Not judged by
-    # `end_residual`: near an oblique rim the sections are arcs, and a right extension to
-    # the plane raised it, 0.13 -> 0.27 and 0.36 -> 1.46 mm on the two tubes it was made for.)
-    for side, kind in ((0, head_end), (1, tail_end)):
-        if kind != "open":
+    # An open end the march stopped short of ends on its loop's plane, wherever the remakes
+    # left it. (Not judged by `end_residual`: near an oblique rim the sections are arcs, and
+    # the right extension raised it, 0.13 -> 0.27 and 0.36 -> 1.46 mm on the two tubes it
+    # was made for. Not at every open end: there it took two fresh tubes farther, none
+    # nearer.)
+    for side, short in enumerate(stopped):
+        if not short:
             continue
         line = points[::-1] if side == 0 else points
         made = _reach_loop_plane(line, reference, step, loops)
