@@ -46,7 +46,8 @@
    point of "each section normal to the line is centred on it"). A flat cap's end is then
    made from the cap itself (`_finish_cap`): the area centroid of its disc (the flat faces
    joined to the one the line's ray meets, however wide a flared end makes it), reached
-   along the disc's normal. An open end's last stretch is made again from the wall's
+   along the disc's normal; where a line astray meets the disc near its rim, the disc is
+   found among the faces that face the line, by their own normals (`_facing_disc`). An open end's last stretch is made again from the wall's
    normals (`_open_axis_end`): each normal of a tube swept by circles meets its axis,
    flared or not, where the sections are cut open by an oblique rim; the straight line
    they meet nearest, within 0.3 radii of the end, is followed to the loop's plane, if
@@ -1199,7 +1200,13 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     if normal @ t < 0.0:
         normal = -normal
     if np.sqrt(np.mean(((x - q) @ normal) ** 2)) > FLAT_CAP_RMS * radius:
-        return line   # not flat: a round cap the march took for a flat one is left as it is
+        # A line astray (a flare and a bend just before the cap) meets the disc near its
+        # rim, and the wall beside it spoils the plane: the disc is looked for again among
+        # the faces that face the line, by their own normals.
+        found = _facing_disc(sections, wall, t, radius)
+        if found is None:
+            return line   # not flat: a round cap the march took for a flat one is left
+        q, normal = found
     flat = ((np.abs((centres - q) @ normal) < 0.03 * radius)
             & (np.abs(sections.face_normals @ normal) > np.cos(np.radians(15.0))))
     hit = int(np.argmin(np.where(flat, np.linalg.norm(centres - wall, axis=1), np.inf)))
@@ -1212,6 +1219,46 @@ def _finish_cap(sections: MeshSections, line, reference, step):
     count = max(1, int(np.ceil(0.5 * radius / step)))
     tail = start + np.outer(np.arange(0, count + 1) / count * 0.5 * radius, normal)
     return np.vstack([body, tail])
+
+
+def _facing_disc(sections: MeshSections, wall, t, radius):
+    """(point, normal) of the plane of a flat cap's disc near `wall` (where the line's ray
+    along `t` meets it), from the faces within 1.5 radii of it that face the line (normals
+    within FACING_ANGLE of `t`): their area-weighted mean normal, then the faces within 15
+    degrees of it joined to the one nearest `wall` (`_piece`), their area centroid and mean
+    normal; if those fit the plane within FLAT_CAP_RMS of the radius and cover at least a
+    third of the circle of `radius`. Else None."""
+    centres, areas, normals = sections.face_centres, sections.face_areas, sections.face_normals
+    big = np.linalg.norm(centres - wall, axis=1) < 1.5 * radius
+    facing = big & (np.abs(normals @ t) > np.cos(FACING_ANGLE))
+    if facing.sum() < 20:
+        return None
+    signed = normals[facing] * np.sign(normals[facing] @ t)[:, None]
+    normal = np.average(signed, axis=0, weights=areas[facing])
+    normal /= np.linalg.norm(normal)
+    flat = big & (np.abs(normals @ normal) > np.cos(np.radians(15.0)))
+    if flat.sum() < 20:
+        return None
+    # The piece of those joined to the one nearest the ray's hit (ring folds near the cap
+    # face the line too, but stand apart from the disc).
+    hit = int(np.argmin(np.where(flat, np.linalg.norm(centres - wall, axis=1), np.inf)))
+    disc = _piece(sections, flat, hit)
+    if areas[disc].sum() < np.pi * radius ** 2 / 3.0:
+        return None
+    q = np.average(centres[disc], axis=0, weights=areas[disc])
+    normal = np.average(normals[disc] * np.sign(normals[disc] @ normal)[:, None], axis=0,
+                        weights=areas[disc])
+    normal /= np.linalg.norm(normal)
+    if np.sqrt(np.average(((centres[disc] - q) @ normal) ** 2, weights=areas[disc])) > \
+            FLAT_CAP_RMS * radius:
+        return None
+    return q, normal
+
+
+FACING_ANGLE = np.radians(50.0)
+"""How far a face's normal may turn from the line's direction and still count as facing it
+(`_facing_disc`): a bend of 60-70 degrees over the last 5 cm before a cap tilts the line's
+end by up to about 40 degrees to its disc."""
 
 
 FLAT_CAP_RMS = 0.03

@@ -132,9 +132,9 @@ def check_tube(mesh: trimesh.Trimesh, s, points, radius) -> None:
         for end, inward in ((0, line[min(5, len(line) - 1)]), (len(line) - 1,
                                                                line[max(0, len(line) - 6)])):
             at = nearest == end
-            if not at.any():
-                continue
             axis = line[end] - inward
+            if not at.any() or np.linalg.norm(axis) < 1e-9:
+                continue
             axis /= np.linalg.norm(axis)
             offset = centres[at] - line[end]
             along = offset @ axis
