@@ -112,6 +112,16 @@ def iou(a, b) -> float:
     return float((a & b).sum()) / max(float((a | b).sum()), 1.0)
 
 
+def within_a_pixel(got, expected) -> bool:
+    """Whether `got` differs from `expected` only on its boundary: inside it grown by one
+    pixel and covering it shrunk by one (a small polyp's mask, ~100 px, loses a tenth of
+    its IoU to one pixel's rounding on its rim; a polyp two pixels astray fails)."""
+    kernel = np.ones((3, 3), np.uint8)
+    grown = cv2.dilate(expected.astype(np.uint8), kernel).astype(bool)
+    shrunk = cv2.erode(expected.astype(np.uint8), kernel).astype(bool)
+    return not (got & ~grown).any() and not (shrunk & ~got).any()
+
+
 @pytest.mark.parametrize("back", [0.04, 0.06])
 def test_each_polyp_in_view_is_where_its_geometry_projects(scene, back):
     for polyp in scene.polyps:
@@ -120,8 +130,8 @@ def test_each_polyp_in_view_is_where_its_geometry_projects(scene, back):
         if expected.sum() < 30 or scene.hidden_by_wall(polyp, X_WC):
             continue
         got = label == scene.labels[polyp.index]
-        assert iou(got, expected) >= 0.9, (polyp.lesion.kind, back, iou(got, expected),
-                                           int(got.sum()), int(expected.sum()))
+        assert iou(got, expected) >= 0.9 or within_a_pixel(got, expected), (
+            polyp.lesion.kind, back, iou(got, expected), int(got.sum()), int(expected.sum()))
     # The three shapes were each in view from one of the two distances.
 
 
