@@ -3,11 +3,17 @@ oblique, flared open end's far rim reaches past the line's end along its axis an
 than the radius held from the sections behind it, and is not a branch; wall that goes on
 along the axis past the end is."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
 
 from capsule_drake.anatomy.tube_check import NotATubeError, check_tube
+
+sys.path.insert(0, str(Path(__file__).parent))
+from tube_set import ring_faces  # noqa: E402
 
 RADIUS = 0.02
 LENGTH = 0.15
@@ -27,12 +33,7 @@ def _cut_tube(flare=1.5, oblique=60.0, length=LENGTH, around=64, rings=160):
         z = z0 + k ** 8 * slope * rho * np.cos(theta)
         vertices.append(np.column_stack([rho * np.cos(theta), rho * np.sin(theta), z]))
     vertices = np.concatenate(vertices)
-    faces = []
-    for i in range(rings - 1):
-        for j in range(around):
-            a, b = i * around + j, i * around + (j + 1) % around
-            faces += [[a, b, a + around], [b, b + around, a + around]]
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return trimesh.Trimesh(vertices, ring_faces(rings, around), process=False)
 
 
 def _line(upto):

@@ -46,12 +46,18 @@ def straight_tube(length=0.3, radius=0.02, rings=60, around=32, start=0.0):
     z = np.linspace(start, start + length, rings)
     a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
     vertices = np.array([[radius * np.cos(t), radius * np.sin(t), zz] for zz in z for t in a])
+    return trimesh.Trimesh(vertices, ring_faces(rings, around), process=False)
+
+
+def ring_faces(rings: int, around: int) -> list:
+    """The triangles of a grid of `rings` rings of `around` vertices each (ring after ring,
+    closed round each ring): two per quad."""
     faces = []
     for i in range(rings - 1):
         for j in range(around):
             k, n = i * around + j, i * around + (j + 1) % around
             faces += [[k, n, k + around], [n, n + around, k + around]]
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return faces
 
 
 def arc_tube(bend_radius=0.3, angle=0.8, radius=0.02, step=0.004, around=32):
@@ -68,12 +74,7 @@ def arc_tube(bend_radius=0.3, angle=0.8, radius=0.02, step=0.004, around=32):
     vertices = (centre[:, None, :] + radius * (np.cos(theta)[None, :, None] * normal[:, None, :]
                                                + np.sin(theta)[None, :, None]
                                                * binormal[:, None, :])).reshape(-1, 3)
-    faces = []
-    for i in range(len(a) - 1):
-        for j in range(around):
-            k, n = i * around + j, i * around + (j + 1) % around
-            faces += [[k, n, k + around], [n, n + around, k + around]]
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return trimesh.Trimesh(vertices, ring_faces(len(a), around), process=False)
 
 
 def lying_cylinder(length=300.0, diameter=40.0, sections=64):

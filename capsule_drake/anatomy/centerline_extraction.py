@@ -1464,36 +1464,28 @@ def _settle_open_end(sections: MeshSections, line, radius, step, loops):
 
 
 LOOP_PLANE_TOLERANCE = 0.001
-"""How far [m] an open end may stop short of, or pass, the plane of its loop before
-`_reach_loop_plane` takes it there (a rim's loop is flat to about 1 mm where the mesh cuts
-it)."""
+"""How far [m] along its tangent an open end may stop short of, or pass, the plane of its
+loop before `_reach_loop_plane` takes it there (a rim's loop is flat to about 1 mm where
+the mesh cuts it)."""
 
 
 def _reach_loop_plane(line, radius, step, loops):
     """An open end taken to the plane of its boundary loop (the true centre line of a cut
     tube ends where it meets the cut, obliquely or not): along the end's tangent
-    (`_end_tangent`) if it stopped short, cut there if it passed it. The line is returned as
-    it is if its end is within LOOP_PLANE_TOLERANCE of the plane, if no loop's centroid is
-    within two radii of it, if the tangent runs along the plane, if the crossing is more
-    than a radius along it, or if the crossing is not well inside the loop (within a third
-    of its mean radius of its centroid, as `_plane_crossing` asks)."""
+    (`_end_tangent`) if it stopped short, cut there if it passed it. The crossing is
+    `_plane_crossing`'s, on the straight line through the end along its tangent, searched
+    from a radius behind the end; the line is returned as it is if its end is within
+    LOOP_PLANE_TOLERANCE of the crossing, if there is none (no loop's centroid within two
+    radii of the end, or the crossing not well inside the loop), or if it is more than a
+    radius ahead of the end."""
     line = np.asarray(line)
     end = line[-1]
-    near = [ring for ring in loops if np.linalg.norm(ring.mean(axis=0) - end) <= 2.0 * radius]
-    if not near:
-        return line
-    ring = min(near, key=lambda ring: np.linalg.norm(ring.mean(axis=0) - end))
-    q = ring.mean(axis=0)
-    normal = np.linalg.svd(ring - q)[2][2]
-    gap = float((end - q) @ normal)
     t = _end_tangent(line)
-    if abs(gap) <= LOOP_PLANE_TOLERANCE or abs(t @ normal) < 0.2:
+    u = _plane_crossing(lambda x: (end + (x - radius) * t, t), loops, end, 2.0 * radius)
+    if u is None or abs(u - radius) <= LOOP_PLANE_TOLERANCE or u > 2.0 * radius:
         return line
-    u = -gap / float(t @ normal)
+    u -= radius
     crossing = end + u * t
-    loop_radius = float(np.mean(np.linalg.norm(ring - q, axis=1)))
-    if abs(u) > radius or np.linalg.norm(crossing - q) > loop_radius / 3.0:
-        return line
     if u > 0.0:
         count = max(1, int(np.ceil(u / step)))
         return np.vstack([line, end + np.outer(np.arange(1, count + 1) / count * u, t)])
