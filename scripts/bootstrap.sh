@@ -33,8 +33,8 @@ _find_python() {
 }
 
 _stamp() {
-    # The environment is rebuilt whenever the declared dependencies change.
-    sha256sum "$_repo/pyproject.toml" | cut -d' ' -f1
+    # The environment is rebuilt whenever the declared dependencies or their pins change.
+    cat "$_repo/pyproject.toml" "$_repo/constraints.txt" | sha256sum | cut -d' ' -f1
 }
 
 if [ ! -x "$_venv/bin/python" ] || [ "$(cat "$_venv/.capsule-stamp" 2>/dev/null)" != "$(_stamp)" ]; then
@@ -51,7 +51,8 @@ if [ ! -x "$_venv/bin/python" ] || [ "$(cat "$_venv/.capsule-stamp" 2>/dev/null)
         exit 1
     fi
     "$_venv/bin/python" -m pip install -qq --upgrade pip >&2
-    "$_venv/bin/python" -m pip install -qq -e "$_repo[test]" >&2
+    # The versions the suite last passed with (constraints.txt), within pyproject's ranges.
+    "$_venv/bin/python" -m pip install -qq -c "$_repo/constraints.txt" -e "$_repo[test]" >&2
     # Drake's wheels use a few libraries of the host system; a minimal image may lack them.
     if ! _err="$("$_venv/bin/python" -c 'import pydrake.all' 2>&1)"; then
         echo "Drake is installed but does not load: $(echo "$_err" | tail -n 1)" >&2
