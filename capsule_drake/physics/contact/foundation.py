@@ -341,6 +341,7 @@ class FoundationContact(LeafSystem):
             spatial_inertia = np.diag([axial_inertia] * 3 + [mass] * 3)
         self._inertia_B = np.asarray(spatial_inertia, dtype=float)
         self._p_BoBcm = np.asarray(p_BoBcm, dtype=float)
+        self._centred = not self._p_BoBcm.any()
         self._weight = mass * np.asarray(gravity_W, dtype=float)
         omega = TANGENTIAL_TURN / time_step
         self._tangential_stiffness = omega**2 * m_t                         # N/m, whole patch
@@ -380,7 +381,8 @@ class FoundationContact(LeafSystem):
             return self._memo[1]
         # The plant's quaternion drifts off unit length between its own normalisations:
         # its rotation is that of the unit quaternion along it.
-        if not np.isfinite(x).all():   # diverged: the run guard says so and stops the run
+        # (one sum: a NaN or an infinity anywhere in x makes it NaN or infinite)
+        if not math.isfinite(x.sum()):   # diverged: the run guard says so and stops the run
             return self._no_contact(key, hint, np.zeros(0, dtype=np.intp), np.eye(3))
         w, i, j, k = x[0:4].tolist()
         scale = 1.0 / math.sqrt(w * w + i * i + j * j + k * k)
@@ -487,13 +489,15 @@ class FoundationContact(LeafSystem):
         """The other forces on the capsule this step ([torque about the body origin; force],
         world): gravity and the applied forces `others` given to this system (the magnet's,
         the fluid's)."""
-        tx, ty, tz = (_skew(R @ self._p_BoBcm) @ self._weight).tolist()
         fx, fy, fz = self._weight.tolist()
+        if self._centred:          # the centre of mass at the body origin: weight, no torque
+            tx = ty = tz = 0.0
+        else:
+            tx, ty, tz = (_skew(R @ self._p_BoBcm) @ self._weight).tolist()
         for force in others:
             if force.body_index != self._index:
                 continue
-            F = force.F_Bq_W
-            (ax, ay, az), (bx, by, bz) = F.rotational().tolist(), F.translational().tolist()
+            ax, ay, az, bx, by, bz = force.F_Bq_W.get_coeffs().tolist()
             rx, ry, rz = (R @ force.p_BoBq_B).tolist()
             tx += ax + ry * bz - rz * by
             ty += ay + rz * bx - rx * bz
