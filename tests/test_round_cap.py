@@ -155,3 +155,18 @@ def test_a_blunt_flat_cap_fitted_as_a_larger_sphere_keeps_the_line(monkeypatch):
     monkeypatch.setattr(ce, "ROUND_CAP_SECTIONS", np.inf)
     unchecked = ce._round_cap_end(sections, line, RADIUS, 0.005)
     assert np.linalg.norm(unchecked[-1] - line[-1]) > 0.004
+
+
+def test_a_cap_more_than_twice_the_radius_before_it_is_fitted_when_the_end_is_that_wide():
+    """A flared end's cap can be more than twice the radius measured 2.5-7.5 cm before the
+    end (seed 240066 of the random sweep: ring folds and a flare by half, a 42 mm cap against
+    18 mm; no fit was kept and the line stayed 6 cm short of the pole). Given a radius before
+    the end of 0.45 of the cap's, the fit is refused as too large unless the end's own
+    sections are as wide as the cap (`widest`); with them, its pole within 0.3 mm."""
+    sections = _plain_sections()
+    line = _line_off_axis(0.0, 0.0)
+    before = 0.45 * RADIUS
+    assert ce._capsule_end(sections, line, before) is None
+    c, a, r, _ = ce._capsule_end(sections, line, before, widest=RADIUS)
+    assert np.linalg.norm(c + r * a - POLE) < 3e-4
+    assert r == pytest.approx(RADIUS, abs=2e-4)

@@ -577,7 +577,9 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         if kind not in ("round cap", "none") or not FIT_ROUND_CAPS:
             continue
         line = points[::-1] if side == 0 else points
-        made = _round_cap_end(sections, line, end_radii[side], step)
+        # (the end's own sections, which a flare widens, bound the fitted cap's size too)
+        widest = float(np.max(radius[:3] if side == 0 else radius[-3:]))
+        made = _round_cap_end(sections, line, end_radii[side], step, widest=widest)
         if made is not line:
             changed = True
             points = made[::-1] if side == 0 else made
@@ -1636,7 +1638,7 @@ def _capsule_end_jacobian(x, a0, e1, e2, faces, weights, inside):
 
 
 def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
-                   tilts=ROUND_CAP_TILTS):
+                   tilts=ROUND_CAP_TILTS, widest: float = 0.0):
     """The end of a tube closed by a round cap, fitted to the wall as a capsule's end: a
     hemisphere of radius r about a centre c on an axis a (its pole c + r a), and behind
     it, for `body` [m], a tube whose radius changes linearly along a (a flared end's last
@@ -1644,7 +1646,10 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
     loss (soft L1, 0.5 mm) and the wall inside the fit down-weighted (`ROUND_CAP_INSIDE`);
     the faces chosen again about each fit (four times). Started from the line's end
     (radius `radius`, its centre a radius back along the end tangent) with the axis tilted
-    by `tilts`; the start with the smallest robust cost is kept.
+    by `tilts`; the start with the smallest robust cost is kept. A fit's r is at least
+    0.3 `radius` and less than twice the larger of `radius` and `widest` (the radius of
+    the line's last sections: a flare by half ahead of ring folds took one cap to 2.3
+    times the radius 2.5-7.5 cm before the end).
 
     Returns (centre, axis, r, cost) or None if too few faces are near the end."""
     line = np.asarray(line)
@@ -1671,7 +1676,7 @@ def _fit_round_cap(sections: MeshSections, line, radius: float, body: float,
     for a0 in starts:
         fit = _capsule_fit(centres, areas, (end - radius * t, a0, radius, 0.0), body,
                            ROUND_CAP_INSIDE)
-        if fit is not None and 0.3 * radius < fit[2] < 2.0 * radius and \
+        if fit is not None and 0.3 * radius < fit[2] < 2.0 * max(radius, widest) and \
                 (best is None or fit[4] < best[4]) and _closed_around(walls, *fit[:3]):
             best = fit
     if best is None:
@@ -1721,13 +1726,14 @@ def _closed_around(faces, c, a, r) -> bool:
     return True
 
 
-def _capsule_end(sections: MeshSections, line, radius: float):
+def _capsule_end(sections: MeshSections, line, radius: float, widest: float = 0.0):
     """The round cap's end fitted with each body length of ROUND_CAP_BODIES
     (`_fit_round_cap`; the folds, a flare's curve or a ring fold across the body can tilt
     one fit's axis while its cost stays low): (centre, axis, r, body) of the fit whose
     pole is nearest the other fits' poles (summed), or None if no fit."""
     fits = [(fit, body) for body in ROUND_CAP_BODIES
-            if (fit := _fit_round_cap(sections, line, radius, body)) is not None]
+            if (fit := _fit_round_cap(sections, line, radius, body, widest=widest))
+            is not None]
     if not fits:
         return None
     poles = np.array([c + r * a for (c, a, r, _), _ in fits])
@@ -1736,7 +1742,8 @@ def _capsule_end(sections: MeshSections, line, radius: float):
     return c, a, r, body
 
 
-def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.03):
+def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.03,
+                   widest: float = 0.0):
     """A round cap's end made from its fitted capsule end (`_fit_round_cap`): the line
     up to where the fitted body begins, then along the fitted axis to the pole; the last
     `blend` [m] before the body made again as the cubic Hermite curve from the line's
@@ -1745,7 +1752,7 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
     or if the made end is ROUND_CAP_SECTIONS radii or more further from its own sections'
     centres than the line's (`end_residual`)."""
     line = np.asarray(line)
-    fit = _capsule_end(sections, line, radius)
+    fit = _capsule_end(sections, line, radius, widest)
     if fit is None:
         return line
     c, a, r, body = fit
