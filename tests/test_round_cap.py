@@ -157,6 +157,7 @@ def test_a_blunt_flat_cap_fitted_as_a_larger_sphere_keeps_the_line(monkeypatch):
     assert np.linalg.norm(unchecked[-1] - line[-1]) > 0.004
 
 
+@pytest.mark.slow
 def test_a_cap_more_than_twice_the_radius_before_it_is_fitted_when_the_end_is_that_wide():
     """A flared end's cap can be more than twice the radius measured 2.5-7.5 cm before the
     end (seed 240066 of the random sweep: ring folds and a flare by half, a 42 mm cap against
