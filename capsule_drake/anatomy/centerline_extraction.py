@@ -72,6 +72,14 @@
    sections' centres than the line's (`end_residual`). A flare or a bend before the rim
    leaves the passes' sections there cut open, and the line they leave can bulge by
    millimetres while its end is right.
+   Then the same stretch is made from the wall itself (`_fitted_open_end`): the faces of
+   the last 5 cm, the far side of an oblique cut included, fitted by a robust least squares
+   as a tube of circles whose axis's offsets from the stretch's chord and whose radius are
+   cubics along it (folds inside the fit weigh a tenth); the line follows that axis from a
+   third of the stretch in to the loop's plane, again only if its end is nearer its
+   sections' centres. Arcs cut open by a rim, with a fold across them, pull their circles
+   aside; the fit uses the whole wall and no rim. Not where the line turns by more than 45
+   degrees over the stretch (a cubic across the chord does not follow it).
 8. An end the march left with no loop or cap met but with a boundary loop within two radii
    (a flared end cut obliquely after a bend, whose sections widen and tilt past what the
    march allows) is an open end, and finishes on the plane of its loop
@@ -583,11 +591,12 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
         if made is not line:
             changed = True
             points = made[::-1] if side == 0 else made
-    # Each open end made again from the wall's normals, then settled on its own sections;
-    # each taken only if its end is nearer its own sections' centres than the line's
-    # (`end_residual`, as the recast passes are chosen): a fold across the window can turn
-    # the wall's normals astray.
-    remakes = (_open_axis_end,) + ((_settle_open_end,) if SETTLE_OPEN_ENDS else ())
+    # Each open end made again from the wall's normals, then settled on its own sections,
+    # then from its wall fitted as a tube; each taken only if its end is nearer its own
+    # sections' centres than the line's (`end_residual`, as the recast passes are chosen):
+    # a fold across the window can turn the wall's normals astray.
+    remakes = (_open_axis_end,) + ((_settle_open_end,) if SETTLE_OPEN_ENDS else ()) + \
+        ((_fitted_open_end,) if FIT_OPEN_ENDS else ())
     for remake in remakes:
         for side, kind in ((0, head_end), (1, tail_end)):
             if kind != "open":
@@ -598,6 +607,18 @@ def extract_centerline(mesh: trimesh.Trimesh, step: float = 0.005, iterations: i
                     end_residual(sections, line, reference):
                 changed = True
                 points = made[::-1] if side == 0 else made
+    # A flat cap's last stretch made again from the wall before it fitted as a tube, on the
+    # same terms (its end, the disc's centroid, is already right; the line before it can
+    # bulge where a flare and a bend meet the cap).
+    for side, kind in ((0, head_end), (1, tail_end)):
+        if kind != "flat cap" or not FIT_OPEN_ENDS:
+            continue
+        line = points[::-1] if side == 0 else points
+        made = _fitted_cap_end(sections, line, reference, step)
+        if made is not line and end_residual(sections, made, reference) < \
+                end_residual(sections, line, reference):
+            changed = True
+            points = made[::-1] if side == 0 else made
     # An open end the march stopped short of ends on its loop's plane, wherever the remakes
     # left it. (Not judged by `end_residual`: near an oblique rim the sections are arcs, and
     # the right extension raised it, 0.13 -> 0.27 and 0.36 -> 1.46 mm on the two tubes it
@@ -753,6 +774,7 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
     point, or a flat cap's disc the march stopped short of (`_flat_cap_ahead`). `reference`:
     the tube's typical radius, if the local one cannot be measured."""
     points = list(points)
+    given = len(points)
     start = sections.around(points[-1], _end_tangent(points))
     last_radius = start.radius if start is not None else reference  # the local radius
     reference = last_radius
@@ -815,8 +837,12 @@ def _march(sections: MeshSections, loops, points: list, step: float, fine: float
             best = (along, centre)
     if best is not None:
         centre = best[1]
-        while len(points) > 5 and float((points[-1] - centre) @ t) > -1e-4:
-            points.pop()   # marched past the end's centre
+        # Marched past the end's centre: its own points, and the given line's within a
+        # radius of the centre (a march whose last tangent turned aside once took the
+        # given line back 8 cm, seed 270030).
+        while len(points) > 5 and float((points[-1] - centre) @ t) > -1e-4 and \
+                (len(points) > given or np.linalg.norm(points[-1] - centre) <= wide):
+            points.pop()
         points.append(centre)
         return points, "open", float(np.linalg.norm(centre - points[-2]))
     rescued = _flat_cap_ahead(sections, points, step, last_radius)
@@ -1401,6 +1427,10 @@ def _open_axis_end(sections: MeshSections, line, reference, step, loops):
 SETTLE_OPEN_ENDS = True
 """Whether `extract_centerline` settles each open end's last stretch on its own sections
 (`_settle_open_end`, step 7 of the module's docstring)."""
+FIT_OPEN_ENDS = True
+"""Whether `extract_centerline` makes each open end and flat cap's last stretch again from
+its wall fitted as a tube (`_fitted_open_end`, `_fitted_cap_end`, step 7 of the module's
+docstring), where that end is nearer its sections' centres."""
 SETTLE_LENGTH = 0.05
 """The stretch [m] before an open end that `_settle_open_end` makes again."""
 SETTLE_PASSES = 12
@@ -1495,6 +1525,190 @@ def _reach_loop_plane(line, radius, step, loops):
     keep = a < a[-1] + u - 1e-9
     return np.vstack([line[keep], crossing])
 
+
+OPEN_FIT_LENGTH = 0.05
+"""The stretch [m] before an open end whose wall `_fitted_open_end` fits as a tube."""
+OPEN_FIT_TURN = 40.0
+"""Largest turn [degrees] of the line over that stretch for which an open end's fit is
+tried: its axis is a cubic across the stretch's chord, which follows a bend of 40 degrees
+before the end (the line turning by 11-39 degrees over the stretch, seeds 260000-260089)
+but not always one of 60 or 70 (seen on seeds 240002, 260050 and 260056, turning by 45, 55
+and 56 degrees: 0.5 -> 4.9, 1.2 -> 2.1 and 0.2 -> 1.4 mm)."""
+CAP_FIT_TURN = 60.0
+"""The same for a flat cap's fit, which is checked against the disc's centroid as well
+(CAP_FIT_AGREE): a bend of 40 degrees before the cap turned seed 260024's line by 54."""
+CAP_FIT_AGREE = 0.1
+"""How near [radii] the disc's centroid (the end `_finish_cap` makes) a flat cap's fitted
+axis must meet the disc's plane."""
+OPEN_FIT_FACES = 4000
+"""Most faces the open end's fit uses (a fixed random sample of a finer mesh's)."""
+FLAT_FIT_CLEAR = 0.0015
+"""How far [m] before a flat cap's disc the wall fitted by `_fitted_cap_end` begins (the
+disc's own faces lie in its plane)."""
+
+
+def _open_tube_parts(x, faces):
+    """The tube of `_fitted_open_end` with parameters x (three cubics in zeta: the axis's
+    offsets along e1 and e2 [m], its radius [m]) at the faces (rows: along e1, along e2 [m],
+    zeta): each face's zeta projected on the axis (three Newton steps) and its distance
+    from the tube [m] (negative inside)."""
+    poly = np.polynomial.polynomial
+    cx, cy, cr = x[0:4], x[4:8], x[8:12]
+    dcx, dcy = poly.polyder(cx), poly.polyder(cy)
+    zeta = faces[:, 2].copy()
+    for _ in range(3):
+        ax, ay = poly.polyval(zeta, cx), poly.polyval(zeta, cy)
+        gx, gy = poly.polyval(zeta, dcx), poly.polyval(zeta, dcy)
+        d = np.column_stack([faces[:, 0] - ax, faces[:, 1] - ay,
+                             (faces[:, 2] - zeta) * OPEN_FIT_LENGTH])
+        g = np.column_stack([gx, gy, np.full_like(gx, OPEN_FIT_LENGTH)])
+        zeta = zeta + np.sum(d * g, axis=1) / np.sum(g * g, axis=1)
+    d = np.column_stack([faces[:, 0] - poly.polyval(zeta, cx),
+                         faces[:, 1] - poly.polyval(zeta, cy),
+                         (faces[:, 2] - zeta) * OPEN_FIT_LENGTH])
+    return np.linalg.norm(d, axis=1) - poly.polyval(zeta, cr)
+
+
+def _open_tube_residuals(x, faces, weights, inside):
+    gap = _open_tube_parts(x, faces)
+    return weights * np.where(gap < 0.0, inside * gap, gap)
+
+
+def _fitted_axis(sections: MeshSections, line, radius, q, normal, clear: float = -1e-4,
+                 max_turn: float = OPEN_FIT_TURN):
+    """The axis of the wall over the line's last OPEN_FIT_LENGTH fitted as a tube (see
+    `_fitted_open_end`), as a function u -> (point, unit tangent) of length along the
+    stretch's chord from a third of the way in, or None. Only faces on the line's side of the
+    plane through `q` normal to `normal`, and at least `clear` [m] from it, are fitted; None
+    if the line turns by more than `max_turn` degrees over the stretch."""
+    from scipy.optimize import least_squares
+
+    s = _arc(line)
+    if s[-1] < 3.0 * OPEN_FIT_LENGTH:
+        return None
+    stretch = line[s >= s[-1] - OPEN_FIT_LENGTH]
+    turn = _tangents(stretch)[[0, -1]]
+    if np.degrees(np.arccos(np.clip(turn[0] @ turn[1], -1.0, 1.0))) > max_turn:
+        return None
+    end = line[-1]
+    a = end - stretch[0]
+    a /= np.linalg.norm(a)
+    _, e1, e2 = _plane_basis(a)
+    normal = normal if (stretch[0] - q) @ normal > 0.0 else -normal
+    centres, areas = sections.face_centres, sections.face_areas
+    rel = centres - end
+    z = rel @ a
+    lateral = np.linalg.norm(rel - np.outer(z, a), axis=1)
+    # Faces beside the stretch and beyond its end (an oblique cut's far side), on the
+    # line's side of the plane; the radius started from their median distance.
+    pick = (z > -OPEN_FIT_LENGTH) & (z < 3.0 * radius) & (lateral < 3.0 * radius) & \
+        ((centres - q) @ normal > clear)
+    dense = _resample(stretch, 0.5e-3)
+    near = np.flatnonzero(pick)
+    gap = np.min(np.linalg.norm(centres[near, None] - dense[None, ::4], axis=2), axis=1)
+    r0 = float(np.median(gap[gap < 2.0 * radius])) if np.any(gap < 2.0 * radius) else radius
+    near = near[gap < 2.0 * r0]
+    if len(near) < 200:
+        return None
+    if len(near) > OPEN_FIT_FACES:
+        near = np.sort(np.random.default_rng(0).choice(near, OPEN_FIT_FACES, replace=False))
+    faces = np.column_stack([rel[near] @ e1, rel[near] @ e2, z[near] / OPEN_FIT_LENGTH])
+    weights = np.sqrt(areas[near] / np.mean(areas[near]))
+    x0 = np.zeros(12)
+    x0[8] = r0
+    x = least_squares(_open_tube_residuals, x0, args=(faces, weights, ROUND_CAP_INSIDE),
+                      loss="soft_l1", f_scale=5e-4).x
+    poly = np.polynomial.polynomial
+
+    def axis(zeta):
+        return (end + poly.polyval(zeta, x[0:4]) * e1 + poly.polyval(zeta, x[4:8]) * e2
+                + zeta * OPEN_FIT_LENGTH * a)
+
+    def curve(u, h=1e-4):
+        zeta = -2.0 / 3.0 + u / OPEN_FIT_LENGTH
+        d = axis(zeta + h) - axis(zeta - h)
+        return axis(zeta), d / np.linalg.norm(d)
+
+    return curve
+
+
+def _along_axis(line, curve, u_end, step):
+    """The line up to a third of OPEN_FIT_LENGTH into its last stretch, then `curve` (of
+    `_fitted_axis`) to u_end, every `step`."""
+    s = _arc(line)
+    keep = line[s < s[-1] - 2.0 * OPEN_FIT_LENGTH / 3.0]
+    u = np.arange(step, u_end, step)
+    made = np.vstack([keep, [curve(v)[0] for v in u], curve(u_end)[0]])
+    return _resample(made, step, smoothing=1e-12)
+
+
+def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
+    """An open end's last OPEN_FIT_LENGTH made again from the wall there fitted as a tube:
+    circles normal to an axis whose offsets from the stretch's chord are cubics along it,
+    with a radius that is a cubic too (a flare by half over the last 4 cm is one), by a
+    robust least squares on the faces within two radii of the line and short of the loop's
+    plane, the wall inside the fit (folds) weighing ROUND_CAP_INSIDE as at a round cap. The
+    rim does not enter the fit: where an oblique cut leaves the sections near it open arcs
+    (a fold across an arc pulls its circle aside), the wall on the far side of the cut
+    still bounds the tube. The line is kept up to a third of the stretch in, then follows
+    the fitted axis to the plane of the end's loop (`_plane_crossing`). The line is
+    returned as it is if it is shorter than three stretches, if it turns by more than
+    OPEN_FIT_TURN over the stretch, if fewer than 200 faces are near, or if the axis does
+    not cross the loop near its centre."""
+    line = np.asarray(line)
+    end = line[-1]
+    ring = min(loops, key=lambda r: np.linalg.norm(r.mean(axis=0) - end), default=None)
+    if ring is None or np.linalg.norm(ring.mean(axis=0) - end) > 2.0 * radius:
+        return line
+    q = ring.mean(axis=0)
+    curve = _fitted_axis(sections, line, radius, q, np.linalg.svd(ring - q)[2][2])
+    if curve is None:
+        return line
+    u_end = _plane_crossing(curve, loops, end, 2.0 * radius)
+    if u_end is None:
+        return line
+    return _along_axis(line, curve, u_end, step)
+
+
+def _fitted_cap_end(sections: MeshSections, line, radius, step):
+    """A flat cap's last OPEN_FIT_LENGTH made again from the wall before the cap fitted as
+    a tube (`_fitted_axis`; the disc's faces, within FLAT_FIT_CLEAR of its plane, left
+    out), followed to the disc's plane: where a flare and a bend just before the cap leave
+    the sections there tilted, the line between them can bulge by millimetres while its end,
+    the disc's centroid (`_finish_cap`), is right. The line is returned as it is if the
+    wall its end's tangent meets is not a disc (`_flat_disc`), if there is no fit (or the
+    line turns by more than CAP_FIT_TURN over the stretch), or if the axis meets the plane
+    farther than CAP_FIT_AGREE radii from the disc's centroid."""
+    line = np.asarray(line)
+    end = line[-1]
+    t = _end_tangent(line)
+    ahead = sections.ray(end - radius * t, t, reach=2.0 * radius)
+    if not np.isfinite(ahead):
+        return line
+    disc = _flat_disc(sections, end - radius * t + ahead * t, radius)
+    if disc is None:
+        return line
+    q = np.average(sections.face_centres[disc], axis=0, weights=sections.face_areas[disc])
+    normal = np.average(sections.face_normals[disc], axis=0, weights=sections.face_areas[disc])
+    normal /= np.linalg.norm(normal)
+    curve = _fitted_axis(sections, line, radius, q, normal, clear=FLAT_FIT_CLEAR,
+                         max_turn=CAP_FIT_TURN)
+    if curve is None:
+        return line
+    side = lambda u: float((curve(u)[0] - q) @ normal)
+    u = np.linspace(0.0, OPEN_FIT_LENGTH, 51)
+    values = np.array([side(x) for x in u])
+    change = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
+    if len(change) == 0:
+        return line
+    lo, hi = u[change[0]], u[change[0] + 1]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.sign(side(mid)) == np.sign(values[change[0]]) else (lo, mid)
+    u_end = 0.5 * (lo + hi)
+    if np.linalg.norm(curve(u_end)[0] - q) > CAP_FIT_AGREE * radius:
+        return line
+    return _along_axis(line, curve, u_end, step)
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
     """Whether the wall ahead curves back toward the march: rays parallel to `t` from six
