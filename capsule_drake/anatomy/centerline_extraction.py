@@ -95,7 +95,7 @@ Accuracy (tests/test_import_tubes.py, tests/tube_set.py): on 18 tubes made indep
 haustral crescents, open, hemispherical and flat ends, open ends flared by 30-50 % and cut
 25-40 degrees obliquely, bends of 70-80 degrees over the last 5 cm before a cap, uniform,
 jittered and Delaunay triangulations of 4k-220k faces, metres and millimetres) within
-0.06-0.70 mm of the true centreline everywhere, ends included (both ways); lengths within
+0.05-0.47 mm of the true centreline everywhere, ends included (both ways); lengths within
 0.7 mm; equal-area radii within 0.6 % (median); the same mesh with its vertices moved by
 1e-6 of its size gives a centreline within 0.05 mm of the first. Tubes of random shape,
 every feature drawn together (`benchmarks/bench_import.py --sweep`), show where it fails:
