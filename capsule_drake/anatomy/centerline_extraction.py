@@ -78,8 +78,11 @@
    cubics along it (folds inside the fit weigh a tenth); the line follows that axis from a
    third of the stretch in to the loop's plane, again only if its end is nearer its
    sections' centres. Arcs cut open by a rim, with a fold across them, pull their circles
-   aside; the fit uses the whole wall and no rim. Not where the line turns by more than 45
-   degrees over the stretch (a cubic across the chord does not follow it).
+   aside; the fit uses the whole wall and no rim. Not where the line turns by more than 40
+   degrees over the stretch (a cubic across the chord does not follow it). A flat cap's
+   last stretch is made the same way from the wall before its disc (`_fitted_cap_end`),
+   where the line turns by up to 60 degrees and the fitted axis meets the disc within a
+   tenth of the radius of its centroid.
 8. An end the march left with no loop or cap met but with a boundary loop within two radii
    (a flared end cut obliquely after a bend, whose sections widen and tilt past what the
    march allows) is an open end, and finishes on the plane of its loop
@@ -1709,6 +1712,7 @@ def _fitted_cap_end(sections: MeshSections, line, radius, step):
     if np.linalg.norm(curve(u_end)[0] - q) > CAP_FIT_AGREE * radius:
         return line
     return _along_axis(line, curve, u_end, step)
+
 
 def _round_ahead(sections: MeshSections, p, t, radius, ahead) -> bool:
     """Whether the wall ahead curves back toward the march: rays parallel to `t` from six
