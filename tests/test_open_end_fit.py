@@ -11,6 +11,7 @@ import trimesh
 
 from capsule_drake.anatomy import centerline_extraction as ce
 from capsule_drake.anatomy.importer import open_end_loops
+from tube_set import ring_faces
 
 RADIUS = 0.02
 LENGTH = 0.3
@@ -45,12 +46,7 @@ def _tube(folds: float = 0.4):
     r = _radius(np.minimum(z, LENGTH), theta[None, :], folds)
     points = np.stack([r * np.cos(theta), r * np.sin(theta), z], axis=-1).reshape(-1, 3)
     n, m = len(v), len(theta)
-    faces = []
-    for i in range(n - 1):
-        for j in range(m):
-            a, b = i * m + j, i * m + (j + 1) % m
-            c, d = a + m, b + m
-            faces += [[a, b, d], [a, d, c]]
+    faces = ring_faces(n, m)
     mesh = trimesh.Trimesh(points, np.array(faces), process=False)
     loops = [mesh.vertices[loop] for loop in open_end_loops(mesh)]
     return ce.MeshSections(mesh), loops
@@ -71,12 +67,7 @@ def _capped_tube(folds: float = 0.4):
     grid = np.concatenate([wall, disc])
     n, m = grid.shape[:2]
     points = np.vstack([grid.reshape(-1, 3), [[0.0, 0.0, LENGTH]]])
-    faces = []
-    for i in range(n - 1):
-        for j in range(m):
-            a, b = i * m + j, i * m + (j + 1) % m
-            c, d = a + m, b + m
-            faces += [[a, b, d], [a, d, c]]
+    faces = ring_faces(n, m)
     centre = n * m
     faces += [[(n - 1) * m + j, (n - 1) * m + (j + 1) % m, centre] for j in range(m)]
     mesh = trimesh.Trimesh(points, np.array(faces), process=False)

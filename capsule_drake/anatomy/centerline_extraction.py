@@ -991,6 +991,21 @@ the sections before an oblique or ragged end are cut open by it, and one across 
 fold is far narrower than the next (the march stops at either)."""
 
 
+def _first_crossing(curve, q, normal, u):
+    """The first u at which `curve` (u -> (point, tangent)) crosses the plane through `q`
+    normal to `normal`: the first sign change over the samples `u`, bisected; None if none."""
+    side = lambda x: float((curve(x)[0] - q) @ normal)
+    values = np.array([side(x) for x in u])
+    change = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
+    if len(change) == 0:
+        return None
+    lo, hi = u[change[0]], u[change[0] + 1]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.sign(side(mid)) == np.sign(values[change[0]]) else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
 def _plane_crossing(curve, loops, near, reach):
     """u at which `curve` (u -> (point, tangent)) crosses the least-squares plane of the
     boundary loop (vertices, (K, 3)) whose centroid lies nearest `near`, searched over
@@ -1007,17 +1022,9 @@ def _plane_crossing(curve, loops, near, reach):
     ring = best[1]
     q = ring.mean(axis=0)
     normal = np.linalg.svd(ring - q)[2][2]
-    side = lambda u: float((curve(u)[0] - q) @ normal)
-    u = np.linspace(0.0, 1.5 * reach, 61)
-    values = np.array([side(x) for x in u])
-    change = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
-    if len(change) == 0:
+    u_cut = _first_crossing(curve, q, normal, np.linspace(0.0, 1.5 * reach, 61))
+    if u_cut is None:
         return None
-    lo, hi = u[change[0]], u[change[0] + 1]
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if np.sign(side(mid)) == np.sign(values[change[0]]) else (lo, mid)
-    u_cut = 0.5 * (lo + hi)
     loop_radius = float(np.mean(np.linalg.norm(ring - q, axis=1)))
     if np.linalg.norm(curve(u_cut)[0] - q) > loop_radius / 3.0:
         return None
@@ -1698,18 +1705,8 @@ def _fitted_cap_end(sections: MeshSections, line, radius, step):
                          max_turn=CAP_FIT_TURN)
     if curve is None:
         return line
-    side = lambda u: float((curve(u)[0] - q) @ normal)
-    u = np.linspace(0.0, OPEN_FIT_LENGTH, 51)
-    values = np.array([side(x) for x in u])
-    change = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
-    if len(change) == 0:
-        return line
-    lo, hi = u[change[0]], u[change[0] + 1]
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if np.sign(side(mid)) == np.sign(values[change[0]]) else (lo, mid)
-    u_end = 0.5 * (lo + hi)
-    if np.linalg.norm(curve(u_end)[0] - q) > CAP_FIT_AGREE * radius:
+    u_end = _first_crossing(curve, q, normal, np.linspace(0.0, OPEN_FIT_LENGTH, 51))
+    if u_end is None or np.linalg.norm(curve(u_end)[0] - q) > CAP_FIT_AGREE * radius:
         return line
     return _along_axis(line, curve, u_end, step)
 
