@@ -13,8 +13,11 @@ A tube is a sweep of a (slightly elliptic) section along a random smooth curve i
 - each end is open (the mesh's boundary, a section normal to the curve), a hemispherical
   cap or a flat cap; an open end may flare (the radius growing over its last 4 cm) and be
   cut obliquely (its boundary in a plane through the curve's end, tilted from the normal
-  section); the curve may turn sharply (up to 80 degrees) over its last centimetres before
-  an end;
+  section; where a bend before the end takes a line of the wall wholly ahead of that plane
+  the draw is refused, and where a bend brings a line back across it the rim is the
+  crossing nearest the end); the curve may turn sharply (up to 80 degrees) over its last
+  centimetres before an end; haustral crescents fade over a hemispherical cap (its pole is
+  a point);
 - the triangulation is a uniform grid of rings, jittered rings (uneven spacing, a varying
   count of vertices per ring, vertices moved along and around the surface, zipped ring to
   ring), or a Delaunay triangulation of jittered points in the surface's parameter plane
@@ -268,17 +271,32 @@ class _Surface:
     def _cut(self, end, theta):
         """Where, along the surface's line at angle theta, an oblique open end's plane
         cuts it: u (per theta) with the point on the plane through the curve's end tilted by
-        `oblique` degrees about m2 there (bisection)."""
+        `oblique` degrees about m2 there. A line a bend brings back across the plane crosses
+        it more than once: the crossing nearest the curve's end is the rim (found on a grid
+        of u, then by bisection). A line that does not cross it within reach has no rim:
+        the tube cannot be cut so (ValueError)."""
         L_end = 0.0 if end == 0 else self.L
         c, t, m1, m2 = (v[0] for v in self._frame(np.array([L_end])))
         angle = np.radians(self.spec.oblique[end])
         normal = np.cos(angle) * t + np.sin(angle) * np.cross(m2, t)
         reach = 3.0 * float(self.radius(L_end)) * max(1.0, np.tan(angle))
-        lo, hi = np.full_like(theta, L_end - reach), np.full_like(theta, L_end + reach)
+        grid = L_end + np.linspace(-reach, reach, 257)
+        uu, tt = np.meshgrid(grid, theta, indexing="ij")
+        ahead = ((self._plain_point(uu.ravel(), tt.ravel()) - c) @ normal > 0.0).reshape(uu.shape)
+        change = ahead[1:] != ahead[:-1]                     # (grid - 1, theta)
+        if not change.any(axis=0).all():
+            missed = float(np.degrees(theta[~change.any(axis=0)][0]))
+            raise ValueError(f"{self.spec.name}: its {self.spec.oblique[end]:.0f} degree cut "
+                             f"at end {end} misses the wall's line at {missed:.0f} degrees "
+                             f"(a bend before the end takes it ahead of the plane)")
+        middle = 0.5 * (grid[1:] + grid[:-1])
+        nearest = np.argmin(np.where(change, np.abs(middle - L_end)[:, None], np.inf), axis=0)
+        lo, hi = grid[nearest], grid[nearest + 1]
+        lo_ahead = ahead[nearest, np.arange(len(theta))]
         for _ in range(50):
             mid = 0.5 * (lo + hi)
-            ahead = (self._plain_point(mid, theta) - c) @ normal > 0.0
-            lo, hi = np.where(ahead, lo, mid), np.where(ahead, mid, hi)
+            same = ((self._plain_point(mid, theta) - c) @ normal > 0.0) == lo_ahead
+            lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
         return 0.5 * (lo + hi)
 
     def _tilt(self, u, theta):
@@ -314,10 +332,10 @@ class _Surface:
                 c[beyond] += (u[beyond] - (0.0 if end == 0 else self.L))[:, None] * t[beyond]
         section = ((1 + e) * np.cos(theta))[:, None] * m1 + ((1 - e) * np.sin(theta))[:, None] * m2
         r = self.radius(np.clip(u, 0.0, self.L))
+        crescent = np.zeros_like(r)
         if self.spec.haustra:
-            r = r * (1.0 - self.spec.haustra * self.radius.fold(np.clip(u, 0.0, self.L))
-                     * _crescent(theta))
-        out = c + r[:, None] * section
+            crescent = self.spec.haustra * self.radius.fold(np.clip(u, 0.0, self.L)) * _crescent(theta)
+        out = c + (r * (1.0 - crescent))[:, None] * section
         for end, kind in enumerate(self.spec.ends):
             cap = (u < 0.0) if end == 0 else (u > self.L)
             if kind == "open" or not cap.any():
@@ -326,10 +344,15 @@ class _Surface:
             sign = -1.0 if end == 0 else 1.0
             rr = r[cap]
             if kind == "hemisphere":
+                # The crescents fade over the cap (as cos phi: smooth at its base), so that
+                # its pole is a point one unfolded radius beyond the curve's end, not a
+                # ridge along the axis.
                 phi = np.minimum(depth / rr, 0.5 * np.pi)
+                rr = rr * (1.0 - crescent[cap] * np.cos(phi))
                 out[cap] = c[cap] + rr[:, None] * (sign * np.sin(phi)[:, None] * t[cap]
                                                    + np.cos(phi)[:, None] * section[cap])
             else:
+                rr = rr * (1.0 - crescent[cap])
                 rho = np.clip(1.0 - depth / rr, 0.0, 1.0)
                 out[cap] = c[cap] + (rr * rho)[:, None] * section[cap]
         return out
@@ -564,6 +587,9 @@ def make_tube(spec: TubeSpec) -> Tube:
         raise ValueError(f"{spec.name}: bends to {worst:.2f} of its radius of curvature "
                          f"(at most {MAX_BEND_SHARE})")
     surface = _Surface(spec, s, points, tangent, m1, m2, radius)
+    for end, degrees in enumerate(spec.oblique):    # a cut the tube can have, or ValueError
+        if degrees and spec.ends[end] == "open":
+            surface._cut(end, np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False))
     area = 2 * np.pi * float(np.mean(radius(s))) * (surface.u1 - surface.u0)
     h = np.sqrt(area / (0.5 * spec.faces) * 2 / np.sqrt(3))  # equilateral-ish faces
     if spec.mesh == "delaunay":
