@@ -17,7 +17,8 @@ recovered centreline's largest distance from the true one (both ways) [mm].
 With --sweep N, instead: N tubes of random shape (tube_set.random_spec, seeds from
 --first-seed, default 0: the set's features drawn together, deep folds, flares, oblique
 cuts and sharp bends at the same end included; draws that bend tighter than their radius
-allows are skipped) and the distribution of the largest distance, with each tube over 2 mm
+allows, or whose oblique cut a bend before the end takes off a line of the wall, are
+skipped) and the distribution of the largest distance, with each tube over 2 mm
 named (--csv PATH: a row per tube).
 
 With --sizes N,N,..., instead: for each size, a bent open tube of about N triangles (a
@@ -77,15 +78,18 @@ from tube_set import TUBES, centreline_errors, make_tube, random_spec  # noqa: E
 
 
 def sweep(count: int, first_seed: int = 0, csv_path: str | None = None) -> None:
-    rows, skipped, seed = [], 0, first_seed - 1
+    rows, seed = [], first_seed - 1
+    skipped = {"bent": 0, "cut": 0, "other": 0}
     with tempfile.TemporaryDirectory() as folder:
         while len(rows) < count:
             seed += 1
             spec = random_spec(seed)
             try:
                 tube = make_tube(spec)
-            except (RuntimeError, ValueError):
-                skipped += 1   # bent tighter than its radius allows
+            except (RuntimeError, ValueError) as e:   # a shape the set cannot make
+                why = str(e)
+                skipped["bent" if "bends to" in why else "cut" if "cut at end" in why
+                        else "other"] += 1
                 continue
             path = tube.write(folder)
             start = time.perf_counter()
@@ -114,9 +118,10 @@ def sweep(count: int, first_seed: int = 0, csv_path: str | None = None) -> None:
             writer.writerows({k: f"{v:.3f}" if isinstance(v, float) else v
                               for k, v in row.items()} for row in rows)
     e = np.array([row["error_mm"] for row in rows])
-    print(f"{len(e)} tubes (seeds {first_seed}-{seed}; {skipped} draws bent too tightly, "
-          f"skipped): largest distance median {np.median(e):.2f} mm, 90th percentile "
-          f"{np.percentile(e, 90):.2f} mm, largest {e.max():.2f} mm; within 2 mm: "
+    print(f"{len(e)} tubes (seeds {first_seed}-{seed}; draws skipped: {skipped['bent']} bent "
+          f"too tightly, {skipped['cut']} with an oblique cut a bend takes off the wall, "
+          f"{skipped['other']} other): largest distance median {np.median(e):.2f} mm, "
+          f"90th percentile {np.percentile(e, 90):.2f} mm, largest {e.max():.2f} mm; within 2 mm: "
           f"{np.sum(e < 2.0)} of {len(e)}")
 
 
