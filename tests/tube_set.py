@@ -334,7 +334,8 @@ class _Surface:
         r = self.radius(np.clip(u, 0.0, self.L))
         crescent = np.zeros_like(r)
         if self.spec.haustra:
-            crescent = self.spec.haustra * self.radius.fold(np.clip(u, 0.0, self.L)) * _crescent(theta)
+            crescent = (self.spec.haustra * self.radius.fold(np.clip(u, 0.0, self.L))
+                        * _crescent(theta))
         out = c + (r * (1.0 - crescent))[:, None] * section
         for end, kind in enumerate(self.spec.ends):
             cap = (u < 0.0) if end == 0 else (u > self.L)

@@ -80,8 +80,8 @@
    follows that axis from a third of the stretch in to the loop's plane, again only if its
    end is nearer its sections' centres (at an oblique cut, not farther by more than half
    again: its arcs are biased). Arcs cut open by a rim, with a fold across them, pull their
-   circles aside; the fit uses the whole wall and no rim. Not where the line turns by more than 40
-   degrees over the stretch (a cubic across the chord does not follow it). A flat cap's
+   circles aside; the fit uses the whole wall and no rim. Not where the line turns by more
+   than 40 degrees over the stretch (a cubic across the chord does not follow it). A flat cap's
    last stretch is made the same way from the wall before its disc (`_fitted_cap_end`),
    where the line turns by up to 60 degrees and the fitted axis meets the disc within a
    tenth of the radius of its centroid.
@@ -1675,8 +1675,8 @@ def _along_axis(line, curve, u_end, step):
 def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
     """An open end's last OPEN_FIT_LENGTH made again from the wall there fitted as a tube:
     circles normal to an axis whose offsets from the stretch's chord are cubics along it
-    (quadratics where the cut is oblique, `_square_cut`), with a radius that is a cubic (a flare by half over the last 4 cm is one), by a
-    robust least squares on the faces within two radii of the line and short of the loop's
+    (quadratics where the cut is oblique, `_square_cut`), with a radius that is a cubic (a
+    flare by half over the last 4 cm is one), by a robust least squares on the faces within two radii of the line and short of the loop's
     plane, the wall inside the fit (folds) weighing ROUND_CAP_INSIDE as at a round cap. The
     rim does not enter the fit: where an oblique cut leaves the sections near it open arcs
     (a fold across an arc pulls its circle aside), the wall on the far side of the cut
