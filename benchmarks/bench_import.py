@@ -74,7 +74,8 @@ def real_time_factor(scenario, seconds: float) -> float:
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from tube_set import TUBES, centreline_errors, make_tube, random_spec  # noqa: E402
+from tube_set import (TUBES, CannotMake, centreline_errors, make_tube,  # noqa: E402
+                      random_spec)
 
 
 def sweep(count: int, first_seed: int = 0, csv_path: str | None = None) -> None:
@@ -86,10 +87,11 @@ def sweep(count: int, first_seed: int = 0, csv_path: str | None = None) -> None:
             spec = random_spec(seed)
             try:
                 tube = make_tube(spec)
-            except (RuntimeError, ValueError) as e:   # a shape the set cannot make
-                why = str(e)
-                skipped["bent" if "bends to" in why else "cut" if "cut at end" in why
-                        else "other"] += 1
+            except CannotMake as e:
+                skipped[e.reason] += 1
+                continue
+            except RuntimeError:   # no curve clear of itself
+                skipped["other"] += 1
                 continue
             path = tube.write(folder)
             start = time.perf_counter()

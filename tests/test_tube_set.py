@@ -7,21 +7,13 @@ plane; 270047, a line of the wall wholly ahead of its plane; 270022, a pole that
 
 import numpy as np
 import pytest
-import trimesh
-
 from tube_set import make_tube, random_spec
 
 
 def _rims(tube):
     """The mesh's boundary loops in metres, each as its vertices."""
-    mesh = tube.mesh
-    edges = mesh.edges_sorted
-    unique, count = np.unique(edges, axis=0, return_counts=True)
-    boundary = unique[count == 1]
-    graph = trimesh.graph.nx.Graph()
-    graph.add_edges_from(boundary)
-    return [mesh.vertices[list(part)] * tube.scale
-            for part in trimesh.graph.nx.connected_components(graph)]
+    outline = tube.mesh.outline()
+    return [outline.vertices[loop.points] * tube.scale for loop in outline.entities]
 
 
 @pytest.mark.parametrize("seed", [270035, 270093])

@@ -233,6 +233,16 @@ OBLIQUE_RAMP = 0.06
 """Over how much of the tube an oblique end's tilt fades in (m): the rings stay apart."""
 
 
+class CannotMake(ValueError):
+    """A draw the set cannot make as specified; `reason` says why ("bent": tighter than its
+    radius allows, "cut": an oblique cut a bend before the end takes off a line of the
+    wall)."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
 def _crescent(theta):
     """How deep a haustral fold is around the section: 0 at the three bands (theta = 0,
     2 pi / 3, 4 pi / 3), 1 midway between them."""
@@ -286,9 +296,10 @@ class _Surface:
         change = ahead[1:] != ahead[:-1]                     # (grid - 1, theta)
         if not change.any(axis=0).all():
             missed = float(np.degrees(theta[~change.any(axis=0)][0]))
-            raise ValueError(f"{self.spec.name}: its {self.spec.oblique[end]:.0f} degree cut "
-                             f"at end {end} misses the wall's line at {missed:.0f} degrees "
-                             f"(a bend before the end takes it ahead of the plane)")
+            raise CannotMake("cut", f"{self.spec.name}: its {self.spec.oblique[end]:.0f} "
+                             f"degree cut at end {end} misses the wall's line at "
+                             f"{missed:.0f} degrees (a bend before the end takes it ahead "
+                             f"of the plane)")
         middle = 0.5 * (grid[1:] + grid[:-1])
         nearest = np.argmin(np.where(change, np.abs(middle - L_end)[:, None], np.inf), axis=0)
         lo, hi = grid[nearest], grid[nearest + 1]
@@ -585,8 +596,8 @@ def make_tube(spec: TubeSpec) -> Tube:
     curvature = np.linalg.norm(np.gradient(tangent, s, axis=0), axis=1)
     worst = float(np.max(curvature * radius(s) * (1 + spec.ellipticity)))
     if worst > MAX_BEND_SHARE:
-        raise ValueError(f"{spec.name}: bends to {worst:.2f} of its radius of curvature "
-                         f"(at most {MAX_BEND_SHARE})")
+        raise CannotMake("bent", f"{spec.name}: bends to {worst:.2f} of its radius of "
+                         f"curvature (at most {MAX_BEND_SHARE})")
     surface = _Surface(spec, s, points, tangent, m1, m2, radius)
     for end, degrees in enumerate(spec.oblique):    # a cut the tube can have, or ValueError
         if degrees and spec.ends[end] == "open":

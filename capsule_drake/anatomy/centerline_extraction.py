@@ -1676,11 +1676,11 @@ def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
     """An open end's last OPEN_FIT_LENGTH made again from the wall there fitted as a tube:
     circles normal to an axis whose offsets from the stretch's chord are cubics along it
     (quadratics where the cut is oblique, `_square_cut`), with a radius that is a cubic (a
-    flare by half over the last 4 cm is one), by a robust least squares on the faces within two radii of the line and short of the loop's
-    plane, the wall inside the fit (folds) weighing ROUND_CAP_INSIDE as at a round cap. The
-    rim does not enter the fit: where an oblique cut leaves the sections near it open arcs
-    (a fold across an arc pulls its circle aside), the wall on the far side of the cut
-    still bounds the tube. The line is kept up to a third of the stretch in, then follows
+    flare by half over the last 4 cm is one), by a robust least squares on the faces within
+    two radii of the line and short of the loop's plane, the wall inside the fit (folds)
+    weighing ROUND_CAP_INSIDE as at a round cap. The rim does not enter the fit: where an
+    oblique cut leaves the sections near it open arcs (a fold across an arc pulls its circle
+    aside), the wall on the far side of the cut still bounds the tube. The line is kept up to a third of the stretch in, then follows
     the fitted axis to the plane of the end's loop (`_plane_crossing`). The line is
     returned as it is if it is shorter than three stretches, if it turns by more than
     OPEN_FIT_TURN over the stretch, if fewer than 200 faces are near, or if the axis does
