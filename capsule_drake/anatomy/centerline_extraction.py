@@ -80,8 +80,7 @@
    tell a cubic offset from the radius; folds inside the fit weigh a tenth); the line
    follows that axis from a third of the stretch in to the loop's plane, again only if its
    end is nearer its sections' centres (at an oblique cut, not farther by more than half
-   again, its arcs being biased, or whatever its residual if the fitted tube's median gap
-   to the wall is under 0.1 mm). Arcs cut open by a rim, with a fold across them, pull their
+   again: its arcs are biased). Arcs cut open by a rim, with a fold across them, pull their
    circles aside; the fit uses the whole wall and no rim. Not where the line turns by more
    than 40 degrees over the stretch (a cubic across the chord does not follow it). A flat cap's
    last stretch is made the same way from the wall before its disc (`_fitted_cap_end`),
@@ -1556,14 +1555,6 @@ kept unless its `end_residual` exceeds the line's by more than this factor: the 
 there are open arcs that a fold pulls aside, so the residual is biased. Chosen on the open
 ends of seeds 260000 and 270000 (any factor from 1.1 to 2 gave the same: 7 ends over 2 mm
 -> 5), scored on fresh seeds."""
-OBLIQUE_FIT_CLOSE = 1e-4
-"""[m] At an oblique open end the fitted end is kept whatever its `end_residual` if the
-fit's median gap to the wall (weighted as fitted) is below this: a tube that close to the
-wall is the wall's axis, where arcs beside a fold can make the residual of a right end
-two or three times the line's (seeds 260067, 280015, 280025: 2.0, 2.5, 3.7 mm -> 0.9,
-0.3, 0.2 with residual ratios 2.6, 1.7, 1.9 and median gaps of 0.03-0.07 mm). The fit
-260030's start made 7 mm astray had 0.21 mm. Any value from 0.07 to 0.2 mm gave the same
-on the open ends of seeds 260000-280000; scored on fresh seeds."""
 CAP_FIT_TURN = 60.0
 """The same for a flat cap's fit, which is checked against the disc's centroid as well
 (CAP_FIT_AGREE): a bend of 40 degrees before the cap turned seed 260024's line by 54."""
@@ -1611,8 +1602,7 @@ def _fitted_axis(sections: MeshSections, line, radius, q, normal, clear: float =
     stretch's chord from a third of the way in, or None. Only faces on the line's side of the
     plane through `q` normal to `normal`, and at least `clear` [m] from it, are fitted; None
     if the line turns by more than `max_turn` degrees over the stretch. The axis's offsets
-    from the chord are polynomials of `degree` (2 or 3); the radius is a cubic. The curve's
-    `median_gap` is the fit's median absolute residual [m] (weighted as fitted)."""
+    from the chord are polynomials of `degree` (2 or 3); the radius is a cubic."""
     from scipy.optimize import least_squares
 
     s = _arc(line)
@@ -1669,7 +1659,6 @@ def _fitted_axis(sections: MeshSections, line, radius, q, normal, clear: float =
         d = axis(zeta + h) - axis(zeta - h)
         return axis(zeta), d / np.linalg.norm(d)
 
-    curve.median_gap = float(np.median(np.abs(fit.fun)))
     return curve
 
 
@@ -1697,8 +1686,9 @@ def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
 
     The made line is returned if its end is nearer its own sections' centres than the
     line's (`end_residual`); at an oblique cut, if it is not farther by more than
-    OBLIQUE_FIT_SLACK, or if the fit's median gap to the wall is below OBLIQUE_FIT_CLOSE.
-    Otherwise the line is returned as it is, and so if it is shorter than three stretches,
+    OBLIQUE_FIT_SLACK. (Keeping the fit whenever its median gap to the wall was under
+    0.1 mm, whatever its residual, mended three ends of seeds 260000-280000 and made
+    three of fresh seeds 290000 worse, none better.) Otherwise the line is returned as it is, and so if it is shorter than three stretches,
     if it turns by more than OPEN_FIT_TURN over the stretch, if fewer than 200 faces are
     near, or if the axis does not cross the loop near its centre."""
     line = np.asarray(line)
@@ -1716,8 +1706,6 @@ def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
     if u_end is None:
         return line
     made = _along_axis(line, curve, u_end, step)
-    if not square and curve.median_gap < OBLIQUE_FIT_CLOSE:
-        return made
     slack = 1.0 if square else OBLIQUE_FIT_SLACK
     if end_residual(sections, made, radius) < slack * end_residual(sections, line, radius):
         return made
