@@ -58,14 +58,14 @@
    hemisphere and, behind it, a tube whose radius changes linearly, by a robust least
    squares on the faces near the end in which the wall inside the fit (folds) weighs a
    tenth, from several starting axes, kept only if rays from its centre meet the wall all
-   round; fitted with 4, 8 and 12 mm of tube, the fit whose pole agrees best with the
-   others' is kept (`_capsule_end`). Where the line's end is 1.5 mm or more from its pole
-   (a march that left a flared or bent cap astray: inside a bulb any line through its
-   middle is a line of section centres), the line is taken to where the fitted tube
-   begins, joined to it by a cubic over 3 cm, and along the fitted axis to the pole,
-   unless that end leaves its own sections' centres by a tenth of the radius more than the
-   line's did (`end_residual`; a voxelised flat cap, blunt enough to be called round, is
-   fitted as a larger sphere whose pole sits in the corner).
+   round; fitted with 4, 8 and 12 mm of tube, the fit whose made end is nearest its own
+   sections' centres is kept (`_capsule_end`; `end_residual`). Where the line's end is
+   1.5 mm or more from its pole (a march that left a flared or bent cap astray: inside a
+   bulb any line through its middle is a line of section centres), the line is taken to
+   where the fitted tube begins, joined to it by a cubic over 3 cm, and along the fitted
+   axis to the pole, unless that end leaves its own sections' centres by a tenth of the
+   radius more than the line's did (`end_residual`; a voxelised flat cap, blunt enough to
+   be called round, is fitted as a larger sphere whose pole sits in the corner).
 7. An open end's last 5 cm are settled on their own sections (`_settle_open_end`): each
    point to the centre of its section (a closed loop, or an arc of at least 180 degrees
    where the rim cuts it), a cubic through those centres leaving the line behind along
@@ -1688,9 +1688,10 @@ def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
     line's (`end_residual`); at an oblique cut, if it is not farther by more than
     OBLIQUE_FIT_SLACK. (Keeping the fit whenever its median gap to the wall was under
     0.1 mm, whatever its residual, mended three ends of seeds 260000-280000 and made
-    three of fresh seeds 290000 worse, none better.) Otherwise the line is returned as it is, and so if it is shorter than three stretches,
-    if it turns by more than OPEN_FIT_TURN over the stretch, if fewer than 200 faces are
-    near, or if the axis does not cross the loop near its centre."""
+    three of fresh seeds 290000 worse, none better.) Otherwise the line is returned as it
+    is, and so if it is shorter than three stretches, if it turns by more than
+    OPEN_FIT_TURN over the stretch, if fewer than 200 faces are near, or if the axis does
+    not cross the loop near its centre."""
     line = np.asarray(line)
     end = line[-1]
     ring = min(loops, key=lambda r: np.linalg.norm(r.mean(axis=0) - end), default=None)
@@ -1823,7 +1824,11 @@ FIT_ROUND_CAPS = True
 module's docstring; off, the march's end is kept)."""
 ROUND_CAP_BODIES = (0.004, 0.008, 0.012)
 """Lengths [m] of tube behind a round cap's hemisphere fitted with it (`_fit_round_cap`),
-one fit each; the fit whose pole is nearest the others' is kept (`_capsule_end`)."""
+one fit each; the fit whose made end is nearest its sections' centres is kept
+(`_capsule_end`). Against the fit whose pole was nearest the others', on the round-cap
+passes of seeds 260000, 270000 and 290000: 8 ends over 2 mm -> 4 (260034 6.1 -> 0.25,
+270036 4.5 -> 1.7, 290053 9.9 -> 0.2, 290056 5.4 -> 0.5 mm; the wrong way 270084 0.3 ->
+9.0, 260062 2.2 -> 2.9); scored on fresh seeds."""
 ROUND_CAP_INSIDE = 0.1
 """Weight of the wall standing inside the fitted capsule end (folds) against the wall on
 or outside it: the fit follows the wall's outer envelope, as the sections' centres do."""
@@ -1974,42 +1979,46 @@ def _closed_around(faces, c, a, r) -> bool:
     return True
 
 
-def _capsule_end(sections: MeshSections, line, radius: float, widest: float = 0.0):
+def _capsule_end(sections: MeshSections, line, radius: float, widest: float = 0.0,
+                 step: float = 0.005):
     """The round cap's end fitted with each body length of ROUND_CAP_BODIES
-    (`_fit_round_cap`; the folds, a flare's curve or a ring fold across the body can tilt
-    one fit's axis while its cost stays low): (centre, axis, r, body) of the fit whose
-    pole is nearest the other fits' poles (summed), or None if no fit."""
-    fits = [(fit, body) for body in ROUND_CAP_BODIES
-            if (fit := _fit_round_cap(sections, line, radius, body, widest=widest))
-            is not None]
-    if not fits:
-        return None
-    poles = np.array([c + r * a for (c, a, r, _), _ in fits])
-    spread = np.linalg.norm(poles[:, None] - poles[None], axis=2).sum(axis=1)
-    (c, a, r, _), body = fits[int(np.argmin(spread))]
-    return c, a, r, body
+    (`_fit_round_cap`): (centre, axis, r, body) of the fit whose made end (`_along_cap`)
+    is nearest its own sections' centres (`end_residual`), or None if no fit. (A flare's
+    cone, a bend or folds behind a bulb leave its axis loosely held: one fit of the three
+    is often right and the other two tilt alike, so the fit whose pole is nearest the
+    others' was often a wrong one.)"""
+    best = _best_cap(sections, line, radius, widest, step)
+    return None if best is None else best[0]
 
 
-def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.03,
-                   widest: float = 0.0):
-    """A round cap's end made from its fitted capsule end (`_fit_round_cap`): the line
-    up to where the fitted body begins, then along the fitted axis to the pole; the last
-    `blend` [m] before the body made again as the cubic Hermite curve from the line's
-    point and tangent there to the body's start along the axis (the line behind a cap
-    found astray leans toward it), resampled every `step`. `line` unchanged if no fit,
-    or if the made end is ROUND_CAP_SECTIONS radii or more further from its own sections'
-    centres than the line's (`end_residual`)."""
+def _best_cap(sections: MeshSections, line, radius, widest, step, blend: float = 0.03):
+    """((centre, axis, r, body), made line) of `_capsule_end`'s choice, or None."""
     line = np.asarray(line)
-    fit = _capsule_end(sections, line, radius, widest)
-    if fit is None:
-        return line
-    c, a, r, body = fit
-    if np.linalg.norm(line[-1] - (c + r * a)) < ROUND_CAP_AGREE:
-        return line
+    made = []
+    for body in ROUND_CAP_BODIES:
+        fit = _fit_round_cap(sections, line, radius, body, widest=widest)
+        if fit is None:
+            continue
+        c, a, r, _ = fit
+        end = _along_cap(line, c, a, r, body, step, blend)
+        if end is not None:
+            made.append(((c, a, r, body), end, end_residual(sections, end, radius)))
+    if not made:
+        return None
+    fit, end, _ = min(made, key=lambda m: m[2])
+    return fit, end
+
+
+def _along_cap(line, c, a, r, body, step, blend):
+    """The line up to where a fitted cap's body begins, then along its axis to the pole;
+    the last `blend` [m] before the body made again as the cubic Hermite curve from the
+    line's point and tangent there to the body's start along the axis (the line behind a
+    cap found astray leans toward it), resampled every `step`. None if fewer than 5 points
+    of the line lie behind the body."""
     z = (line - c) @ a
     keep = _before(line, z < -body)
     if len(keep) < 5:
-        return line
+        return None
     start = c - body * a
     s = _arc(keep)
     head = keep[s <= s[-1] - blend] if s[-1] > blend + 5 * step else keep[:2]
@@ -2021,7 +2030,22 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
                (-2 * h ** 3 + 3 * h ** 2) * start + (h ** 3 - h ** 2) * gap * a)
     ray = c + np.arange(-body, r + 1e-9, step)[:, None] * a
     ray = np.vstack([ray, c + r * a]) if np.linalg.norm(ray[-1] - (c + r * a)) > 1e-6 else ray
-    made = _resample(np.vstack([head, hermite, ray]), step, smoothing=1e-12)
+    return _resample(np.vstack([head, hermite, ray]), step, smoothing=1e-12)
+
+
+def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.03,
+                   widest: float = 0.0):
+    """A round cap's end made from its fitted capsule end (`_capsule_end`, `_along_cap`).
+    `line` unchanged if no fit, if the line's end is within ROUND_CAP_AGREE of the fitted
+    pole, or if the made end is ROUND_CAP_SECTIONS radii or more further from its own
+    sections' centres than the line's (`end_residual`)."""
+    line = np.asarray(line)
+    best = _best_cap(sections, line, radius, widest, step, blend)
+    if best is None:
+        return line
+    (c, a, r, _), made = best
+    if np.linalg.norm(line[-1] - (c + r * a)) < ROUND_CAP_AGREE:
+        return line
     # Kept only if its sections still centre it (`end_residual`): a blunt cap fitted as a
     # larger sphere puts the pole in the corner, where the sections tilt away by millimetres.
     if end_residual(sections, made, radius) > \
