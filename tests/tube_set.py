@@ -599,7 +599,7 @@ def make_tube(spec: TubeSpec) -> Tube:
         raise CannotMake("bent", f"{spec.name}: bends to {worst:.2f} of its radius of "
                          f"curvature (at most {MAX_BEND_SHARE})")
     surface = _Surface(spec, s, points, tangent, m1, m2, radius)
-    for end, degrees in enumerate(spec.oblique):    # a cut the tube can have, or ValueError
+    for end, degrees in enumerate(spec.oblique):    # a cut the tube can have, or CannotMake
         if degrees and spec.ends[end] == "open":
             surface._cut(end, np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False))
     area = 2 * np.pi * float(np.mean(radius(s))) * (surface.u1 - surface.u0)

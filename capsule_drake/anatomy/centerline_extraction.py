@@ -1645,9 +1645,9 @@ def _fitted_axis(sections: MeshSections, line, radius, q, normal, clear: float =
 
     y0 = np.zeros(len(free))
     y0[-4] = r0
-    fit = least_squares(lambda y: _open_tube_residuals(full(y), faces, weights, ROUND_CAP_INSIDE),
-                        y0, loss="soft_l1", f_scale=5e-4)
-    x = full(fit.x)
+    y = least_squares(lambda y: _open_tube_residuals(full(y), faces, weights, ROUND_CAP_INSIDE),
+                      y0, loss="soft_l1", f_scale=5e-4).x
+    x = full(y)
     poly = np.polynomial.polynomial
 
     def axis(zeta):
@@ -1686,12 +1686,10 @@ def _fitted_open_end(sections: MeshSections, line, radius, step, loops):
 
     The made line is returned if its end is nearer its own sections' centres than the
     line's (`end_residual`); at an oblique cut, if it is not farther by more than
-    OBLIQUE_FIT_SLACK. (Keeping the fit whenever its median gap to the wall was under
-    0.1 mm, whatever its residual, mended three ends of seeds 260000-280000 and made
-    three of fresh seeds 290000 worse, none better.) Otherwise the line is returned as it
-    is, and so if it is shorter than three stretches, if it turns by more than
-    OPEN_FIT_TURN over the stretch, if fewer than 200 faces are near, or if the axis does
-    not cross the loop near its centre."""
+    OBLIQUE_FIT_SLACK. Otherwise the line is returned as it is, and so if it is shorter
+    than three stretches, if it turns by more than OPEN_FIT_TURN over the stretch, if
+    fewer than 200 faces are near, or if the axis does not cross the loop near its
+    centre."""
     line = np.asarray(line)
     end = line[-1]
     ring = min(loops, key=lambda r: np.linalg.norm(r.mean(axis=0) - end), default=None)
@@ -1992,7 +1990,8 @@ def _capsule_end(sections: MeshSections, line, radius: float, widest: float = 0.
 
 
 def _best_cap(sections: MeshSections, line, radius, widest, step, blend: float = 0.03):
-    """((centre, axis, r, body), made line) of `_capsule_end`'s choice, or None."""
+    """((centre, axis, r, body), made line, its `end_residual`) of `_capsule_end`'s
+    choice, or None."""
     line = np.asarray(line)
     made = []
     for body in ROUND_CAP_BODIES:
@@ -2005,8 +2004,7 @@ def _best_cap(sections: MeshSections, line, radius, widest, step, blend: float =
             made.append(((c, a, r, body), end, end_residual(sections, end, radius)))
     if not made:
         return None
-    fit, end, _ = min(made, key=lambda m: m[2])
-    return fit, end
+    return min(made, key=lambda m: m[2])
 
 
 def _along_cap(line, c, a, r, body, step, blend):
@@ -2043,12 +2041,11 @@ def _round_cap_end(sections: MeshSections, line, radius, step, blend: float = 0.
     best = _best_cap(sections, line, radius, widest, step, blend)
     if best is None:
         return line
-    (c, a, r, _), made = best
+    (c, a, r, _), made, residual = best
     if np.linalg.norm(line[-1] - (c + r * a)) < ROUND_CAP_AGREE:
         return line
     # Kept only if its sections still centre it (`end_residual`): a blunt cap fitted as a
     # larger sphere puts the pole in the corner, where the sections tilt away by millimetres.
-    if end_residual(sections, made, radius) > \
-            end_residual(sections, line, radius) + ROUND_CAP_SECTIONS * radius:
+    if residual > end_residual(sections, line, radius) + ROUND_CAP_SECTIONS * radius:
         return line
     return made
