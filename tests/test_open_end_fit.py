@@ -171,3 +171,35 @@ def test_a_flat_cap_fit_that_misses_the_disc_centre_is_not_taken(monkeypatch):
     line[:, 0] *= np.clip((LENGTH - line[:, 2]) / 0.015, 0.0, 1.0)
     monkeypatch.setattr(ce, "CAP_FIT_AGREE", 0.0)   # (the fit meets it within 4 um)
     assert ce._fitted_cap_end(sections, line, RADIUS, 0.005) is line
+
+
+@pytest.mark.parametrize("seed, bend", [(0, 40.0),
+                                        pytest.param(1, -40.0, marks=pytest.mark.slow)])
+def test_a_line_curling_past_a_bend_before_an_oblique_cut_is_taken_back(seed, bend):
+    # A tube of the independent set (tests/tube_set.py) that turns by `bend` degrees 1-5 cm
+    # before its far end and is straight after it, cut 35 degrees obliquely there; the line
+    # given is the true one to 2 cm before the end, then carried on along the bend's
+    # curvature (a curl past the bend, 4-5 mm off at its end). The fit's axis (its offsets
+    # quadratics at an oblique cut) straightens it: measured 0.17 and 0.05 mm at the end.
+    from scipy.spatial import cKDTree
+
+    from tube_set import TubeSpec, densify, make_tube
+
+    tube = make_tube(TubeSpec("bent_oblique", seed, 0.3, (0.018, 0.022), oblique=(0.0, 35.0),
+                              end_bend=(0.0, bend), ends=("open", "open"), mesh="rings",
+                              faces=10000))
+    mesh = trimesh.Trimesh(tube.mesh.vertices, tube.mesh.faces, process=False)
+    loops = [mesh.vertices[loop] for loop in open_end_loops(mesh)]
+    truth = tube.truth
+    s = ce._arc(truth)
+    keep = truth[s <= s[-1] - 0.02][::50]     # every 5 mm
+    t = ce._tangents(keep)
+    curvature = (t[-1] - t[-5]) / (ce._arc(keep)[-1] - ce._arc(keep)[-5])
+    u = np.arange(0.005, 0.0201, 0.005)[:, None]
+    line = np.vstack([keep, keep[-1] + u * t[-1] + 0.5 * u * u * curvature])
+    assert np.linalg.norm(line[-1] - truth[-1]) > 0.004
+    made = ce._fitted_open_end(ce.MeshSections(mesh), line, RADIUS, 0.005, loops)
+    assert made is not line
+    assert np.linalg.norm(made[-1] - truth[-1]) < 0.0005
+    tail = made[ce._arc(made) >= ce._arc(made)[-1] - 0.05]
+    assert cKDTree(densify(truth)).query(tail)[0].max() < 0.0005
