@@ -8,10 +8,11 @@ import functools
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 
 from capsule_drake.anatomy import centerline_extraction as ce
 from capsule_drake.anatomy.importer import open_end_loops
-from tube_set import ring_faces
+from tube_set import TubeSpec, densify, make_tube, ring_faces
 
 RADIUS = 0.02
 LENGTH = 0.3
@@ -181,10 +182,6 @@ def test_a_line_curling_past_a_bend_before_an_oblique_cut_is_taken_back(seed, be
     # given is the true one to 2 cm before the end, then carried on along the bend's
     # curvature (a curl past the bend, 4-5 mm off at its end). The fit's axis (its offsets
     # quadratics at an oblique cut) straightens it: measured 0.17 and 0.05 mm at the end.
-    from scipy.spatial import cKDTree
-
-    from tube_set import TubeSpec, densify, make_tube
-
     tube = make_tube(TubeSpec("bent_oblique", seed, 0.3, (0.018, 0.022), oblique=(0.0, 35.0),
                               end_bend=(0.0, bend), ends=("open", "open"), mesh="rings",
                               faces=10000))
