@@ -338,6 +338,53 @@ def test_the_near_wall_filter_keeps_every_point_beyond_the_wall():
     assert beyond > 1000          # the sample did press many cells into the wall
 
 
+def _near_wall_numpy(table, points, station, reach, slack):
+    # WallTable.near_wall's rule written with NumPy arrays (its compiled form's second route).
+    from capsule_drake.physics.contact.foundation import CAP_REACH
+    lowest, bend = table._filter(reach)
+    frame = table.frames[station]
+    local = (points - frame[0]) @ frame[1:].T
+    sector = (np.arctan2(local[:, 2], local[:, 1]) / table.dtheta).astype(np.intp) % table.around
+    along = np.abs(local[:, 0]) + slack
+    near = (np.hypot(local[:, 1], local[:, 2]) + slack + bend[station] * along**2
+            > lowest[station][sector])
+    for end, sign in ((0, -1.0), (table.count - 1, 1.0)):
+        if abs(station - end) * table.step <= CAP_REACH:
+            near |= sign * ((points - table.frames[end, 0]) @ table.frames[end, 1]) > -1e-3 - slack
+    return np.flatnonzero(near)
+
+
+def test_the_compiled_near_wall_filter_and_placement_match_numpy():
+    from capsule_drake.anatomy import load_colon
+    from capsule_drake.physics.contact import foundation_kernels as kernels
+    from capsule_drake.physics.contact.foundation import capsule_probes
+    from capsule_drake.scenario import load_scenario
+    model = capsule_model()
+    colon = load_colon(load_scenario(name="Default").colon)[0]
+    table = WallTable(colon)
+    cells, _, _ = capsule_probes(model.radius, model.length)
+    reach = float(np.linalg.norm(cells, axis=1).max())
+    rng = np.random.default_rng(5)
+    picked = 0
+    for k in range(200):
+        s0 = (rng.uniform(0.0, 0.05) if k % 4 == 0 else
+              colon.centerline.length - rng.uniform(0.0, 0.05) if k % 4 == 1 else
+              rng.uniform(0.0, colon.centerline.length))
+        centre = colon.centerline.point_at(s0) + rng.normal(scale=0.01, size=3)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        R *= np.sign(np.linalg.det(R))
+        offsets, points = kernels.place_cells(cells, R, centre)
+        np.testing.assert_allclose(offsets, cells @ R.T, atol=1e-15)
+        np.testing.assert_allclose(points, cells @ R.T + centre, atol=1e-15)
+        station = table.follow(centre, table.nearest(centre))
+        slack = rng.choice([0.0, 3e-4, 8e-4])
+        near = table.near_wall(points, station, reach, slack)
+        np.testing.assert_array_equal(near, _near_wall_numpy(table, points, station, reach,
+                                                             slack))
+        picked += len(near)
+    assert 0 < picked < 200 * len(cells)     # some cells picked, not all
+
+
 # --- the compiled kernels (foundation_kernels.py), each against a second route --------------
 
 def _cells(count, seed):

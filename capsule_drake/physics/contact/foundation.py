@@ -166,19 +166,12 @@ class WallTable:
         centreline (kappa u^2 / 2 for the sharpest curvature kappa there) and 1 mm. With a
         `slack` (m), every point that may lie beyond it after moving by up to that much."""
         lowest, bend = self._filter(reach)
-        frame = self.frames[station]
-        local = (points - frame[0]) @ frame[1:].T
-        sector = (np.arctan2(local[:, 2], local[:, 1]) * (1.0 / self.dtheta)).astype(np.intp)
-        sector %= self.around
-        along = np.abs(local[:, 0]) + slack
-        near = (np.hypot(local[:, 1], local[:, 2]) + (slack + bend[station] * along * along)
-                > lowest[station].take(sector))
-        # Near an end, every point past (or within 1 mm of) the cap's plane.
-        for end, sign in ((0, -1.0), (self.count - 1, 1.0)):
-            if abs(station - end) * self.step <= CAP_REACH:
-                near |= (sign * ((points - self.frames[end, 0]) @ self.frames[end, 1])
-                         > -1e-3 - slack)
-        return np.flatnonzero(near)
+        last = self.count - 1
+        return kernels.near_wall(
+            np.ascontiguousarray(points, dtype=float), self.frames[station], lowest[station],
+            float(bend[station]), float(slack), self.dtheta, self.around,
+            station * self.step <= CAP_REACH, (last - station) * self.step <= CAP_REACH,
+            self.frames[0], self.frames[last])
 
     def _filter(self, reach: float):
         """near_wall's thresholds for points within `reach` of a station, per station
@@ -389,8 +382,7 @@ class FoundationContact(LeafSystem):
         R = _rotation(w * scale, i * scale, j * scale, k * scale)
         p_WB = x[4:7]
         table = self._table
-        offsets = self._p_B @ R.T
-        points = offsets + p_WB
+        offsets, points = kernels.place_cells(self._p_B, R, p_WB)
         station = table.follow(p_WB, hint)
         near = self._near(points, station, p_WB, R)
         if near.size == 0:                    # clear of the wall: nothing to look up

@@ -45,6 +45,65 @@ def follow_station(steps, p, station, reach) -> int:
 
 
 @njit(cache=True)
+def place_cells(p_B, R, p_WB):
+    """The cells' centres placed at the capsule's pose: (their offsets from the body origin
+    (N, 3, world), their world points (N, 3)), offsets = R p_B."""
+    count = p_B.shape[0]
+    offsets = np.empty((count, 3))
+    points = np.empty((count, 3))
+    for n in range(count):
+        x, y, z = p_B[n, 0], p_B[n, 1], p_B[n, 2]
+        for a in range(3):
+            o = R[a, 0] * x + R[a, 1] * y + R[a, 2] * z
+            offsets[n, a] = o
+            points[n, a] = o + p_WB[a]
+    return offsets, points
+
+
+@njit(cache=True)
+def near_wall(points, frame, lowest, bend, slack, dtheta, around, start_cap, end_cap,
+              first, last):
+    """Indices of the points (N, 3) that may lie beyond the mucosa (WallTable.near_wall):
+    measured in the station's `frame` (4, 3: point, tangent, normal, binormal), the distance
+    from the centreline plus `slack` and what the bend `bend` (half the sharpest curvature)
+    makes of the offset along it, against `lowest` (K,: the narrowest radius per sector);
+    with `start_cap` / `end_cap`, also every point past (or within 1 mm of) that end's
+    plane (`first`, `last`: the ends' frames)."""
+    count = points.shape[0]
+    out = np.empty(count, dtype=np.intp)
+    m = 0
+    inv = 1.0 / dtheta
+    low, high = lowest.min(), lowest.max()   # the sector is read only between the two
+    for n in range(count):
+        dx = points[n, 0] - frame[0, 0]
+        dy = points[n, 1] - frame[0, 1]
+        dz = points[n, 2] - frame[0, 2]
+        along = dx * frame[1, 0] + dy * frame[1, 1] + dz * frame[1, 2]
+        u = dx * frame[2, 0] + dy * frame[2, 1] + dz * frame[2, 2]
+        v = dx * frame[3, 0] + dy * frame[3, 1] + dz * frame[3, 2]
+        a = abs(along) + slack
+        reach = math.hypot(u, v) + (slack + bend * a * a)
+        if reach <= low:
+            near = False
+        elif reach > high:
+            near = True
+        else:
+            near = reach > lowest[int(math.atan2(v, u) * inv) % around]
+        if not near and start_cap:
+            near = -((points[n, 0] - first[0, 0]) * first[1, 0]
+                     + (points[n, 1] - first[0, 1]) * first[1, 1]
+                     + (points[n, 2] - first[0, 2]) * first[1, 2]) > -1e-3 - slack
+        if not near and end_cap:
+            near = ((points[n, 0] - last[0, 0]) * last[1, 0]
+                    + (points[n, 1] - last[0, 1]) * last[1, 1]
+                    + (points[n, 2] - last[0, 2]) * last[1, 2]) > -1e-3 - slack
+        if near:
+            out[m] = n
+            m += 1
+    return out[:m]
+
+
+@njit(cache=True)
 def wall_depth(points, station, refinements, steps, frames, flat, step, dtheta, around,
                depth, inward):
     """Each point's depth beyond the mucosa and the wall's inward normal there, into
