@@ -281,6 +281,33 @@ def test_excursion_is_the_distance_to_the_wall(colon, visual):
     assert np.percentile(radial, 99) > 1.5 * np.percentile(error, 99)
 
 
+def test_excursion_beyond_a_limit_flags_the_same_points(colon):
+    # The guard's cheap form (excursion(beyond=...): the slope divided out only where the
+    # radial excursion passes the limit) against the full one, on points 0-6 mm either side
+    # of the wall and past both caps.
+    rng = np.random.default_rng(3)
+    cl = colon.centerline
+    s = rng.uniform(0.0, cl.length, 4000)
+    s[:200] = 0.0
+    s[200:400] = cl.length
+    theta = rng.uniform(-np.pi, np.pi, 4000)
+    _, n, b = cl.frame_at(s)
+    rho = colon.wall_radius(s, theta) + rng.uniform(-0.006, 0.006, 4000)
+    points = cl.point_at(s) + rho[:, None] * (np.cos(theta)[:, None] * n
+                                              + np.sin(theta)[:, None] * b)
+    points[:200] -= rng.uniform(0.0, 0.006, 200)[:, None] * cl.tangent_at(0.0)
+    points[200:400] += rng.uniform(0.0, 0.006, 200)[:, None] * cl.tangent_at(cl.length)
+    full = colon.excursion(points)
+    for limit in (0.0005, 0.002, 0.004):
+        cheap = colon.excursion(points, beyond=limit)
+        np.testing.assert_array_equal(cheap > limit, full > limit)
+        past = full > limit
+        assert 50 < past.sum() < 3900
+        np.testing.assert_array_equal(cheap[past], full[past])
+        outside = full > 0.0      # there the radial excursion bounds it from above
+        assert np.all(cheap[outside] >= full[outside] - 1e-15)
+
+
 def test_face_normals_point_into_lumen(colon, visual):
     cl = colon.centerline
     faces = visual.faces

@@ -130,7 +130,7 @@ def check_capsule_in_colon(colon, state: np.ndarray, points_C: np.ndarray,
                                       f"{past * 1000:.1f} mm past it")
     R_WC = rotation_from_quaternion(state[:4])
     points_W = points_C @ R_WC.T + p_WC
-    excursion = colon.excursion(points_W)
+    excursion = colon.excursion(points_W, beyond=max_excursion + wall_allowance)
     worst = int(np.argmax(excursion))
     if excursion[worst] > max_excursion + wall_allowance:
         s_worst = float(centerline.closest(points_W[worst])[0])
