@@ -233,6 +233,33 @@ def test_centerline_npz_round_trip(colon, tmp_path):
     assert loaded.segment_ranges() == colon.centerline.segment_ranges()
 
 
+def test_closest_matches_newton_on_the_scipy_spline(colon):
+    # Centerline.closest is compiled; its second route: the same Newton steps written on
+    # scipy's spline and its derivatives, and the frame from frame_at.
+    cl = colon.centerline
+    rng = np.random.default_rng(0)
+    s0 = rng.uniform(-0.01, cl.length + 0.01, 3000)
+    points = cl.point_at(s0) + rng.normal(scale=0.02, size=(3000, 3))
+    _, idx = cl._tree.query(points)
+    s = cl.s[idx]
+    for _ in range(4):
+        d = cl.point_at(s) - points
+        d1, d2 = cl._dspline(s), cl._ddspline(s)
+        df = np.sum(d1 * d1, axis=1) + np.sum(d * d2, axis=1)
+        s = np.clip(s - np.sum(d * d1, axis=1) / np.where(df > 0.2, df, 1.0), 0.0, cl.length)
+    t, n, b = cl.frame_at(s)
+    d = points - cl.point_at(s)
+    radial = d - np.sum(d * t, axis=1, keepdims=True) * t
+    got = cl.closest(points)
+    np.testing.assert_allclose(got[0], s, atol=1e-12)
+    np.testing.assert_allclose(got[1], np.linalg.norm(radial, axis=1), atol=1e-12)
+    np.testing.assert_allclose(got[2], np.arctan2(np.sum(radial * b, axis=1),
+                                                  np.sum(radial * n, axis=1)), atol=1e-9)
+    assert np.any(got[0] == 0.0) and np.any(got[0] == cl.length)   # both ends reached
+    single = cl.closest(points[0])
+    assert isinstance(single[0], float) and single[0] == got[0][0]
+
+
 def test_excursion(colon, visual):
     cl = colon.centerline
     s = np.linspace(0.01, cl.length - 0.01, 50)
